@@ -1,0 +1,40 @@
+# The verbs users type. Each target creates .venv and installs the project when missing.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+GONIO  := $(VENV)/bin/gonio
+STAMP  := $(VENV)/.installed
+DEMO   := results/demo
+DEMO_RAYS ?= 200000
+
+.PHONY: setup test test-slow demo bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow
+
+demo: $(STAMP)
+	mkdir -p $(DEMO)
+	@for m in plastic metal slab; do \
+	  $(GONIO) simulate configs/examples/$$m.toml --out $(DEMO)/$$m.h5 --rays $(DEMO_RAYS) || exit $$?; \
+	done
+	@echo
+	@for m in plastic metal slab; do $(GONIO) info $(DEMO)/$$m.h5 || exit $$?; echo; done
+	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5"
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

@@ -1,0 +1,345 @@
+"""The single home of the project's microfacet and Fresnel physics.
+
+Every function here is a scalar ``numba.njit`` function (usable from the tracer's
+kernel and from other njit code) unless its name starts with ``np_``, in which
+case it is a vectorised NumPy ufunc built from the scalar function below it.
+
+Conventions (shared by the whole project)
+-----------------------------------------
+* All directions are unit vectors that point **away** from the surface point:
+  ``wi``/``l`` towards where the light comes from, ``wo``/``v`` towards where it goes.
+* Functions work in a **local frame** whose z axis is the macro-surface normal
+  of the side the light arrives from (callers flip z for light arriving from below
+  and rotate x, y into the interface's tangent frame for anisotropic roughness).
+* Roughness is the GGX (Trowbridge-Reitz) ``alpha`` along the local x and y axes,
+  ``(ax, ay)``; isotropic callers pass ``ax == ay``.
+* ``eta`` is always a *relative* index: (index on the far side) / (index on the
+  side of ``wi``). Conductors take the relative complex index ``eta + i kappa``.
+* BSDF values are returned **without** the cosine factor, in 1/sr.
+* Transmission values are **flux based** ("importance" transport with wi = l): the
+  fraction of incident power per unit projected solid angle. The radiance BTDF is
+  this value times ``eta**2`` with ``eta = n_v / n_l`` (radiance is higher in the
+  denser medium; see SLICES.md, transmission convention).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_INV_PI = 1.0 / math.pi
+
+
+# --------------------------------------------------------------------------- Fresnel
+
+@numba.njit(cache=True)
+def fresnel_dielectric(cos_i: float, eta: float) -> float:
+    """Exact unpolarised Fresnel reflectance of a dielectric boundary.
+
+    ``cos_i`` is the cosine between the incident direction and the (micro)normal
+    on the incident side (its absolute value is used). ``eta`` = n_far / n_near.
+    Total internal reflection returns 1. ``eta == 1`` returns 0; otherwise grazing
+    incidence (``cos_i = 0``) returns 1.
+    """
+    if eta == 1.0:
+        return 0.0
+    c = min(abs(cos_i), 1.0)
+    if c == 0.0:
+        return 1.0
+    sin2_t = (1.0 - c * c) / (eta * eta)
+    if sin2_t >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(1.0 - sin2_t)
+    rs = (c - eta * cos_t) / (c + eta * cos_t)
+    rp = (eta * c - cos_t) / (eta * c + cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+@numba.njit(cache=True)
+def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
+    """Exact unpolarised Fresnel reflectance for a complex relative index ``eta + i kappa``.
+
+    Valid for any ``kappa >= 0`` (``kappa = 0`` gives the dielectric result,
+    total internal reflection included). ``cos_i`` as in :func:`fresnel_dielectric`.
+    """
+    if eta == 1.0 and kappa == 0.0:
+        return 0.0
+    c = min(abs(cos_i), 1.0)
+    if c == 0.0:
+        return 1.0
+    s2 = 1.0 - c * c
+    n = complex(eta, kappa)
+    n2 = n * n
+    # w = n cos_t, the root with non-negative imaginary part (decaying wave)
+    w = np.sqrt(n2 - s2)
+    if w.imag < 0.0:
+        w = -w
+    rs = (c - w) / (c + w)
+    rp = (n2 * c - w) / (n2 * c + w)
+    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+
+
+# --------------------------------------------------------------------------- GGX
+
+@numba.njit(cache=True)
+def ggx_d(mx: float, my: float, mz: float, ax: float, ay: float) -> float:
+    """GGX normal distribution D(m) in 1/sr, normalised so that Int D(m) m_z dm = 1.
+
+    ``m`` is a unit microfacet normal in the local frame; 0 below the horizon.
+    Requires ``ax, ay > 0`` (a perfectly smooth interface has no density).
+    """
+    if mz <= 0.0:
+        return 0.0
+    x = mx / ax
+    y = my / ay
+    t = x * x + y * y + mz * mz
+    return _INV_PI / (ax * ay * t * t)
+
+
+@numba.njit(cache=True)
+def ggx_lambda(vx: float, vy: float, vz: float, ax: float, ay: float) -> float:
+    """Smith Lambda(v) of the GGX distribution (Heitz 2014, eq. 86); uses |v_z|."""
+    z2 = vz * vz
+    a2t2 = ax * ax * vx * vx + ay * ay * vy * vy
+    if a2t2 <= 0.0:
+        return 0.0
+    if z2 <= 0.0:
+        return math.inf
+    return 0.5 * (math.sqrt(1.0 + a2t2 / z2) - 1.0)
+
+
+@numba.njit(cache=True)
+def smith_g1(vx: float, vy: float, vz: float, v_dot_m: float, ax: float, ay: float) -> float:
+    """Smith masking G1(v, m) = chi+(v.m / v.n) / (1 + Lambda(v)).
+
+    ``v`` may lie on either side of the macro-surface (transmission); the
+    characteristic function requires v.m and v.n to have the same sign.
+    """
+    if v_dot_m * vz <= 0.0:
+        return 0.0
+    return 1.0 / (1.0 + ggx_lambda(vx, vy, vz, ax, ay))
+
+
+@numba.njit(cache=True)
+def log_beta(a: float, b: float) -> float:
+    """log of the Euler Beta function B(a, b) for a, b > 0."""
+    return math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)
+
+
+@numba.njit(cache=True)
+def smith_g2(lambda_i: float, lambda_o: float, transmission: bool, height_correlated: bool) -> float:
+    """Smith masking-shadowing G2 from the two Lambdas (visibility tests done by the caller).
+
+    Separable: G1(i) G1(o). Height-correlated (Heitz 2014, section 6): reflection
+    1 / (1 + Li + Lo); transmission B(1 + Li, 1 + Lo), the Beta function, because
+    the two directions see the microsurface from opposite sides.
+    """
+    if height_correlated:
+        if math.isinf(lambda_i) or math.isinf(lambda_o):
+            return 0.0
+        if transmission:
+            return math.exp(log_beta(1.0 + lambda_i, 1.0 + lambda_o))
+        return 1.0 / (1.0 + lambda_i + lambda_o)
+    return 1.0 / ((1.0 + lambda_i) * (1.0 + lambda_o))
+
+
+@numba.njit(cache=True)
+def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float, u2: float):
+    """Sample a microfacet normal from the GGX visible-normal distribution (Heitz 2018).
+
+    ``w`` is the direction the light arrives from (local frame, ``w_z > 0``);
+    ``u1, u2`` uniform in [0, 1). The density of the returned normal m is
+    ``G1(w) max(0, w.m) D(m) / w_z``. ``ax = ay = 0`` returns the macro normal.
+    """
+    # stretch
+    hx = ax * wx
+    hy = ay * wy
+    hz = wz
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx *= inv
+    hy *= inv
+    hz *= inv
+    lensq = hx * hx + hy * hy
+    if lensq > 0.0:
+        il = 1.0 / math.sqrt(lensq)
+        t1x = -hy * il
+        t1y = hx * il
+    else:
+        t1x = 1.0
+        t1y = 0.0
+    # T2 = cross(Vh, T1) with T1 = (t1x, t1y, 0)
+    t2x = -hz * t1y
+    t2y = hz * t1x
+    t2z = hx * t1y - hy * t1x
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    p1 = r * math.cos(phi)
+    p2 = r * math.sin(phi)
+    s = 0.5 * (1.0 + hz)
+    p2 = (1.0 - s) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2
+    pz = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
+    nx = p1 * t1x + p2 * t2x + pz * hx
+    ny = p1 * t1y + p2 * t2y + pz * hy
+    nz = p2 * t2z + pz * hz
+    # unstretch
+    mx = ax * nx
+    my = ay * ny
+    mz = max(1e-12, nz)
+    inv = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+    return mx * inv, my * inv, mz * inv
+
+
+@numba.njit(cache=True)
+def vndf_pdf(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, ax: float, ay: float) -> float:
+    """Density (1/sr, over m) of :func:`sample_vndf`: G1(w) max(0, w.m) D(m) / w_z."""
+    wm = wx * mx + wy * my + wz * mz
+    if wm <= 0.0 or wz <= 0.0:
+        return 0.0
+    return smith_g1(wx, wy, wz, wm, ax, ay) * wm * ggx_d(mx, my, mz, ax, ay) / wz
+
+
+# --------------------------------------------------------------------------- geometry
+
+@numba.njit(cache=True)
+def reflect(wx: float, wy: float, wz: float, mx: float, my: float, mz: float):
+    """Mirror ``w`` about ``m``: 2 (w.m) m - w (both pointing away from the surface)."""
+    d = 2.0 * (wx * mx + wy * my + wz * mz)
+    return d * mx - wx, d * my - wy, d * mz - wz
+
+
+@numba.njit(cache=True)
+def refract(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, eta: float):
+    """Refract ``w`` (pointing away, on the side of ``m``) through a facet of normal ``m``.
+
+    ``eta`` = n_far / n_near. Returns ``(x, y, z, ok)``; the refracted direction
+    points away on the far side (``t.m < 0``). ``ok`` is False on total internal reflection.
+    """
+    c = wx * mx + wy * my + wz * mz
+    inv_eta = 1.0 / eta
+    sin2_t = inv_eta * inv_eta * max(0.0, 1.0 - c * c)
+    if sin2_t >= 1.0:
+        return 0.0, 0.0, 0.0, False
+    cos_t = math.sqrt(1.0 - sin2_t)
+    k = inv_eta * c - cos_t
+    return k * mx - inv_eta * wx, k * my - inv_eta * wy, k * mz - inv_eta * wz, True
+
+
+# --------------------------------------------------------------------------- microfacet BSDFs (Walter 2007)
+
+@numba.njit(cache=True)
+def microfacet_reflection(
+    lx: float, ly: float, lz: float, vx: float, vy: float, vz: float,
+    ax: float, ay: float, eta: float, kappa: float, height_correlated: bool,
+) -> float:
+    """GGX microfacet BRDF f(l, v) = F D G / (4 |l.n| |v.n|), without cosine, in 1/sr.
+
+    ``l`` and ``v`` in the local frame, both with positive z for a non-zero value.
+    ``eta + i kappa`` is the relative index below the interface (kappa = 0: dielectric).
+    """
+    if lz <= 0.0 or vz <= 0.0:
+        return 0.0
+    hx = lx + vx
+    hy = ly + vy
+    hz = lz + vz
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx *= inv
+    hy *= inv
+    hz *= inv
+    lh = lx * hx + ly * hy + lz * hz
+    if kappa > 0.0:
+        f = fresnel_conductor(lh, eta, kappa)
+    else:
+        f = fresnel_dielectric(lh, eta)
+    d = ggx_d(hx, hy, hz, ax, ay)
+    li = ggx_lambda(lx, ly, lz, ax, ay)
+    lo = ggx_lambda(vx, vy, vz, ax, ay)
+    g = smith_g2(li, lo, False, height_correlated)
+    return f * d * g / (4.0 * lz * vz)
+
+
+@numba.njit(cache=True)
+def microfacet_transmission(
+    lx: float, ly: float, lz: float, vx: float, vy: float, vz: float,
+    ax: float, ay: float, eta: float, height_correlated: bool,
+) -> float:
+    """GGX microfacet BTDF (Walter 2007) in the flux-based convention, without cosine, in 1/sr.
+
+    ``l`` has positive z (light side, index n_i), ``v`` negative z (far side,
+    index n_o), ``eta = n_o / n_i``. Value:
+    (1 - F) D G |l.h| |v.h| eta^2 / (|l.n| |v.n| (l.h + eta v.h)^2), h = -(l + eta v) normalised
+    towards +z. The radiance BTDF is this value times ``eta**2``.
+    """
+    if lz <= 0.0 or vz >= 0.0 or eta == 1.0:
+        # eta == 1: the interface is invisible, transmission is a Dirac delta
+        return 0.0
+    hx = -(lx + eta * vx)
+    hy = -(ly + eta * vy)
+    hz = -(lz + eta * vz)
+    n = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if n == 0.0:
+        return 0.0
+    if hz < 0.0:
+        n = -n
+    hx /= n
+    hy /= n
+    hz /= n
+    lh = lx * hx + ly * hy + lz * hz
+    vh = vx * hx + vy * hy + vz * hz
+    # refraction geometry: l on the positive side of h, v on the negative side
+    if lh <= 0.0 or vh >= 0.0:
+        return 0.0
+    f = fresnel_dielectric(lh, eta)
+    if f >= 1.0:
+        return 0.0
+    d = ggx_d(hx, hy, hz, ax, ay)
+    li = ggx_lambda(lx, ly, lz, ax, ay)
+    lo = ggx_lambda(vx, vy, vz, ax, ay)
+    g = smith_g2(li, lo, True, height_correlated)
+    denom = lh + eta * vh
+    return (1.0 - f) * d * g * abs(lh * vh) * eta * eta / (lz * abs(vz) * denom * denom)
+
+
+# --------------------------------------------------------------------------- vectorised forms
+
+@numba.vectorize(["float64(float64, float64)"], cache=True)
+def np_fresnel_dielectric(cos_i, eta):
+    """Vectorised :func:`fresnel_dielectric`."""
+    return fresnel_dielectric(cos_i, eta)
+
+
+@numba.vectorize(["float64(float64, float64, float64)"], cache=True)
+def np_fresnel_conductor(cos_i, eta, kappa):
+    """Vectorised :func:`fresnel_conductor`."""
+    return fresnel_conductor(cos_i, eta, kappa)
+
+
+@numba.vectorize(["float64(float64, float64, float64, float64, float64)"], cache=True)
+def np_ggx_d(mx, my, mz, ax, ay):
+    """Vectorised :func:`ggx_d`."""
+    return ggx_d(mx, my, mz, ax, ay)
+
+
+@numba.vectorize(["float64(float64, float64, float64, float64, float64)"], cache=True)
+def np_ggx_lambda(vx, vy, vz, ax, ay):
+    """Vectorised :func:`ggx_lambda`."""
+    return ggx_lambda(vx, vy, vz, ax, ay)
+
+
+@numba.vectorize(
+    ["float64(float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, boolean)"],
+    cache=True,
+)
+def np_microfacet_reflection(lx, ly, lz, vx, vy, vz, ax, ay, eta, kappa, height_correlated):
+    """Vectorised :func:`microfacet_reflection`."""
+    return microfacet_reflection(lx, ly, lz, vx, vy, vz, ax, ay, eta, kappa, height_correlated)
+
+
+@numba.vectorize(
+    ["float64(float64, float64, float64, float64, float64, float64, float64, float64, float64, boolean)"],
+    cache=True,
+)
+def np_microfacet_transmission(lx, ly, lz, vx, vy, vz, ax, ay, eta, height_correlated):
+    """Vectorised :func:`microfacet_transmission`."""
+    return microfacet_transmission(lx, ly, lz, vx, vy, vz, ax, ay, eta, height_correlated)

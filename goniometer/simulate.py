@@ -1,0 +1,315 @@
+"""Orchestration of a goniometer run: settings, chunking, deterministic seeding, results.
+
+Work for one incident direction is split into chunks of ``chunk_rays`` rays. Chunk ``c`` of
+incident index ``m`` draws from the random stream keyed by ``(seed, m, c)`` and fills its own
+histogram; histograms are summed in chunk order. Hence a result is bit-identical whatever
+the number of threads (which only decides how many chunks run at once). Memory is bounded
+by the histograms of one batch of chunks, independent of the number of rays.
+
+Cell values follow SLICES.md: ``fbar = (sum of exit weights in the cell) / (N Omega)`` with
+``N`` the rays sent for that incident direction and ``Omega`` the cell's projected solid
+angle; the standard error comes from the per-cell sum of squared weights.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Mapping
+
+import numba
+import numpy as np
+
+from goniometer import tracer
+from goniometer.slices import SliceGrid, light_direction
+from goniometer.stack import Stack, pack
+
+DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
+MASKING = ("separable", "height-correlated")
+ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
+
+
+class SettingsError(ValueError):
+    """Invalid simulation settings; the message names the field and the allowed range."""
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """What to simulate. ``rays`` is per incident direction.
+
+    ``incident_deg`` are elevations theta_l in [0, 90); ``incident_phi_deg`` azimuths in
+    [0, 360) (default 0 for all). ``chunk_rays`` is part of the determinism contract: the same
+    (seed, chunk_rays) gives the same bits whatever ``threads``.
+    """
+
+    incident_deg: tuple[float, ...] = DEFAULT_INCIDENT
+    incident_phi_deg: tuple[float, ...] | None = None
+    rays: int = 1_000_000
+    parametrization: str = "classic"
+    resolution: tuple[int, int] = (90, 360)
+    seed: int = 1
+    masking: str = "separable"
+    max_order: int = 5
+    threads: int | None = None
+    chunk_rays: int = 1 << 17
+    event_cap: int = tracer.EVENT_CAP
+
+    def __post_init__(self) -> None:
+        inc = tuple(float(x) for x in self.incident_deg)
+        object.__setattr__(self, "incident_deg", inc)
+        phi = self.incident_phi_deg
+        phi = tuple(0.0 for _ in inc) if phi is None else tuple(float(x) for x in phi)
+        object.__setattr__(self, "incident_phi_deg", phi)
+        object.__setattr__(self, "resolution", tuple(self.resolution))
+        self.validate()
+
+    def validate(self) -> None:
+        if not self.incident_deg:
+            raise SettingsError("incident_deg: at least one incident direction is required")
+        for t in self.incident_deg:
+            if not (math.isfinite(t) and 0.0 <= t < 90.0):
+                raise SettingsError(f"incident_deg: {t:g} is outside [0, 90)")
+        if len(self.incident_phi_deg) != len(self.incident_deg):
+            raise SettingsError("incident_phi_deg: needs one azimuth per incident elevation")
+        for p in self.incident_phi_deg:
+            if not (math.isfinite(p) and 0.0 <= p < 360.0):
+                raise SettingsError(f"incident_phi_deg: {p:g} is outside [0, 360)")
+        _int_in(self.rays, "rays", 1, 10**13)
+        if self.parametrization not in ("classic", "half"):
+            raise SettingsError(f"parametrization: {self.parametrization!r} is not one of classic, half")
+        if len(self.resolution) != 2:
+            raise SettingsError(f"resolution: {list(self.resolution)} must be [n_theta, n_phi]")
+        _int_in(self.resolution[0], "resolution (n_theta)", 1, 10_000)
+        _int_in(self.resolution[1], "resolution (n_phi)", 1, 40_000)
+        _int_in(self.seed, "seed", 0, 2**63 - 1)
+        if self.masking not in MASKING:
+            raise SettingsError(f"masking: {self.masking!r} is not one of {', '.join(MASKING)}")
+        _int_in(self.max_order, "max_order", 1, 64)
+        if self.threads is not None:
+            _int_in(self.threads, "threads", 1, numba.config.NUMBA_NUM_THREADS)
+        _int_in(self.chunk_rays, "chunk_rays", 1, 1 << 30)
+        _int_in(self.event_cap, "event_cap", 1, 10**9)
+
+    @property
+    def n_threads(self) -> int:
+        return self.threads if self.threads is not None else numba.config.NUMBA_NUM_THREADS
+
+    def with_overrides(self, **kw: Any) -> "SimulationSettings":
+        """A copy with the given non-None fields replaced."""
+        return replace(self, **{k: v for k, v in kw.items() if v is not None})
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], source: str = "simulation") -> "SimulationSettings":
+        """Settings from a material file's ``[simulation]`` table (keys of SIMULATION.md)."""
+        kw: dict[str, Any] = {}
+        for key, value in table.items():
+            if key == "incident_deg":
+                if not isinstance(value, list) or not all(_is_num(x) for x in value):
+                    raise SettingsError(f"{source}.incident_deg: must be a list of numbers")
+                kw[key] = tuple(value)
+            elif key == "resolution":
+                if not isinstance(value, list) or len(value) != 2:
+                    raise SettingsError(f"{source}.resolution: must be [n_theta, n_phi]")
+                kw[key] = tuple(value)
+            elif key in ("rays", "seed", "max_order", "threads"):
+                kw[key] = value
+            elif key in ("parametrization", "masking"):
+                kw[key] = value
+            else:
+                raise SettingsError(f"{source}.{key}: unknown key")
+        try:
+            return cls(**kw)
+        except SettingsError as e:
+            raise SettingsError(f"{source}.{e}") from None
+
+
+def _is_num(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _int_in(value: Any, name: str, lo: int, hi: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise SettingsError(f"{name}: {value!r} is not an integer")
+    if not lo <= value <= hi:
+        raise SettingsError(f"{name}: {value} is outside [{lo}, {hi}]")
+
+
+@dataclass
+class SliceData:
+    """Simulated slices of one side (reflection or transmission) for all M incident directions.
+
+    ``value``/``stderr``: (M, 3, n_theta, n_phi) in 1/sr, no cosine; ``orders``:
+    (M, K, 3, n_theta, n_phi), order K meaning "K or more"; ``mask`` and
+    ``proj_solid_angle``: (M, n_theta, n_phi).
+    """
+
+    grid: SliceGrid
+    value: np.ndarray
+    stderr: np.ndarray
+    orders: np.ndarray
+    mask: np.ndarray
+    proj_solid_angle: np.ndarray
+
+
+@dataclass
+class SimulationResult:
+    """Everything one simulation produced (what :mod:`goniometer.store` writes)."""
+
+    stack: Stack
+    settings: SimulationSettings
+    theta_deg: np.ndarray
+    phi_deg: np.ndarray
+    brdf: SliceData
+    btdf: SliceData | None
+    energy: dict[str, np.ndarray]          # (M, 3) per term, fractions of the incident flux
+    energy_stderr: dict[str, np.ndarray]   # (M, 3)
+    roulette: np.ndarray                   # (M, 3) net weight booked by Russian roulette / N
+    capped: np.ndarray                     # (M, 3) weight stopped by the event cap / N
+    capped_paths: np.ndarray               # (M,) int
+    mean_events: np.ndarray                # (M,) events per path
+    elapsed_s: np.ndarray                  # (M,) wall time of each incident direction
+    threads: int
+    compile_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rays_per_s(self) -> float:
+        total = float(np.sum(self.elapsed_s))
+        return self.settings.rays * len(self.theta_deg) / total if total > 0 else float("nan")
+
+
+def warm_up() -> float:
+    """Compile (or load from the on-disk cache) the tracing kernel; returns the seconds spent."""
+    from goniometer.stack import Interface, Lambertian, Medium
+    t0 = time.perf_counter()
+    tiny = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
+    _trace_incident(tiny, SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4),
+                                             chunk_rays=8, threads=1), 0, None)
+    return time.perf_counter() - t0
+
+
+def simulate(stack: Stack, settings: SimulationSettings,
+             progress: Callable[[int], None] | None = None) -> SimulationResult:
+    """Simulate all incident directions of ``settings`` for ``stack``.
+
+    ``progress``, if given, is called with the number of rays just finished (after every batch).
+    Compile time of the kernel is measured apart (``compile_s``), not in ``elapsed_s``.
+    """
+    settings.validate()
+    compile_s = warm_up()
+    parts = [_trace_incident(stack, settings, m, progress) for m in range(len(settings.incident_deg))]
+    return assemble(stack, settings, parts, compile_s=compile_s)
+
+
+@dataclass
+class IncidentPart:
+    """Raw sums for one incident direction (what resumable runs checkpoint)."""
+
+    index: int
+    brdf: np.ndarray           # (K, 3, n_theta, n_phi) weight sums per order
+    brdf_sq: np.ndarray        # (3, n_theta, n_phi)
+    btdf: np.ndarray | None
+    btdf_sq: np.ndarray | None
+    energy: np.ndarray         # (N_ENERGY, 3)
+    energy_sq: np.ndarray      # (N_ENERGY_SQ, 3)
+    counts: np.ndarray         # (N_COUNTS,)
+    elapsed_s: float
+
+
+def _trace_incident(stack: Stack, settings: SimulationSettings, m: int,
+                    progress: Callable[[int], None] | None) -> IncidentPart:
+    """Trace all chunks of incident direction ``m`` and sum their histograms in chunk order."""
+    p = pack(stack)
+    l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
+    nt, nph = settings.resolution
+    K = settings.max_order
+    param = 0 if settings.parametrization == "classic" else 1
+    threads = settings.n_threads
+    numba.set_num_threads(threads)
+    n_chunks = -(-settings.rays // settings.chunk_rays)
+    batch = max(1, min(2 * threads, n_chunks))
+    bt_shape = (nt, nph) if stack.transmits else (1, 1)
+    out_brdf = np.empty((batch, K, 3, nt, nph))
+    out_brdf_sq = np.empty((batch, 3, nt, nph))
+    out_btdf = np.empty((batch, K, 3) + bt_shape)
+    out_btdf_sq = np.empty((batch, 3) + bt_shape)
+    out_energy = np.empty((batch, tracer.N_ENERGY, 3))
+    out_energy_sq = np.empty((batch, tracer.N_ENERGY_SQ, 3))
+    out_counts = np.empty((batch, tracer.N_COUNTS), dtype=np.int64)
+    acc = [np.zeros(a.shape[1:], a.dtype) for a in
+           (out_brdf, out_brdf_sq, out_btdf, out_btdf_sq, out_energy, out_energy_sq, out_counts)]
+    t0 = time.perf_counter()
+    for first in range(0, n_chunks, batch):
+        nb = min(batch, n_chunks - first)
+        outs = (out_brdf[:nb], out_brdf_sq[:nb], out_btdf[:nb], out_btdf_sq[:nb],
+                out_energy[:nb], out_energy_sq[:nb], out_counts[:nb])
+        tracer.trace_batch(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
+                           first, settings.seed, m, param, nt, nph, K,
+                           settings.masking == "height-correlated", settings.event_cap, *outs)
+        for b in range(nb):  # fixed summation order: chunk index
+            for a, o in zip(acc, outs):
+                a += o[b]
+        if progress is not None:
+            done = min(settings.rays, (first + nb) * settings.chunk_rays) - min(settings.rays, first * settings.chunk_rays)
+            progress(done)
+    elapsed = time.perf_counter() - t0
+    return IncidentPart(m, acc[0], acc[1], acc[2] if stack.transmits else None,
+                        acc[3] if stack.transmits else None, acc[4], acc[5], acc[6], elapsed)
+
+
+def _slice_from_sums(grid: SliceGrid, lights: list[np.ndarray], sums: list[np.ndarray],
+                     sqs: list[np.ndarray], n: int) -> SliceData:
+    M = len(lights)
+    K = sums[0].shape[0]
+    nt, nph = grid.shape
+    value = np.zeros((M, 3, nt, nph))
+    stderr = np.zeros((M, 3, nt, nph))
+    orders = np.zeros((M, K, 3, nt, nph))
+    mask = np.zeros((M, nt, nph), dtype=bool)
+    omega = np.zeros((M, nt, nph))
+    for m, l in enumerate(lights):
+        om = grid.proj_solid_angle(l)
+        omega[m] = om
+        mask[m] = grid.mask(l)
+        inv = np.divide(1.0, n * om, out=np.zeros_like(om), where=om > 0)
+        s1 = sums[m].sum(axis=0)
+        value[m] = s1 * inv
+        orders[m] = sums[m] * inv
+        var = np.maximum(sqs[m] - s1 * s1 / n, 0.0) / max(n - 1, 1)
+        stderr[m] = np.sqrt(var * n) * inv
+    return SliceData(grid, value, stderr, orders, mask, omega)
+
+
+def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPart],
+             compile_s: float = 0.0) -> SimulationResult:
+    """Turn the raw per-incident sums into cell values, errors and energies."""
+    parts = sorted(parts, key=lambda p: p.index)
+    n = settings.rays
+    nt, nph = settings.resolution
+    lights = [light_direction(t, p) for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+    brdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "reflection"), lights,
+                            [p.brdf for p in parts], [p.brdf_sq for p in parts], n)
+    btdf = None
+    if stack.transmits:
+        btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), lights,
+                                [p.btdf for p in parts], [p.btdf_sq for p in parts], n)
+    energy: dict[str, np.ndarray] = {}
+    energy_se: dict[str, np.ndarray] = {}
+    for t, name in enumerate(ENERGY_TERMS):
+        s1 = np.array([p.energy[t] for p in parts])
+        s2 = np.array([p.energy_sq[t] for p in parts])
+        mean = s1 / n
+        energy[name] = mean
+        energy_se[name] = np.sqrt(np.maximum(s2 / n - mean * mean, 0.0) / max(n - 1, 1))
+    return SimulationResult(
+        stack=stack, settings=settings,
+        theta_deg=np.array(settings.incident_deg), phi_deg=np.array(settings.incident_phi_deg),
+        brdf=brdf, btdf=btdf, energy=energy, energy_stderr=energy_se,
+        roulette=np.array([p.energy[tracer.E_ROULETTE] for p in parts]) / n,
+        capped=np.array([p.energy[tracer.E_CAPPED] for p in parts]) / n,
+        capped_paths=np.array([p.counts[tracer.C_CAPPED] for p in parts]),
+        mean_events=np.array([p.counts[tracer.C_EVENTS] for p in parts]) / n,
+        elapsed_s=np.array([p.elapsed_s for p in parts]),
+        threads=settings.n_threads, compile_s=compile_s,
+    )

@@ -1,0 +1,267 @@
+"""Slice parametrizations: direction -> cell, cells -> sub-cell directions, solid angles, masks.
+
+See SLICES.md for the contract. Conventions:
+
+* ``l`` (light) and ``v`` (viewer) point away from the surface; z is the macro normal.
+* Reflection cells cover ``v_z > 0``, transmission cells ``v_z < 0``.
+* ``classic``: cell (i, j) holds ``theta_v in [i dth, (i+1) dth)``, ``phi_v in [j dphi, (j+1) dphi)``,
+  ``dth = (pi/2) / n_theta``, ``dphi = 2 pi / n_phi`` (transmission uses ``theta = acos(-v_z)``).
+* ``half``: ``h = normalize(l + v)`` (transmission: ``v`` mirrored to ``(v_x, v_y, -v_z)`` first),
+  ``i = floor(sqrt(theta_h / (pi/2)) n_theta)``, ``j = floor(phi_h / dphi)``.
+* Projected solid angle of a cell: ``Omega = Int_cell |cos theta_v| dw_v`` over the part of the
+  cell that maps to real directions (``v`` on the slice's side of the surface).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+CLASSIC = 0
+HALF = 1
+PARAMETRIZATIONS = {"classic": CLASSIC, "half": HALF}
+
+#: sub-cells per axis used to compute the projected solid angle of half cells
+OMEGA_SUBCELLS = 16
+
+_HALF_PI = 0.5 * math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+@numba.njit(cache=True)
+def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
+               vx: float, vy: float, vz: float, n_theta: int, n_phi: int):
+    """Cell ``(i, j)`` of the outgoing direction ``v`` for light direction ``l``.
+
+    ``param`` is :data:`CLASSIC` or :data:`HALF`. Returns ``(-1, -1)`` if ``v`` is
+    not on the slice's side of the surface.
+    """
+    z = -vz if transmission else vz
+    if z <= 0.0:
+        return -1, -1
+    if param == CLASSIC:
+        x = vx
+        y = vy
+    else:
+        x = lx + vx
+        y = ly + vy
+        z = lz + z
+        inv = 1.0 / math.sqrt(x * x + y * y + z * z)
+        x *= inv
+        y *= inv
+        z *= inv
+    theta = math.acos(min(1.0, z))
+    phi = math.atan2(y, x)
+    if phi < 0.0:
+        phi += _TWO_PI
+    if param == CLASSIC:
+        i = int(theta / _HALF_PI * n_theta)
+    else:
+        i = int(math.sqrt(theta / _HALF_PI) * n_theta)
+    j = int(phi / _TWO_PI * n_phi)
+    if i >= n_theta:
+        i = n_theta - 1
+    if j >= n_phi:
+        j = n_phi - 1
+    return i, j
+
+
+@numba.njit(cache=True)
+def _half_subcells(lx, ly, lz, n_theta, n_phi, s, transmission, want_dirs):
+    """Sub-cell centre directions and weights of a half slice (see :meth:`SliceGrid.subcells`)."""
+    dirs = np.zeros((n_theta, n_phi, s, s, 3) if want_dirs else (1, 1, 1, 1, 3))
+    weights = np.zeros((n_theta, n_phi, s, s) if want_dirs else (1, 1, 1, 1))
+    omega = np.zeros((n_theta, n_phi))
+    valid = np.ones((n_theta, n_phi), dtype=np.bool_)
+    dphi = _TWO_PI / n_phi / s
+    for i in range(n_theta):
+        for a in range(s):
+            u0 = (i + a / s) / n_theta
+            u1 = (i + (a + 1.0) / s) / n_theta
+            uc = (i + (a + 0.5) / s) / n_theta
+            th0 = u0 * u0 * _HALF_PI
+            th1 = u1 * u1 * _HALF_PI
+            thc = uc * uc * _HALF_PI
+            dw_h = (math.cos(th0) - math.cos(th1)) * dphi
+            st = math.sin(thc)
+            ct = math.cos(thc)
+            for j in range(n_phi):
+                for b in range(s):
+                    ph = (j + (b + 0.5) / s) * (_TWO_PI / n_phi)
+                    hx = st * math.cos(ph)
+                    hy = st * math.sin(ph)
+                    hz = ct
+                    lh = lx * hx + ly * hy + lz * hz
+                    vx = 2.0 * lh * hx - lx
+                    vy = 2.0 * lh * hy - ly
+                    vz = 2.0 * lh * hz - lz
+                    w = 0.0
+                    if lh > 0.0 and vz > 0.0:
+                        w = dw_h * vz * 4.0 * lh
+                    else:
+                        valid[i, j] = False
+                    omega[i, j] += w
+                    if want_dirs:
+                        dirs[i, j, a, b, 0] = vx
+                        dirs[i, j, a, b, 1] = vy
+                        dirs[i, j, a, b, 2] = -vz if transmission else vz
+                        weights[i, j, a, b] = w
+    return dirs, weights, omega, valid
+
+
+@dataclass(frozen=True)
+class SliceGrid:
+    """The cells of one slice family: a parametrization and a resolution.
+
+    ``side`` is ``"reflection"`` (BRDF, ``v_z > 0``) or ``"transmission"`` (BTDF, ``v_z < 0``).
+    """
+
+    parametrization: str = "classic"
+    n_theta: int = 90
+    n_phi: int = 360
+    side: str = "reflection"
+
+    def __post_init__(self) -> None:
+        if self.parametrization not in PARAMETRIZATIONS:
+            raise ValueError(f"parametrization: {self.parametrization!r} is not one of classic, half")
+        if self.side not in ("reflection", "transmission"):
+            raise ValueError(f"side: {self.side!r} is not one of reflection, transmission")
+        for name in ("n_theta", "n_phi"):
+            n = getattr(self, name)
+            if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or not 1 <= n <= 100_000:
+                raise ValueError(f"resolution: {name} = {n!r} must be an integer in [1, 100000]")
+
+    @property
+    def code(self) -> int:
+        return PARAMETRIZATIONS[self.parametrization]
+
+    @property
+    def transmission(self) -> bool:
+        return self.side == "transmission"
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.n_theta, self.n_phi)
+
+    def theta_edges_deg(self) -> np.ndarray:
+        """Cell edges along the first axis: theta_v (classic) or theta_h (half), in degrees."""
+        u = np.linspace(0.0, 1.0, self.n_theta + 1)
+        return 90.0 * (u if self.parametrization == "classic" else u * u)
+
+    def phi_edges_deg(self) -> np.ndarray:
+        """Cell edges along the second axis: phi_v (classic) or phi_h (half), in degrees."""
+        return np.linspace(0.0, 360.0, self.n_phi + 1)
+
+    def theta_centers_deg(self) -> np.ndarray:
+        """Cell centres in the slice's own coordinate (mid-cell in sqrt-space for half), degrees."""
+        u = (np.arange(self.n_theta) + 0.5) / self.n_theta
+        return 90.0 * (u if self.parametrization == "classic" else u * u)
+
+    def phi_centers_deg(self) -> np.ndarray:
+        return (np.arange(self.n_phi) + 0.5) * (360.0 / self.n_phi)
+
+    def subcells(self, light: np.ndarray, s: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """Sub-cell centre directions and their projected solid angles.
+
+        Each cell is split into ``s x s`` sub-cells uniform in the slice's own coordinates
+        (theta or the square-root-mapped index for half slices, and phi). Returns
+        ``(v, w)``: ``v`` of shape ``(n_theta, n_phi, s, s, 3)`` (unit outgoing directions on
+        the slice's side) and ``w`` of shape ``(n_theta, n_phi, s, s)``, the sub-cell's projected
+        solid angle (exact for classic; for half, the exact h-space solid angle times
+        ``|cos theta_v| 4 (l.h)`` at the centre; 0 where the centre maps to no real direction).
+        """
+        l = _unit(light)
+        if s < 1:
+            raise ValueError(f"sub-cells: s = {s} must be >= 1")
+        if self.parametrization == "half":
+            v, w, _, _ = _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi, s,
+                                        self.transmission, True)
+            return v, w
+        dth = _HALF_PI / self.n_theta / s
+        dph = _TWO_PI / self.n_phi / s
+        th_e = np.arange(self.n_theta * s + 1) * dth
+        th_c = (np.arange(self.n_theta * s) + 0.5) * dth
+        ph_c = (np.arange(self.n_phi * s) + 0.5) * dph
+        w_th = 0.5 * (np.sin(th_e[1:]) ** 2 - np.sin(th_e[:-1]) ** 2) * dph
+        st, ct = np.sin(th_c), np.cos(th_c)
+        if self.transmission:
+            ct = -ct
+        v = np.empty((self.n_theta * s, self.n_phi * s, 3))
+        v[..., 0] = st[:, None] * np.cos(ph_c)[None, :]
+        v[..., 1] = st[:, None] * np.sin(ph_c)[None, :]
+        v[..., 2] = ct[:, None]
+        w = np.broadcast_to(w_th[:, None], (self.n_theta * s, self.n_phi * s))
+        v = v.reshape(self.n_theta, s, self.n_phi, s, 3).transpose(0, 2, 1, 3, 4)
+        w = w.reshape(self.n_theta, s, self.n_phi, s).transpose(0, 2, 1, 3)
+        return np.ascontiguousarray(v), np.ascontiguousarray(w)
+
+    def proj_solid_angle(self, light: np.ndarray) -> np.ndarray:
+        """Projected solid angle ``Omega`` of every cell, shape ``(n_theta, n_phi)``, in sr.
+
+        Exact for classic cells; for half cells, :data:`OMEGA_SUBCELLS` sub-cells per axis with
+        exact h-space solid angles (relative error far below 1e-6 away from the horizon).
+        """
+        if self.parametrization == "classic":
+            th = np.linspace(0.0, _HALF_PI, self.n_theta + 1)
+            row = 0.5 * (np.sin(th[1:]) ** 2 - np.sin(th[:-1]) ** 2) * (_TWO_PI / self.n_phi)
+            return np.repeat(row[:, None], self.n_phi, axis=1)
+        l = _unit(light)
+        _, _, omega, _ = _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi,
+                                        OMEGA_SUBCELLS, self.transmission, False)
+        return omega
+
+    def mask(self, light: np.ndarray, s: int = 5) -> np.ndarray:
+        """Cells valid for comparisons, shape ``(n_theta, n_phi)`` bool.
+
+        Classic: every cell. Half: every sub-cell centre (``s x s``) maps to a real direction
+        on the slice's side, and row 0 (degenerate, width ``(1/n_theta)^2 90`` deg) is excluded.
+        """
+        if self.parametrization == "classic":
+            return np.ones(self.shape, dtype=bool)
+        l = _unit(light)
+        _, _, _, valid = _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi, s,
+                                        self.transmission, False)
+        valid = valid.copy()
+        valid[0, :] = False
+        return valid
+
+    def integrate(self, light: np.ndarray, f, s: int = 5) -> np.ndarray:
+        """Cell values ``fbar = Int f |cos theta_v| dw / Int |cos theta_v| dw`` of a BSDF ``f``.
+
+        ``f(l, v)`` receives the unit light direction ``l`` (3,) and an array ``v`` (..., 3) of
+        sub-cell centre directions and returns values of shape (...) or (..., C). The result has
+        shape (n_theta, n_phi) or (n_theta, n_phi, C); cells without any valid sub-cell get 0.
+        """
+        l = _unit(light)
+        v, w = self.subcells(l, s)
+        vals = np.asarray(f(l, v), dtype=np.float64)
+        extra = vals.shape[4:]
+        ww = w.reshape(w.shape + (1,) * len(extra))
+        num = np.sum(vals * ww, axis=(2, 3))
+        den = np.sum(w, axis=(2, 3)).reshape(self.shape + (1,) * len(extra))
+        return np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+
+    def cell_of(self, light: np.ndarray, v: np.ndarray) -> tuple[int, int]:
+        """Cell of one outgoing direction ``v`` (``(-1, -1)`` if on the wrong side)."""
+        l = _unit(light)
+        d = _unit(v)
+        return cell_index(self.code, self.transmission, l[0], l[1], l[2], d[0], d[1], d[2],
+                          self.n_theta, self.n_phi)
+
+
+def light_direction(theta_deg: float, phi_deg: float = 0.0) -> np.ndarray:
+    """Unit light direction ``l`` (pointing towards the light) from its elevation and azimuth."""
+    t = math.radians(theta_deg)
+    p = math.radians(phi_deg)
+    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+
+
+def _unit(x) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64).reshape(3)
+    n = float(np.linalg.norm(a))
+    if not n > 0.0:
+        raise ValueError("direction: zero vector")
+    return a / n

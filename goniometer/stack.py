@@ -1,0 +1,361 @@
+"""Layer stacks: the TOML material contract of SIMULATION.md, validation, canonical JSON.
+
+A stack is listed top first and starts in air (index 1). Layer kinds:
+
+* :class:`Interface` -- a GGX rough boundary; ``ior``/``extinction`` give the absolute complex
+  index of the medium **below** it. ``extinction > 0`` in any channel makes a conductor
+  (opaque, last layer). A dielectric's index is one real value for all channels.
+* :class:`Medium` -- Beer-Lambert absorption between two interfaces (or above a Lambertian base),
+  ``optical_depth`` tau at normal incidence (RGB), factor ``exp(-tau / |cos theta|)`` per traversal.
+* :class:`Lambertian` -- an opaque diffuse base of albedo ``rho`` (RGB), last layer.
+
+Every error is a :class:`StackError` whose message names the file, the layer index and the field.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+
+RGB = tuple[float, float, float]
+CATEGORIES = ("plastic", "metal", "slab", "other")
+
+#: base kinds in the packed form
+BASE_TRANSMIT = 0
+BASE_CONDUCTOR = 1
+BASE_LAMBERTIAN = 2
+BASE_KINDS = {BASE_TRANSMIT: "transmit", BASE_CONDUCTOR: "conductor", BASE_LAMBERTIAN: "lambertian"}
+
+
+class StackError(ValueError):
+    """An invalid material definition; the message names the file, layer and field."""
+
+
+@dataclass(frozen=True)
+class Interface:
+    """GGX rough interface. ``roughness`` is alpha in [0, 1] (0 = perfectly smooth).
+
+    ``ior`` and ``extinction`` are the absolute index ``eta + i kappa`` of the medium below (RGB).
+    """
+
+    roughness: float
+    ior: RGB
+    extinction: RGB = (0.0, 0.0, 0.0)
+
+    @property
+    def is_conductor(self) -> bool:
+        return max(self.extinction) > 0.0
+
+    @property
+    def alpha_xy(self) -> tuple[float, float]:
+        """GGX roughness along the interface's tangent x and y axes."""
+        return (self.roughness, self.roughness)
+
+
+@dataclass(frozen=True)
+class Medium:
+    """Absorbing medium; ``optical_depth`` tau >= 0 at normal incidence (RGB)."""
+
+    optical_depth: RGB
+
+
+@dataclass(frozen=True)
+class Lambertian:
+    """Opaque Lambertian base of albedo ``albedo`` in [0, 1] (RGB)."""
+
+    albedo: RGB
+
+
+Layer = Union[Interface, Medium, Lambertian]
+
+
+@dataclass(frozen=True)
+class Stack:
+    """A validated layer stack (top first)."""
+
+    name: str
+    layers: tuple[Layer, ...]
+    category: str = "other"
+
+    def __post_init__(self) -> None:
+        _validate_structure(self.layers, source="stack")
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def interfaces(self) -> list[Interface]:
+        return [x for x in self.layers if isinstance(x, Interface)]
+
+    @property
+    def transmits(self) -> bool:
+        """True when the last layer is a dielectric interface (light can leave downward)."""
+        last = self.layers[-1]
+        return isinstance(last, Interface) and not last.is_conductor
+
+    @property
+    def base(self) -> str:
+        """``"transmit"``, ``"conductor"`` or ``"lambertian"``."""
+        last = self.layers[-1]
+        if isinstance(last, Lambertian):
+            return "lambertian"
+        return "conductor" if last.is_conductor else "transmit"
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict[str, Any]:
+        layers = []
+        for x in self.layers:
+            if isinstance(x, Interface):
+                d: dict[str, Any] = {"type": "interface", "roughness": x.roughness}
+                if x.is_conductor:
+                    d["ior"] = list(x.ior)
+                    d["extinction"] = list(x.extinction)
+                else:
+                    d["ior"] = x.ior[0]
+                layers.append(d)
+            elif isinstance(x, Medium):
+                layers.append({"type": "medium", "optical_depth": list(x.optical_depth)})
+            else:
+                layers.append({"type": "lambertian", "albedo": list(x.albedo)})
+        return {"name": self.name, "category": self.category, "layers": layers}
+
+    def to_json(self) -> str:
+        """Canonical JSON: sorted keys, no whitespace, RGB lists, shortest float repr."""
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_json(cls, text: str) -> "Stack":
+        return stack_from_dict(json.loads(text), source="json")
+
+    def to_toml(self) -> str:
+        """The material as a TOML file of the SIMULATION.md contract."""
+        out = [f"name = {json.dumps(self.name)}", f"category = {json.dumps(self.category)}", ""]
+        for d in self.to_dict()["layers"]:
+            out.append("[[layers]]")
+            for k, v in d.items():
+                out.append(f"{k} = {json.dumps(v)}")
+            out.append("")
+        return "\n".join(out)
+
+
+# ---------------------------------------------------------------------- packing for kernels
+
+@dataclass(frozen=True)
+class PackedStack:
+    """Flat arrays the tracer reads. Regions are numbered 0 (air) .. n_if; interface k
+    separates region k (above) from region k + 1 (below).
+
+    ``if_alpha[k] = (alpha_x, alpha_y)``; ``if_rot[k] = (cos, sin)`` of the tangent-frame rotation;
+    ``region_eta[r]`` real index; ``region_tau[r]`` RGB optical depth (region 0 and a
+    semi-infinite bottom region have 0); ``cond[0:3]``/``cond[3:6]`` the conductor's complex index
+    **relative** to the region above it; ``rho`` the Lambertian albedo; ``base_kind`` one of
+    ``BASE_*``.
+    """
+
+    if_alpha: np.ndarray
+    if_rot: np.ndarray
+    region_eta: np.ndarray
+    region_tau: np.ndarray
+    cond: np.ndarray
+    rho: np.ndarray
+    base_kind: int
+
+    def as_tuple(self) -> tuple:
+        return (self.if_alpha, self.if_rot, self.region_eta, self.region_tau, self.cond, self.rho,
+                self.base_kind)
+
+
+def pack(stack: Stack) -> PackedStack:
+    """Pack a stack into the flat arrays of :class:`PackedStack`."""
+    ifs = stack.interfaces
+    n = len(ifs)
+    if_alpha = np.zeros((max(n, 1), 2))
+    if_rot = np.zeros((max(n, 1), 2))
+    if_rot[:, 0] = 1.0
+    region_eta = np.ones(n + 1)
+    region_tau = np.zeros((n + 1, 3))
+    cond = np.zeros(6)
+    rho = np.zeros(3)
+    region = 0
+    k = 0
+    for layer in stack.layers:
+        if isinstance(layer, Interface):
+            if_alpha[k] = layer.alpha_xy
+            if layer.is_conductor:
+                above = region_eta[region]
+                cond[0:3] = np.asarray(layer.ior) / above
+                cond[3:6] = np.asarray(layer.extinction) / above
+            else:
+                region_eta[region + 1] = layer.ior[0]
+            region += 1
+            k += 1
+        elif isinstance(layer, Medium):
+            region_tau[region] = layer.optical_depth
+        else:
+            rho[:] = layer.albedo
+    last = stack.layers[-1]
+    if isinstance(last, Lambertian):
+        base = BASE_LAMBERTIAN
+    elif last.is_conductor:
+        base = BASE_CONDUCTOR
+    else:
+        base = BASE_TRANSMIT
+    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base)
+
+
+# ---------------------------------------------------------------------- loading
+
+_LAYER_KEYS = {
+    "interface": {"type", "roughness", "ior", "extinction"},
+    "medium": {"type", "optical_depth"},
+    "lambertian": {"type", "albedo"},
+}
+_TOP_KEYS = {"name", "category", "layers", "simulation"}
+SIMULATION_KEYS = {"incident_deg", "rays", "parametrization", "resolution", "seed", "masking",
+                   "max_order", "threads"}
+
+
+def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:
+    """Load a material file. Returns the stack and its ``[simulation]`` table (possibly empty).
+
+    Raises :class:`StackError` (with the file name) on any problem, including invalid TOML.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise StackError(f"{p}: cannot read: {e.strerror or e}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise StackError(f"{p}: invalid TOML: {e}") from None
+    stack = stack_from_dict(data, source=str(p))
+    sim = data.get("simulation", {})
+    if not isinstance(sim, dict):
+        raise StackError(f"{p}: simulation: must be a table")
+    unknown = sorted(set(sim) - SIMULATION_KEYS)
+    if unknown:
+        raise StackError(f"{p}: simulation.{unknown[0]}: unknown key "
+                         f"(allowed: {', '.join(sorted(SIMULATION_KEYS))})")
+    return stack, dict(sim)
+
+
+def stack_from_dict(data: dict[str, Any], source: str = "stack") -> Stack:
+    """Build and validate a :class:`Stack` from the TOML/JSON structure."""
+    if not isinstance(data, dict):
+        raise StackError(f"{source}: the material must be a table")
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise StackError(f"{source}: {unknown[0]}: unknown key (allowed: {', '.join(sorted(_TOP_KEYS))})")
+    name = data.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise StackError(f"{source}: name: required, a non-empty string")
+    category = data.get("category", "other")
+    if category not in CATEGORIES:
+        raise StackError(f"{source}: category: {category!r} is not one of {', '.join(CATEGORIES)}")
+    raw_layers = data.get("layers")
+    if not isinstance(raw_layers, list) or not raw_layers:
+        raise StackError(f"{source}: layers: required, a non-empty array of tables ([[layers]])")
+    layers = tuple(_layer_from_dict(d, i, source) for i, d in enumerate(raw_layers))
+    _validate_structure(layers, source)
+    return Stack(name=name, layers=layers, category=category)
+
+
+def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
+    where = f"{source}: layers[{i}]"
+    if not isinstance(d, dict):
+        raise StackError(f"{where}: must be a table")
+    kind = d.get("type")
+    if kind not in _LAYER_KEYS:
+        raise StackError(f"{where}.type: {kind!r} is not one of interface, medium, lambertian")
+    unknown = sorted(set(d) - _LAYER_KEYS[kind])
+    if unknown:
+        raise StackError(f"{where}.{unknown[0]}: unknown key for a {kind} layer "
+                         f"(allowed: {', '.join(sorted(_LAYER_KEYS[kind]))})")
+    if kind == "interface":
+        rough = _scalar(d, "roughness", where, lo=0.0, hi=1.0)
+        ior = _rgb(d, "ior", where, positive=True)
+        ext = _rgb(d, "extinction", where, lo=0.0, default=0.0)
+        if max(ext) <= 0.0 and len(set(ior)) != 1:
+            raise StackError(f"{where}.ior: a dielectric interface takes one index for all channels "
+                             f"(got {list(ior)}); an RGB index needs extinction > 0 (a conductor)")
+        return Interface(roughness=rough, ior=ior, extinction=ext)
+    if kind == "medium":
+        return Medium(optical_depth=_rgb(d, "optical_depth", where, lo=0.0))
+    return Lambertian(albedo=_rgb(d, "albedo", where, lo=0.0, hi=1.0))
+
+
+def _number(x: Any, where: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise StackError(f"{where}: {x!r} is not a number")
+    v = float(x)
+    if not math.isfinite(v):
+        raise StackError(f"{where}: {x!r} is not finite")
+    return v
+
+
+def _check_range(v: float, where: str, lo, hi, positive: bool) -> None:
+    if positive and not v > 0.0:
+        raise StackError(f"{where}: {v!r} must be > 0")
+    if lo is not None and v < lo:
+        raise StackError(f"{where}: {v!r} is outside [{lo}, {hi if hi is not None else 'inf'})"
+                         if hi is None else f"{where}: {v!r} is outside [{lo}, {hi}]")
+    if hi is not None and v > hi:
+        raise StackError(f"{where}: {v!r} is outside [{lo}, {hi}]")
+
+
+def _scalar(d: dict, key: str, where: str, lo=None, hi=None) -> float:
+    if key not in d:
+        raise StackError(f"{where}.{key}: required")
+    v = _number(d[key], f"{where}.{key}")
+    _check_range(v, f"{where}.{key}", lo, hi, False)
+    return v
+
+
+def _rgb(d: dict, key: str, where: str, lo=None, hi=None, positive=False, default=None) -> RGB:
+    if key not in d:
+        if default is None:
+            raise StackError(f"{where}.{key}: required")
+        return (float(default),) * 3
+    x = d[key]
+    w = f"{where}.{key}"
+    if isinstance(x, list):
+        if len(x) != 3:
+            raise StackError(f"{w}: an RGB value needs 3 numbers, got {len(x)}")
+        vals = tuple(_number(e, w) for e in x)
+    else:
+        vals = (_number(x, w),) * 3
+    for v in vals:
+        _check_range(v, w, lo, hi, positive)
+    return vals  # type: ignore[return-value]
+
+
+def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
+    if not layers:
+        raise StackError(f"{source}: layers: at least one layer is required")
+    prev: Layer | None = None
+    for i, x in enumerate(layers):
+        where = f"{source}: layers[{i}]"
+        last = i == len(layers) - 1
+        if isinstance(x, Interface):
+            if not 0.0 <= x.roughness <= 1.0:
+                raise StackError(f"{where}.roughness: {x.roughness} is outside [0, 1]")
+            if x.is_conductor and not last:
+                raise StackError(f"{where}.extinction: a conductor (extinction > 0) must be the last layer")
+        elif isinstance(x, Medium):
+            if prev is None:
+                raise StackError(f"{where}.type: a medium cannot be the top layer (it must lie below an interface)")
+            if isinstance(prev, Medium):
+                raise StackError(f"{where}.type: two media in a row (merge their optical depths)")
+            if last:
+                raise StackError(f"{where}.type: a medium must lie above an interface or a Lambertian base")
+        elif isinstance(x, Lambertian):
+            if not last:
+                raise StackError(f"{where}.type: a lambertian base is opaque and must be the last layer")
+        else:
+            raise StackError(f"{where}.type: unknown layer {x!r}")
+        prev = x

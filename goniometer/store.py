@@ -1,0 +1,244 @@
+"""HDF5 files of simulated materials (format "goniometer.slices", version 1; SLICES.md).
+
+Writes are atomic: the file is written under a temporary name in the destination directory
+and renamed over the final name only once complete, so an interrupted run never leaves a
+half-written file under the final name. Groups carry HDF5 dimension scales (incident,
+order, channel, theta, phi) so that general tools (``xarray`` with ``engine="h5netcdf"``)
+can open them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import json
+import os
+from pathlib import Path
+from typing import Iterator
+
+import h5py
+import numpy as np
+
+import goniometer
+from goniometer.simulate import ENERGY_TERMS, SimulationResult, SimulationSettings, SliceData
+from goniometer.slices import SliceGrid
+from goniometer.stack import Stack, StackError
+
+FORMAT = "goniometer.slices"
+FORMAT_VERSION = 1
+CHANNELS = ("R", "G", "B")
+_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+
+
+class StoreError(ValueError):
+    """A file that is not a readable goniometer slices file (message names the file and why)."""
+
+
+def check_writable(path: str | Path) -> Path:
+    """Raise :class:`StoreError` unless ``path`` could be created or replaced; creates nothing."""
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.exists() and p.is_dir():
+        raise StoreError(f"{p}: output path is a directory")
+    if not parent.is_dir():
+        raise StoreError(f"{p}: output directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise StoreError(f"{p}: output directory {parent} is not writable")
+    if p.exists() and not os.access(p, os.W_OK):
+        raise StoreError(f"{p}: existing file is not writable")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
+
+    On any exception (KeyboardInterrupt included) the temporary file is removed and the
+    final path is left untouched.
+    """
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}")
+    try:
+        yield tmp
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def write(path: str | Path, result: SimulationResult) -> Path:
+    """Write ``result`` to ``path`` atomically; returns the path."""
+    p = check_writable(path)
+    with atomic_path(p) as tmp:
+        with h5py.File(tmp, "w") as f:
+            _write(f, result)
+    return p
+
+
+def _write(f: h5py.File, r: SimulationResult) -> None:
+    s = r.settings
+    f.attrs["format"] = FORMAT
+    f.attrs["format_version"] = FORMAT_VERSION
+    f.attrs["software"] = f"goniometer {goniometer.__version__}"
+    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+    mat = f.create_group("material")
+    mat.attrs["name"] = r.stack.name
+    mat.attrs["category"] = r.stack.category
+    mat.create_dataset("config", data=r.stack.to_json())
+
+    inc = f.create_group("incident")
+    _scaled(inc, "theta_deg", r.theta_deg, units="deg")
+    _scaled(inc, "phi_deg", r.phi_deg, units="deg")
+
+    sim = f.create_group("simulation")
+    sim.attrs["rays_per_slice"] = s.rays
+    sim.attrs["seed"] = s.seed
+    sim.attrs["masking"] = s.masking
+    sim.attrs["max_order"] = s.max_order
+    sim.attrs["elapsed_s"] = float(np.sum(r.elapsed_s))
+    sim.attrs["threads"] = r.threads
+    sim.attrs["chunk_rays"] = s.chunk_rays
+    sim.attrs["event_cap"] = s.event_cap
+    sim.attrs["compile_s"] = r.compile_s
+    sim.attrs["rays_per_s"] = r.rays_per_s
+    sim.attrs["parametrization"] = s.parametrization
+    sim.attrs["resolution"] = np.array(s.resolution, dtype=np.int64)
+    sim.create_dataset("elapsed_per_incident_s", data=r.elapsed_s)
+    sim.create_dataset("capped_paths", data=r.capped_paths)
+    sim.create_dataset("mean_events", data=r.mean_events)
+
+    _write_slices(f, "brdf", r.brdf, r.theta_deg)
+    if r.btdf is not None:
+        _write_slices(f, "btdf", r.btdf, r.theta_deg)
+
+    en = f.create_group("energy")
+    en.attrs["description"] = ("fractions of the incident flux per channel (R, G, B); "
+                               "reflected + transmitted + absorbed + masking_loss + roulette + capped = 1")
+    for name in ENERGY_TERMS:
+        en.create_dataset(name, data=r.energy[name])
+        en.create_dataset(f"{name}_stderr", data=r.energy_stderr[name])
+    en.create_dataset("roulette", data=r.roulette)
+    en.create_dataset("capped", data=r.capped)
+
+
+def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name: str | None = None):
+    d = g.create_dataset(name, data=data)
+    d.make_scale(name)
+    if units:
+        d.attrs["units"] = units
+    if long_name:
+        d.attrs["long_name"] = long_name
+    return d
+
+
+def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray) -> None:
+    g = f.create_group(name)
+    grid = sd.grid
+    g.attrs["parametrization"] = grid.parametrization
+    g.attrs["n_theta"] = grid.n_theta
+    g.attrs["n_phi"] = grid.n_phi
+    g.attrs["side"] = grid.side
+    K = sd.orders.shape[1]
+    th_name = "theta_v" if grid.parametrization == "classic" else "theta_h"
+    ph_name = "phi_v" if grid.parametrization == "classic" else "phi_h"
+    scales = {
+        "incident": _scaled(g, "incident", theta_deg, "deg", "incident elevation theta_l"),
+        "order": _scaled(g, "order", np.arange(1, K + 1, dtype=np.int64), None,
+                         f"bounce order (events at the top layer); {K} means {K} or more"),
+        "channel": _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
+        "theta": _scaled(g, "theta", grid.theta_centers_deg(), "deg",
+                         f"cell centre {th_name}" + (" (square-root mapped rows)" if grid.parametrization == "half" else "")),
+        "phi": _scaled(g, "phi", grid.phi_centers_deg(), "deg", f"cell centre {ph_name}"),
+    }
+    _scaled(g, "theta_edges_deg", grid.theta_edges_deg(), "deg", f"cell edges in {th_name}")
+    _scaled(g, "phi_edges_deg", grid.phi_edges_deg(), "deg", f"cell edges in {ph_name}")
+
+    def put(dname, data, dims, units=None, dtype=None):
+        d = g.create_dataset(dname, data=data, dtype=dtype, chunks=True, **_COMPRESSION)
+        for axis, dim in enumerate(dims):
+            d.dims[axis].attach_scale(scales[dim])
+        if units:
+            d.attrs["units"] = units
+        return d
+
+    put("value", sd.value, ("incident", "channel", "theta", "phi"), "1/sr")
+    put("stderr", sd.stderr, ("incident", "channel", "theta", "phi"), "1/sr")
+    put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), "1/sr", dtype=np.float32)
+    put("mask", sd.mask, ("incident", "theta", "phi"))
+    put("proj_solid_angle", sd.proj_solid_angle, ("incident", "theta", "phi"), "sr")
+
+
+# ---------------------------------------------------------------------- reading
+
+def read(path: str | Path) -> SimulationResult:
+    """Read a slices file into a :class:`SimulationResult` (raises :class:`StoreError`)."""
+    p = Path(path)
+    if not p.is_file():
+        raise StoreError(f"{p}: no such file")
+    try:
+        with h5py.File(p, "r") as f:
+            return _read(f, p)
+    except StoreError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise StoreError(f"{p}: not a readable {FORMAT} file ({e})") from None
+
+
+def _read(f: h5py.File, p: Path) -> SimulationResult:
+    if f.attrs.get("format") != FORMAT:
+        raise StoreError(f"{p}: not a {FORMAT} file (format attribute {f.attrs.get('format')!r})")
+    version = int(f.attrs.get("format_version", -1))
+    if version != FORMAT_VERSION:
+        raise StoreError(f"{p}: format version {version} is not supported (this software reads {FORMAT_VERSION})")
+    for need in ("material/config", "incident/theta_deg", "incident/phi_deg", "simulation", "brdf/value", "energy/reflected"):
+        if need not in f:
+            raise StoreError(f"{p}: missing /{need}")
+    config = f["material/config"][()]
+    config = config.decode() if isinstance(config, bytes) else str(config)
+    try:
+        stack = Stack.from_json(config)
+    except (StackError, json.JSONDecodeError) as e:
+        raise StoreError(f"{p}: /material/config is not a valid stack ({e})") from None
+    sim = f["simulation"].attrs
+    theta = f["incident/theta_deg"][()]
+    phi = f["incident/phi_deg"][()]
+    brdf = _read_slices(f["brdf"])
+    settings = SimulationSettings(
+        incident_deg=tuple(float(x) for x in theta),
+        incident_phi_deg=tuple(float(x) for x in phi),
+        rays=int(sim["rays_per_slice"]),
+        parametrization=brdf.grid.parametrization,
+        resolution=(brdf.grid.n_theta, brdf.grid.n_phi),
+        seed=int(sim["seed"]),
+        masking=str(sim["masking"]),
+        max_order=int(sim["max_order"]),
+        chunk_rays=int(sim.get("chunk_rays", 1 << 17)),
+        event_cap=int(sim.get("event_cap", 10_000)),
+    )
+    btdf = _read_slices(f["btdf"]) if "btdf" in f else None
+    en = f["energy"]
+    M = len(theta)
+    energy = {k: en[k][()] for k in ENERGY_TERMS}
+    energy_se = {k: en[f"{k}_stderr"][()] if f"{k}_stderr" in en else np.full((M, 3), np.nan) for k in ENERGY_TERMS}
+    elapsed = f["simulation/elapsed_per_incident_s"][()] if "simulation/elapsed_per_incident_s" in f \
+        else np.full(M, float(sim["elapsed_s"]) / M)
+    return SimulationResult(
+        stack=stack, settings=settings, theta_deg=theta, phi_deg=phi, brdf=brdf, btdf=btdf,
+        energy=energy, energy_stderr=energy_se,
+        roulette=en["roulette"][()] if "roulette" in en else np.zeros((M, 3)),
+        capped=en["capped"][()] if "capped" in en else np.zeros((M, 3)),
+        capped_paths=f["simulation/capped_paths"][()] if "simulation/capped_paths" in f else np.zeros(M, np.int64),
+        mean_events=f["simulation/mean_events"][()] if "simulation/mean_events" in f else np.full(M, np.nan),
+        elapsed_s=elapsed, threads=int(sim["threads"]), compile_s=float(sim.get("compile_s", 0.0)),
+    )
+
+
+def _read_slices(g: h5py.Group) -> SliceData:
+    side = g.attrs.get("side")
+    if side is None:
+        side = "transmission" if g.name.endswith("btdf") else "reflection"
+    grid = SliceGrid(str(g.attrs["parametrization"]), int(g.attrs["n_theta"]), int(g.attrs["n_phi"]), str(side))
+    return SliceData(grid=grid, value=g["value"][()], stderr=g["stderr"][()], orders=g["orders"][()],
+                     mask=g["mask"][()].astype(bool), proj_solid_angle=g["proj_solid_angle"][()])

@@ -1,0 +1,324 @@
+"""The numba-parallel path-tracing kernel of the virtual goniometer.
+
+Transport (SIMULATION.md): a path starts above the top interface travelling along ``-l``
+with weight (1, 1, 1). At an interface a microfacet normal is sampled from the visible
+normals of the side the path comes from; a dielectric reflects with probability F (exact
+Fresnel) and refracts otherwise, a conductor always reflects with weight *= F (RGB).
+The weight is then multiplied by the masking term (separable: ``G1(o)``; height-correlated:
+``G2 / G1(i)``) and an outgoing direction on the wrong side of the macro-surface ends the path
+(``masking_loss``). Media attenuate deterministically (Beer-Lambert), Lambertian bases reflect
+with cosine sampling and weight *= rho. A path leaving the top upward is recorded in the BRDF
+slice of its bounce order (number of events at the top layer); one leaving the bottom of a
+transmitting stack downward in the BTDF slice.
+
+Energy bookkeeping per channel and per path is exact: the weight a path loses is booked as
+absorbed or masking loss, the weight it leaves with as reflected or transmitted; Russian
+roulette books the weight it kills and the weight it adds (negative) in ``roulette``, and paths
+stopped by the event cap book their weight in ``capped``. Hence, per chunk,
+reflected + transmitted + absorbed + masking + roulette + capped = number of rays (to rounding).
+
+Kernel inputs are flat arrays (see :class:`goniometer.stack.PackedStack`); outputs are
+per-chunk histograms, so results do not depend on the number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from goniometer import optics
+from goniometer.rng import next_float, stream_state
+from goniometer.slices import cell_index
+
+# rows of the per-chunk energy array
+E_REFLECTED = 0
+E_TRANSMITTED = 1
+E_ABSORBED = 2
+E_MASKING = 3
+E_ROULETTE = 4
+E_CAPPED = 5
+N_ENERGY = 6
+#: rows with a per-path second moment (for standard errors)
+N_ENERGY_SQ = 4
+# columns of the per-chunk counters
+C_CAPPED = 0
+C_EVENTS = 1
+N_COUNTS = 2
+
+#: Russian roulette: from this many events on, paths whose largest channel weight is below
+#: RR_THRESHOLD survive with probability max(w) / RR_THRESHOLD
+RR_START = 3
+RR_THRESHOLD = 0.05
+#: default hard cap on the number of events of one path (reported if ever reached)
+EVENT_CAP = 10_000
+
+
+@numba.njit(cache=True)
+def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                lx, ly, lz, n_rays, state, param, n_theta, n_phi, max_order, height_correlated,
+                event_cap, brdf, brdf_sq, btdf, btdf_sq, energy, energy_sq, counts):
+    """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
+
+    ``brdf``/``btdf``: (K, 3, n_theta, n_phi) sums of exit weights per bounce order;
+    ``brdf_sq``/``btdf_sq``: (3, n_theta, n_phi) sums of squared weights; ``energy``:
+    (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path
+    totals; ``counts``: (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced).
+    """
+    n_if = region_eta.shape[0] - 1
+    has_tau = np.zeros(n_if + 1, dtype=np.bool_)
+    for r in range(n_if + 1):
+        has_tau[r] = region_tau[r, 0] > 0.0 or region_tau[r, 1] > 0.0 or region_tau[r, 2] > 0.0
+    aniso = np.zeros(max(n_if, 1), dtype=np.bool_)
+    for k in range(n_if):
+        aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
+    transmit_base = base_kind == 0
+    conductor_base = base_kind == 1
+    n_events_total = 0
+
+    for _ in range(n_rays):
+        dx = -lx
+        dy = -ly
+        dz = -lz
+        region = 0
+        w0 = 1.0
+        w1 = 1.0
+        w2 = 1.0
+        ab0 = 0.0
+        ab1 = 0.0
+        ab2 = 0.0
+        mk0 = 0.0
+        mk1 = 0.0
+        mk2 = 0.0
+        order = 0
+        events = 0
+        while True:
+            if events >= event_cap:
+                energy[E_CAPPED, 0] += w0
+                energy[E_CAPPED, 1] += w1
+                energy[E_CAPPED, 2] += w2
+                counts[C_CAPPED] += 1
+                break
+            # ---- traverse the current region (Beer-Lambert)
+            if has_tau[region]:
+                mu = abs(dz)
+                a0 = math.exp(-region_tau[region, 0] / mu)
+                a1 = math.exp(-region_tau[region, 1] / mu)
+                a2 = math.exp(-region_tau[region, 2] / mu)
+                ab0 += w0 * (1.0 - a0)
+                ab1 += w1 * (1.0 - a1)
+                ab2 += w2 * (1.0 - a2)
+                w0 *= a0
+                w1 *= a1
+                w2 *= a2
+            # ---- what lies at the end of this traversal
+            at_interface = True
+            if dz > 0.0:
+                if region == 0:
+                    # leaves the stack upward: BRDF
+                    i, j = cell_index(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi)
+                    o = min(order, max_order) - 1
+                    brdf[o, 0, i, j] += w0
+                    brdf[o, 1, i, j] += w1
+                    brdf[o, 2, i, j] += w2
+                    brdf_sq[0, i, j] += w0 * w0
+                    brdf_sq[1, i, j] += w1 * w1
+                    brdf_sq[2, i, j] += w2 * w2
+                    energy[E_REFLECTED, 0] += w0
+                    energy[E_REFLECTED, 1] += w1
+                    energy[E_REFLECTED, 2] += w2
+                    energy_sq[E_REFLECTED, 0] += w0 * w0
+                    energy_sq[E_REFLECTED, 1] += w1 * w1
+                    energy_sq[E_REFLECTED, 2] += w2 * w2
+                    break
+                k = region - 1
+                from_above = False
+            elif region < n_if:
+                k = region
+                from_above = True
+            elif transmit_base:
+                # leaves the stack downward: BTDF
+                i, j = cell_index(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi)
+                o = min(order, max_order) - 1
+                btdf[o, 0, i, j] += w0
+                btdf[o, 1, i, j] += w1
+                btdf[o, 2, i, j] += w2
+                btdf_sq[0, i, j] += w0 * w0
+                btdf_sq[1, i, j] += w1 * w1
+                btdf_sq[2, i, j] += w2 * w2
+                energy[E_TRANSMITTED, 0] += w0
+                energy[E_TRANSMITTED, 1] += w1
+                energy[E_TRANSMITTED, 2] += w2
+                energy_sq[E_TRANSMITTED, 0] += w0 * w0
+                energy_sq[E_TRANSMITTED, 1] += w1 * w1
+                energy_sq[E_TRANSMITTED, 2] += w2 * w2
+                break
+            else:
+                # Lambertian base: weight *= rho, cosine-distributed new direction upward
+                at_interface = False
+                k = -1
+                from_above = True
+                events += 1
+                if n_if == 0:
+                    order += 1
+                ab0 += w0 * (1.0 - rho[0])
+                ab1 += w1 * (1.0 - rho[1])
+                ab2 += w2 * (1.0 - rho[2])
+                w0 *= rho[0]
+                w1 *= rho[1]
+                w2 *= rho[2]
+                u1 = next_float(state)
+                u2 = next_float(state)
+                r = math.sqrt(u1)
+                ph = 2.0 * math.pi * u2
+                dx = r * math.cos(ph)
+                dy = r * math.sin(ph)
+                dz = math.sqrt(1.0 - u1)  # u1 < 1, so dz > 0
+            # ---- interface event
+            if at_interface:
+                events += 1
+                if k == 0:
+                    order += 1
+                # incoming direction in the local frame of the arrival side (z > 0)
+                wx = -dx
+                wy = -dy
+                wz = -dz if from_above else dz
+                eta_above = region_eta[k]
+                eta_below = region_eta[k + 1]
+                is_cond = conductor_base and k == n_if - 1
+                if not is_cond and eta_above == eta_below:
+                    # index-matched dielectric: the interface is optically absent
+                    region = k + 1 if from_above else k
+                else:
+                    ax = if_alpha[k, 0]
+                    ay = if_alpha[k, 1]
+                    rot = aniso[k]
+                    c = 1.0
+                    s = 0.0
+                    if rot:
+                        c = if_rot[k, 0]
+                        s = if_rot[k, 1]
+                        tx = c * wx + s * wy
+                        wy = -s * wx + c * wy
+                        wx = tx
+                    u1 = next_float(state)
+                    u2 = next_float(state)
+                    mx, my, mz = optics.sample_vndf(wx, wy, wz, ax, ay, u1, u2)
+                    wm = wx * mx + wy * my + wz * mz
+                    transmitted = False
+                    if is_cond:
+                        f0 = optics.fresnel_conductor(wm, cond[0], cond[3])
+                        f1 = optics.fresnel_conductor(wm, cond[1], cond[4])
+                        f2 = optics.fresnel_conductor(wm, cond[2], cond[5])
+                        ab0 += w0 * (1.0 - f0)
+                        ab1 += w1 * (1.0 - f1)
+                        ab2 += w2 * (1.0 - f2)
+                        w0 *= f0
+                        w1 *= f1
+                        w2 *= f2
+                        ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
+                    else:
+                        eta = eta_below / eta_above if from_above else eta_above / eta_below
+                        f = optics.fresnel_dielectric(wm, eta)
+                        if next_float(state) < f:
+                            ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
+                        else:
+                            ox, oy, oz, _ = optics.refract(wx, wy, wz, mx, my, mz, eta)
+                            transmitted = True
+                    # single-scattering microfacet model: wrong side -> lost to masking
+                    if (transmitted and oz >= 0.0) or (not transmitted and oz <= 0.0):
+                        mk0 += w0
+                        mk1 += w1
+                        mk2 += w2
+                        w0 = 0.0
+                        w1 = 0.0
+                        w2 = 0.0
+                        break
+                    lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
+                    if height_correlated:
+                        lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
+                        g = optics.smith_g2(lam_i, lam_o, transmitted, True) * (1.0 + lam_i)
+                    else:
+                        g = 1.0 / (1.0 + lam_o)
+                    mk0 += w0 * (1.0 - g)
+                    mk1 += w1 * (1.0 - g)
+                    mk2 += w2 * (1.0 - g)
+                    w0 *= g
+                    w1 *= g
+                    w2 *= g
+                    if rot:
+                        tx = c * ox - s * oy
+                        oy = s * ox + c * oy
+                        ox = tx
+                    dx = ox
+                    dy = oy
+                    dz = oz if from_above else -oz
+                    if transmitted:
+                        region = k + 1 if from_above else k
+            # ---- Russian roulette on the largest channel weight
+            if events >= RR_START:
+                wmax = max(w0, max(w1, w2))
+                if wmax < RR_THRESHOLD:
+                    if wmax <= 0.0:
+                        break
+                    p = wmax / RR_THRESHOLD
+                    if next_float(state) < p:
+                        boost = 1.0 / p - 1.0
+                        energy[E_ROULETTE, 0] -= w0 * boost
+                        energy[E_ROULETTE, 1] -= w1 * boost
+                        energy[E_ROULETTE, 2] -= w2 * boost
+                        w0 *= 1.0 / p
+                        w1 *= 1.0 / p
+                        w2 *= 1.0 / p
+                    else:
+                        energy[E_ROULETTE, 0] += w0
+                        energy[E_ROULETTE, 1] += w1
+                        energy[E_ROULETTE, 2] += w2
+                        break
+        n_events_total += events
+        energy[E_ABSORBED, 0] += ab0
+        energy[E_ABSORBED, 1] += ab1
+        energy[E_ABSORBED, 2] += ab2
+        energy_sq[E_ABSORBED, 0] += ab0 * ab0
+        energy_sq[E_ABSORBED, 1] += ab1 * ab1
+        energy_sq[E_ABSORBED, 2] += ab2 * ab2
+        energy[E_MASKING, 0] += mk0
+        energy[E_MASKING, 1] += mk1
+        energy[E_MASKING, 2] += mk2
+        energy_sq[E_MASKING, 0] += mk0 * mk0
+        energy_sq[E_MASKING, 1] += mk1 * mk1
+        energy_sq[E_MASKING, 2] += mk2 * mk2
+    counts[C_EVENTS] += n_events_total
+
+
+@numba.njit(parallel=True, cache=True)
+def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
+                param, n_theta, n_phi, max_order, height_correlated, event_cap,
+                brdf, brdf_sq, btdf, btdf_sq, energy, energy_sq, counts):
+    """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each.
+
+    Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
+    draws from the stream ``(seed, incident_index, c)``. Output arrays carry a leading
+    dimension B (the batch); they are zeroed here.
+    """
+    n_batch = brdf.shape[0]
+    for b in numba.prange(n_batch):
+        c = first_chunk + b
+        start = c * chunk_rays
+        n = min(chunk_rays, n_rays_total - start)
+        brdf[b].fill(0.0)
+        brdf_sq[b].fill(0.0)
+        btdf[b].fill(0.0)
+        btdf_sq[b].fill(0.0)
+        energy[b].fill(0.0)
+        energy_sq[b].fill(0.0)
+        counts[b].fill(0)
+        if n <= 0:
+            continue
+        state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
+        trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                    lx, ly, lz, n, state, param, n_theta, n_phi, max_order, height_correlated,
+                    event_cap, brdf[b], brdf_sq[b], btdf[b], btdf_sq[b], energy[b], energy_sq[b],
+                    counts[b])

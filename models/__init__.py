@@ -1,0 +1,1 @@
+"""Analytic layered BSDF models, their integration onto slices and their errors."""

@@ -1,0 +1,151 @@
+"""The gonio command line: simulate, info, bad input (one line, exit 2, no file), Ctrl-C."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from goniometer.cli import main
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
+GOOD = """name = "p"
+category = "plastic"
+[[layers]]
+type = "interface"
+roughness = 0.2
+ior = 1.5
+[[layers]]
+type = "lambertian"
+albedo = 0.5
+[simulation]
+incident_deg = [0, 45]
+rays = 2000
+resolution = [9, 18]
+"""
+
+
+def test_simulate_then_info(tmp_path, capsys):
+    out = tmp_path / "m.h5"
+    code = main(["simulate", str(EXAMPLES / "metal.toml"), "--out", str(out), "--rays", "3000",
+                 "--incident", "0,30", "--resolution", "9x18", "--seed", "4", "--threads", "1",
+                 "--parametrization", "half", "--masking", "height-correlated", "--max-order", "3"])
+    assert code == 0 and out.exists()
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["material"]["name"] == "metal/M4-a0_0.2-a1_0.2" and d["material"]["category"] == "metal"
+    s = d["settings"]
+    assert s["incident_deg"] == [0.0, 30.0] and s["rays"] == 3000 and s["resolution"] == [9, 18]
+    assert s["seed"] == 4 and s["parametrization"] == "half" and s["masking"] == "height-correlated"
+    assert s["max_order"] == 3 and d["performance"]["threads"] == 1 and d["performance"]["rays_per_s"] > 0
+    assert len(d["energy"]) == 2 and set(d["energy"][0]) >= {"reflected", "transmitted", "absorbed", "masking_loss"}
+    assert main(["info", str(out)]) == 0
+    assert "metal/M4" in capsys.readouterr().out
+
+
+def test_file_table_is_used_and_overridden(tmp_path, capsys):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(GOOD)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "a.h5")]) == 0
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "b.h5"), "--incident", "10:90"]) == 0
+    capsys.readouterr()
+    main(["info", str(tmp_path / "a.h5"), "--json"])
+    a = json.loads(capsys.readouterr().out)
+    main(["info", str(tmp_path / "b.h5"), "--json"])
+    b = json.loads(capsys.readouterr().out)
+    assert a["settings"]["incident_deg"] == [0.0, 45.0] and a["settings"]["rays"] == 2000
+    assert b["settings"]["incident_deg"] == [10.0] and b["settings"]["incident_phi_deg"] == [90.0]
+
+
+BAD_CASES = [
+    ("invalid.toml", "name = \n", [], "invalid TOML"),
+    ("layer.toml", GOOD.replace('type = "lambertian"', 'type = "velvet"'), [], "layers[1].type"),
+    ("key.toml", GOOD.replace("roughness = 0.2", "roughness = 0.2\nshine = 1"), [], "layers[0].shine"),
+    ("rough.toml", GOOD.replace("roughness = 0.2", "roughness = 2"), [], "layers[0].roughness"),
+    ("tau.toml", GOOD.replace('[[layers]]\ntype = "lambertian"', '[[layers]]\ntype = "medium"\noptical_depth = -1\n[[layers]]\ntype = "lambertian"'), [], "layers[1].optical_depth"),
+    ("rho.toml", GOOD.replace("albedo = 0.5", "albedo = 1.5"), [], "layers[1].albedo"),
+    ("order.toml", GOOD.replace('type = "lambertian"\nalbedo = 0.5', 'type = "lambertian"\nalbedo = 0.5\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 1.5'), [], "layers[1].type"),
+    ("rays.toml", GOOD, ["--rays", "0"], "rays"),
+    ("inc.toml", GOOD, ["--incident", "0,90"], "incident_deg: 90"),
+    ("inc2.toml", GOOD, ["--incident", "abc"], "--incident"),
+    ("res.toml", GOOD, ["--resolution", "90by360"], "--resolution"),
+    ("sim.toml", GOOD.replace("rays = 2000", "rays = -5"), [], "simulation.rays"),
+]
+
+
+@pytest.mark.parametrize("fname, text, extra, expected", BAD_CASES)
+def test_bad_input_is_one_line_exit_2_and_no_file(tmp_path, capsys, fname, text, extra, expected):
+    cfg = tmp_path / fname
+    cfg.write_text(text)
+    out = tmp_path / "out.h5"
+    code = main(["simulate", str(cfg), "--out", str(out)] + extra)
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.startswith("gonio: error: ") and expected in err and "\n" not in err
+    assert not out.exists()
+    if "layers" in expected or "TOML" in expected:
+        assert str(cfg) in err
+
+
+def test_existing_output_is_not_touched_on_error(tmp_path, capsys):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(GOOD)
+    out = tmp_path / "keep.h5"
+    out.write_bytes(b"keep me")
+    assert main(["simulate", str(cfg), "--out", str(out), "--rays", "0"]) == 2
+    assert out.read_bytes() == b"keep me"
+
+
+def test_unwritable_output(tmp_path, capsys):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(GOOD)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "missing-dir" / "x.h5")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        if os.access(ro, os.W_OK):
+            pytest.skip("running as a user who can write anywhere (root)")
+        assert main(["simulate", str(cfg), "--out", str(ro / "x.h5")]) == 2
+        assert "not writable" in capsys.readouterr().err
+    finally:
+        ro.chmod(0o700)
+
+
+def test_info_on_a_bad_file(tmp_path, capsys):
+    bad = tmp_path / "x.h5"
+    bad.write_text("nope")
+    assert main(["info", str(bad)]) == 2
+    assert capsys.readouterr().err.startswith("gonio: error: ")
+
+
+def test_ctrl_c_leaves_no_partial_file(tmp_path):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(GOOD)
+    out = tmp_path / "big.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "goniometer.cli", "simulate", str(cfg), "--out", str(out),
+                             "--rays", "200000000", "--threads", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        # wait until the run is tracing (its banner is printed before the first batch)
+        deadline = time.time() + 120
+        banner = b""
+        while b"simulating" not in banner and time.time() < deadline:
+            banner += proc.stderr.read1(1024)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert b"interrupted" in err
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["p.toml"]

@@ -1,0 +1,102 @@
+"""Material files: the TOML contract, validation messages, canonical JSON, packing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goniometer.stack import (BASE_CONDUCTOR, BASE_LAMBERTIAN, BASE_TRANSMIT, Interface, Lambertian, Medium,
+                              Stack, StackError, load_toml, pack, stack_from_dict)
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
+
+
+@pytest.mark.parametrize("name, base", [("plastic", "lambertian"), ("metal", "conductor"), ("slab", "transmit")])
+def test_examples_load(name, base):
+    stack, sim = load_toml(EXAMPLES / f"{name}.toml")
+    assert stack.base == base
+    assert stack.category == name
+    assert sim["rays"] > 0
+    assert stack.transmits == (base == "transmit")
+
+
+def test_canonical_json_round_trip(metal, plastic, slab):
+    for st in (metal, plastic, slab):
+        again = Stack.from_json(st.to_json())
+        assert again == st
+        assert again.to_json() == st.to_json()
+        assert " " not in st.to_json()
+
+
+def test_toml_round_trip(tmp_path, metal, plastic):
+    for st in (metal, plastic):
+        p = tmp_path / "m.toml"
+        p.write_text(st.to_toml())
+        assert load_toml(p)[0] == st
+
+
+def test_scalars_expand_to_rgb():
+    st = stack_from_dict({"name": "x", "layers": [
+        {"type": "interface", "roughness": 0.1, "ior": 1.5},
+        {"type": "medium", "optical_depth": 0.3},
+        {"type": "lambertian", "albedo": 0.5}]})
+    assert st.layers[1].optical_depth == (0.3, 0.3, 0.3)
+    assert st.layers[2].albedo == (0.5, 0.5, 0.5)
+    assert st.layers[0].ior == (1.5, 1.5, 1.5)
+
+
+def test_pack_regions():
+    st = Stack("s", (Interface(0.1, (1.5,) * 3), Medium((0.1, 0.2, 0.3)), Interface(0.2, (1.3,) * 3),
+                     Interface(0.3, (1.0,) * 3)))
+    p = pack(st)
+    assert p.base_kind == BASE_TRANSMIT
+    np.testing.assert_array_equal(p.region_eta, [1.0, 1.5, 1.3, 1.0])
+    np.testing.assert_array_equal(p.region_tau[1], [0.1, 0.2, 0.3])
+    assert not p.region_tau[[0, 2, 3]].any()
+    m = pack(Stack("m", (Interface(0.1, (1.5,) * 3), Medium((0.2,) * 3), Interface(0.2, (1.2, 1.3, 1.45), (1.0, 0.5, 0.01)))))
+    assert m.base_kind == BASE_CONDUCTOR
+    np.testing.assert_allclose(m.cond, [1.2 / 1.5, 1.3 / 1.5, 1.45 / 1.5, 1 / 1.5, 0.5 / 1.5, 0.01 / 1.5])
+    lam = pack(Stack("l", (Lambertian((0.3, 0.4, 0.5)),)))
+    assert lam.base_kind == BASE_LAMBERTIAN and lam.region_eta.shape == (1,)
+
+
+BAD = [
+    ("type = ", "invalid TOML"),
+    ('name = "x"\n[[layers]]\ntype = "glass"\n', "layers[0].type"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 1.5\ncolour = 1\n', "layers[0].colour: unknown key"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 1.5\nior = 1.5\n', "layers[0].roughness"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = -0.1\nior = 1.5\n', "layers[0].roughness"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 1.5\n[[layers]]\ntype = "medium"\noptical_depth = -1\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "layers[1].optical_depth"),
+    ('name = "x"\n[[layers]]\ntype = "lambertian"\nalbedo = [0.2, 1.2, 0.1]\n', "layers[0].albedo"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 1.5\nextinction = 2\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "layers[0].extinction: a conductor"),
+    ('name = "x"\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "layers[0].type"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 1.5\n[[layers]]\ntype = "medium"\noptical_depth = 1\n[[layers]]\ntype = "medium"\noptical_depth = 1\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "layers[2].type: two media"),
+    ('name = "x"\n[[layers]]\ntype = "medium"\noptical_depth = 1\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "layers[0].type: a medium cannot be the top"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 1.5\n[[layers]]\ntype = "medium"\noptical_depth = 1\n', "layers[1].type: a medium must lie above"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = 0\n', "layers[0].ior"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = [1.4, 1.5, 1.6]\n', "layers[0].ior: a dielectric"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = 0.1\nior = [1.4, 1.5]\nextinction = 1\n', "layers[0].ior: an RGB value needs 3"),
+    ('name = "x"\n[[layers]]\ntype = "interface"\nroughness = "rough"\nior = 1.5\n', "layers[0].roughness"),
+    ('[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "name: required"),
+    ('name = "x"\n', "layers: required"),
+    ('name = "x"\ncategory = "wood"\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n', "category"),
+    ('name = "x"\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n[simulation]\nspeed = 3\n', "simulation.speed: unknown key"),
+]
+
+
+@pytest.mark.parametrize("text, expected", BAD)
+def test_bad_material_files_name_file_layer_and_field(tmp_path, text, expected):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(StackError) as e:
+        load_toml(p)
+    msg = str(e.value)
+    assert str(p) in msg and expected in msg
+    assert "\n" not in msg
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(StackError, match="cannot read"):
+        load_toml(tmp_path / "nope.toml")
