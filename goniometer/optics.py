@@ -61,24 +61,30 @@ def fresnel_dielectric(cos_i: float, eta: float) -> float:
 def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     """Exact unpolarised Fresnel reflectance for a complex relative index ``eta + i kappa``.
 
-    Valid for any ``kappa >= 0`` (``kappa = 0`` gives the dielectric result,
-    total internal reflection included). ``cos_i`` as in :func:`fresnel_dielectric`.
+    Valid for any ``kappa >= 0`` (``kappa = 0`` gives the dielectric result, total internal
+    reflection included). ``cos_i`` as in :func:`fresnel_dielectric`. Real-arithmetic form
+    (Born & Wolf): with ``a^2 + b^2 = sqrt((eta^2 - kappa^2 - sin^2)^2 + 4 eta^2 kappa^2)`` and
+    ``a = sqrt((a^2 + b^2 + eta^2 - kappa^2 - sin^2) / 2)`` (``a + i b = sqrt(n^2 - sin^2)``),
+    ``Rs = (a^2+b^2 - 2a cos + cos^2) / (a^2+b^2 + 2a cos + cos^2)`` and
+    ``Rp = Rs (a^2+b^2 cos^2 - 2a cos sin^2 + sin^4) / (a^2+b^2 cos^2 + 2a cos sin^2 + sin^4)``.
     """
     if eta == 1.0 and kappa == 0.0:
         return 0.0
     c = min(abs(cos_i), 1.0)
     if c == 0.0:
         return 1.0
-    s2 = 1.0 - c * c
-    n = complex(eta, kappa)
-    n2 = n * n
-    # w = n cos_t, the root with non-negative imaginary part (decaying wave)
-    w = np.sqrt(n2 - s2)
-    if w.imag < 0.0:
-        w = -w
-    rs = (c - w) / (c + w)
-    rp = (n2 * c - w) / (n2 * c + w)
-    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+    c2 = c * c
+    s2 = 1.0 - c2
+    t = eta * eta - kappa * kappa - s2
+    a2b2 = math.sqrt(t * t + 4.0 * eta * eta * kappa * kappa)
+    a = math.sqrt(max(0.0, 0.5 * (a2b2 + t)))
+    t1 = a2b2 + c2
+    t2 = 2.0 * a * c
+    rs = (t1 - t2) / (t1 + t2)
+    t3 = a2b2 * c2 + s2 * s2
+    t4 = t2 * s2
+    rp = rs * (t3 - t4) / (t3 + t4)
+    return 0.5 * (rs + rp)
 
 
 # --------------------------------------------------------------------------- GGX
@@ -147,46 +153,34 @@ def smith_g2(lambda_i: float, lambda_o: float, transmission: bool, height_correl
 
 @numba.njit(cache=True)
 def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float, u2: float):
-    """Sample a microfacet normal from the GGX visible-normal distribution (Heitz 2018).
+    """Sample a microfacet normal from the GGX visible-normal distribution.
 
     ``w`` is the direction the light arrives from (local frame, ``w_z > 0``);
     ``u1, u2`` uniform in [0, 1). The density of the returned normal m is
-    ``G1(w) max(0, w.m) D(m) / w_z``. ``ax = ay = 0`` returns the macro normal.
+    ``G1(w) max(0, w.m) D(m) / w_z`` (Heitz 2018). Sampling uses the spherical-cap
+    construction of Dupuy & Benyoub 2023, which draws exactly that density: in the
+    stretched (alpha = 1) configuration the visible normals of ``w`` are
+    ``normalize(w + c)`` with ``c`` uniform on the unit-sphere cap ``z > -w_z``.
+    ``ax = ay = 0`` returns the macro normal.
     """
-    # stretch
-    hx = ax * wx
-    hy = ay * wy
-    hz = wz
-    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    hx *= inv
-    hy *= inv
-    hz *= inv
-    lensq = hx * hx + hy * hy
-    if lensq > 0.0:
-        il = 1.0 / math.sqrt(lensq)
-        t1x = -hy * il
-        t1y = hx * il
-    else:
-        t1x = 1.0
-        t1y = 0.0
-    # T2 = cross(Vh, T1) with T1 = (t1x, t1y, 0)
-    t2x = -hz * t1y
-    t2y = hz * t1x
-    t2z = hx * t1y - hy * t1x
-    r = math.sqrt(u1)
-    phi = 2.0 * math.pi * u2
-    p1 = r * math.cos(phi)
-    p2 = r * math.sin(phi)
-    s = 0.5 * (1.0 + hz)
-    p2 = (1.0 - s) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2
-    pz = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
-    nx = p1 * t1x + p2 * t2x + pz * hx
-    ny = p1 * t1y + p2 * t2y + pz * hy
-    nz = p2 * t2z + pz * hz
+    # stretch to the alpha = 1 configuration
+    sx = ax * wx
+    sy = ay * wy
+    inv = 1.0 / math.sqrt(sx * sx + sy * sy + wz * wz)
+    sx *= inv
+    sy *= inv
+    sz = wz * inv
+    # uniform point on the spherical cap z in (-sz, 1]
+    phi = 2.0 * math.pi * u1
+    z = (1.0 - u2) * (1.0 + sz) - sz
+    st = math.sqrt(max(0.0, 1.0 - z * z))
+    hx = st * math.cos(phi) + sx
+    hy = st * math.sin(phi) + sy
+    hz = z + sz
     # unstretch
-    mx = ax * nx
-    my = ay * ny
-    mz = max(1e-12, nz)
+    mx = ax * hx
+    my = ay * hy
+    mz = max(1e-300, hz)
     inv = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
     return mx * inv, my * inv, mz * inv
 

@@ -230,20 +230,17 @@ def _trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     n_chunks = -(-settings.rays // settings.chunk_rays)
     batch = max(1, min(2 * threads, n_chunks))
     bt_shape = (nt, nph) if stack.transmits else (1, 1)
-    out_brdf = np.empty((batch, K, 3, nt, nph))
-    out_brdf_sq = np.empty((batch, 3, nt, nph))
-    out_btdf = np.empty((batch, K, 3) + bt_shape)
-    out_btdf_sq = np.empty((batch, 3) + bt_shape)
+    out_brdf = np.empty((batch, nt, nph, K + 1, 3))
+    out_btdf = np.empty((batch,) + bt_shape + (K + 1, 3))
     out_energy = np.empty((batch, tracer.N_ENERGY, 3))
     out_energy_sq = np.empty((batch, tracer.N_ENERGY_SQ, 3))
     out_counts = np.empty((batch, tracer.N_COUNTS), dtype=np.int64)
-    acc = [np.zeros(a.shape[1:], a.dtype) for a in
-           (out_brdf, out_brdf_sq, out_btdf, out_btdf_sq, out_energy, out_energy_sq, out_counts)]
+    outs_all = (out_brdf, out_btdf, out_energy, out_energy_sq, out_counts)
+    acc = [np.zeros(a.shape[1:], a.dtype) for a in outs_all]
     t0 = time.perf_counter()
     for first in range(0, n_chunks, batch):
         nb = min(batch, n_chunks - first)
-        outs = (out_brdf[:nb], out_brdf_sq[:nb], out_btdf[:nb], out_btdf_sq[:nb],
-                out_energy[:nb], out_energy_sq[:nb], out_counts[:nb])
+        outs = tuple(a[:nb] for a in outs_all)
         tracer.trace_batch(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
                            first, settings.seed, m, param, nt, nph, K,
                            settings.masking == "height-correlated", settings.event_cap, *outs)
@@ -251,34 +248,35 @@ def _trace_incident(stack: Stack, settings: SimulationSettings, m: int,
             for a, o in zip(acc, outs):
                 a += o[b]
         if progress is not None:
-            done = min(settings.rays, (first + nb) * settings.chunk_rays) - min(settings.rays, first * settings.chunk_rays)
-            progress(done)
+            progress(min(settings.rays, (first + nb) * settings.chunk_rays) - first * settings.chunk_rays)
     elapsed = time.perf_counter() - t0
-    return IncidentPart(m, acc[0], acc[1], acc[2] if stack.transmits else None,
-                        acc[3] if stack.transmits else None, acc[4], acc[5], acc[6], elapsed)
+
+    def split(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # (n_theta, n_phi, K + 1, 3) -> orders (K, 3, n_theta, n_phi), squares (3, n_theta, n_phi)
+        return (np.ascontiguousarray(h[:, :, :K, :].transpose(2, 3, 0, 1)),
+                np.ascontiguousarray(h[:, :, K, :].transpose(2, 0, 1)))
+
+    brdf, brdf_sq = split(acc[0])
+    btdf, btdf_sq = split(acc[1]) if stack.transmits else (None, None)
+    return IncidentPart(m, brdf, brdf_sq, btdf, btdf_sq, acc[2], acc[3], acc[4], elapsed)
 
 
-def _slice_from_sums(grid: SliceGrid, lights: list[np.ndarray], sums: list[np.ndarray],
-                     sqs: list[np.ndarray], n: int) -> SliceData:
-    M = len(lights)
+def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.ndarray],
+                     sums: list[np.ndarray], sqs: list[np.ndarray], n: int) -> SliceData:
+    M = len(omegas)
     K = sums[0].shape[0]
     nt, nph = grid.shape
     value = np.zeros((M, 3, nt, nph))
     stderr = np.zeros((M, 3, nt, nph))
     orders = np.zeros((M, K, 3, nt, nph))
-    mask = np.zeros((M, nt, nph), dtype=bool)
-    omega = np.zeros((M, nt, nph))
-    for m, l in enumerate(lights):
-        om = grid.proj_solid_angle(l)
-        omega[m] = om
-        mask[m] = grid.mask(l)
+    for m, om in enumerate(omegas):
         inv = np.divide(1.0, n * om, out=np.zeros_like(om), where=om > 0)
         s1 = sums[m].sum(axis=0)
         value[m] = s1 * inv
         orders[m] = sums[m] * inv
         var = np.maximum(sqs[m] - s1 * s1 / n, 0.0) / max(n - 1, 1)
         stderr[m] = np.sqrt(var * n) * inv
-    return SliceData(grid, value, stderr, orders, mask, omega)
+    return SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas))
 
 
 def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPart],
@@ -288,11 +286,14 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     n = settings.rays
     nt, nph = settings.resolution
     lights = [light_direction(t, p) for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
-    brdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "reflection"), lights,
-                            [p.brdf for p in parts], [p.brdf_sq for p in parts], n)
+    grid = SliceGrid(settings.parametrization, nt, nph, "reflection")
+    # |cos theta_v| and the validity of sub-cells are the same on both sides: compute them once
+    omegas = [grid.proj_solid_angle(l) for l in lights]
+    masks = [grid.mask(l) for l in lights]
+    brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n)
     btdf = None
     if stack.transmits:
-        btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), lights,
+        btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), omegas, masks,
                                 [p.btdf for p in parts], [p.btdf_sq for p in parts], n)
     energy: dict[str, np.ndarray] = {}
     energy_se: dict[str, np.ndarray] = {}

@@ -70,46 +70,60 @@ def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
 
 
 @numba.njit(cache=True)
-def _half_subcells(lx, ly, lz, n_theta, n_phi, s, transmission, want_dirs):
+def _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s):
+    """Centre direction v (reflection side) and projected solid angle of half sub-cell (i, a; j, b)."""
+    u0 = (i + a / s) / n_theta
+    u1 = (i + (a + 1.0) / s) / n_theta
+    uc = (i + (a + 0.5) / s) / n_theta
+    dw_h = (math.cos(u0 * u0 * _HALF_PI) - math.cos(u1 * u1 * _HALF_PI)) * (_TWO_PI / n_phi / s)
+    thc = uc * uc * _HALF_PI
+    st = math.sin(thc)
+    ph = (j + (b + 0.5) / s) * (_TWO_PI / n_phi)
+    hx = st * math.cos(ph)
+    hy = st * math.sin(ph)
+    hz = math.cos(thc)
+    lh = lx * hx + ly * hy + lz * hz
+    vx = 2.0 * lh * hx - lx
+    vy = 2.0 * lh * hy - ly
+    vz = 2.0 * lh * hz - lz
+    w = dw_h * vz * 4.0 * lh if (lh > 0.0 and vz > 0.0) else 0.0
+    return vx, vy, vz, w
+
+
+@numba.njit(cache=True, parallel=True)
+def _half_subcells(lx, ly, lz, n_theta, n_phi, s, transmission):
     """Sub-cell centre directions and weights of a half slice (see :meth:`SliceGrid.subcells`)."""
-    dirs = np.zeros((n_theta, n_phi, s, s, 3) if want_dirs else (1, 1, 1, 1, 3))
-    weights = np.zeros((n_theta, n_phi, s, s) if want_dirs else (1, 1, 1, 1))
+    dirs = np.empty((n_theta, n_phi, s, s, 3))
+    weights = np.empty((n_theta, n_phi, s, s))
+    for i in numba.prange(n_theta):
+        for j in range(n_phi):
+            for a in range(s):
+                for b in range(s):
+                    vx, vy, vz, w = _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s)
+                    dirs[i, j, a, b, 0] = vx
+                    dirs[i, j, a, b, 1] = vy
+                    dirs[i, j, a, b, 2] = -vz if transmission else vz
+                    weights[i, j, a, b] = w
+    return dirs, weights
+
+
+@numba.njit(cache=True, parallel=True)
+def _half_omega(lx, ly, lz, n_theta, n_phi, s):
+    """Sum of sub-cell weights per half cell and whether every sub-cell centre is valid."""
     omega = np.zeros((n_theta, n_phi))
     valid = np.ones((n_theta, n_phi), dtype=np.bool_)
-    dphi = _TWO_PI / n_phi / s
-    for i in range(n_theta):
-        for a in range(s):
-            u0 = (i + a / s) / n_theta
-            u1 = (i + (a + 1.0) / s) / n_theta
-            uc = (i + (a + 0.5) / s) / n_theta
-            th0 = u0 * u0 * _HALF_PI
-            th1 = u1 * u1 * _HALF_PI
-            thc = uc * uc * _HALF_PI
-            dw_h = (math.cos(th0) - math.cos(th1)) * dphi
-            st = math.sin(thc)
-            ct = math.cos(thc)
-            for j in range(n_phi):
+    for i in numba.prange(n_theta):
+        for j in range(n_phi):
+            acc = 0.0
+            ok = True
+            for a in range(s):
                 for b in range(s):
-                    ph = (j + (b + 0.5) / s) * (_TWO_PI / n_phi)
-                    hx = st * math.cos(ph)
-                    hy = st * math.sin(ph)
-                    hz = ct
-                    lh = lx * hx + ly * hy + lz * hz
-                    vx = 2.0 * lh * hx - lx
-                    vy = 2.0 * lh * hy - ly
-                    vz = 2.0 * lh * hz - lz
-                    w = 0.0
-                    if lh > 0.0 and vz > 0.0:
-                        w = dw_h * vz * 4.0 * lh
-                    else:
-                        valid[i, j] = False
-                    omega[i, j] += w
-                    if want_dirs:
-                        dirs[i, j, a, b, 0] = vx
-                        dirs[i, j, a, b, 1] = vy
-                        dirs[i, j, a, b, 2] = -vz if transmission else vz
-                        weights[i, j, a, b] = w
-    return dirs, weights, omega, valid
+                    w = _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s)[3]
+                    acc += w
+                    ok = ok and w > 0.0
+            omega[i, j] = acc
+            valid[i, j] = ok
+    return omega, valid
 
 
 @dataclass(frozen=True)
@@ -177,9 +191,7 @@ class SliceGrid:
         if s < 1:
             raise ValueError(f"sub-cells: s = {s} must be >= 1")
         if self.parametrization == "half":
-            v, w, _, _ = _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi, s,
-                                        self.transmission, True)
-            return v, w
+            return _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi, s, self.transmission)
         dth = _HALF_PI / self.n_theta / s
         dph = _TWO_PI / self.n_phi / s
         th_e = np.arange(self.n_theta * s + 1) * dth
@@ -209,9 +221,7 @@ class SliceGrid:
             row = 0.5 * (np.sin(th[1:]) ** 2 - np.sin(th[:-1]) ** 2) * (_TWO_PI / self.n_phi)
             return np.repeat(row[:, None], self.n_phi, axis=1)
         l = _unit(light)
-        _, _, omega, _ = _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi,
-                                        OMEGA_SUBCELLS, self.transmission, False)
-        return omega
+        return _half_omega(l[0], l[1], l[2], self.n_theta, self.n_phi, OMEGA_SUBCELLS)[0]
 
     def mask(self, light: np.ndarray, s: int = 5) -> np.ndarray:
         """Cells valid for comparisons, shape ``(n_theta, n_phi)`` bool.
@@ -222,9 +232,7 @@ class SliceGrid:
         if self.parametrization == "classic":
             return np.ones(self.shape, dtype=bool)
         l = _unit(light)
-        _, _, _, valid = _half_subcells(l[0], l[1], l[2], self.n_theta, self.n_phi, s,
-                                        self.transmission, False)
-        valid = valid.copy()
+        valid = _half_omega(l[0], l[1], l[2], self.n_theta, self.n_phi, s)[1]
         valid[0, :] = False
         return valid
 

@@ -55,26 +55,37 @@ RR_THRESHOLD = 0.05
 EVENT_CAP = 10_000
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, max_order, height_correlated,
-                event_cap, brdf, brdf_sq, btdf, btdf_sq, energy, energy_sq, counts):
+                event_cap, brdf, btdf, energy, energy_sq, counts):
     """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
 
-    ``brdf``/``btdf``: (K, 3, n_theta, n_phi) sums of exit weights per bounce order;
-    ``brdf_sq``/``btdf_sq``: (3, n_theta, n_phi) sums of squared weights; ``energy``:
-    (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path
-    totals; ``counts``: (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced).
+    ``brdf``/``btdf``: (n_theta, n_phi, K + 1, 3), cell-major so that one exit touches one or
+    two cache lines: rows ``0 .. K-1`` sum the exit weights of bounce orders ``1 .. K`` (K
+    meaning "K or more"), row ``K`` sums the squared weights. ``energy``: (N_ENERGY, 3) weight
+    sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals; ``counts``:
+    (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced).
     """
     n_if = region_eta.shape[0] - 1
-    has_tau = np.zeros(n_if + 1, dtype=np.bool_)
-    for r in range(n_if + 1):
-        has_tau[r] = region_tau[r, 0] > 0.0 or region_tau[r, 1] > 0.0 or region_tau[r, 2] > 0.0
-    aniso = np.zeros(max(n_if, 1), dtype=np.bool_)
-    for k in range(n_if):
-        aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
+    # per region: 0 no absorption, 1 achromatic (one exp), 2 chromatic
+    tau_mode = np.zeros(n_if + 1, dtype=np.int64)
+    for r in range(n_if + 1):
+        t0 = region_tau[r, 0]
+        if t0 > 0.0 or region_tau[r, 1] > 0.0 or region_tau[r, 2] > 0.0:
+            tau_mode[r] = 1 if (region_tau[r, 1] == t0 and region_tau[r, 2] == t0) else 2
+    # per interface: relative indices going down / up, tangent-frame rotation needed
+    n_k = max(n_if, 1)
+    eta_dn = np.ones(n_k)
+    aniso = np.zeros(n_k, dtype=np.bool_)
+    for k in range(n_if):
+        eta_dn[k] = region_eta[k + 1] / region_eta[k]
+        aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
+    # conductor channels that share their complex index share their Fresnel value
+    cond_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
+    cond_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
     n_events_total = 0
 
     for _ in range(n_rays):
@@ -101,11 +112,16 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 counts[C_CAPPED] += 1
                 break
             # ---- traverse the current region (Beer-Lambert)
-            if has_tau[region]:
-                mu = abs(dz)
-                a0 = math.exp(-region_tau[region, 0] / mu)
-                a1 = math.exp(-region_tau[region, 1] / mu)
-                a2 = math.exp(-region_tau[region, 2] / mu)
+            tm = tau_mode[region]
+            if tm != 0:
+                inv_mu = 1.0 / abs(dz)
+                a0 = math.exp(-region_tau[region, 0] * inv_mu)
+                if tm == 1:
+                    a1 = a0
+                    a2 = a0
+                else:
+                    a1 = math.exp(-region_tau[region, 1] * inv_mu)
+                    a2 = math.exp(-region_tau[region, 2] * inv_mu)
                 ab0 += w0 * (1.0 - a0)
                 ab1 += w1 * (1.0 - a1)
                 ab2 += w2 * (1.0 - a2)
@@ -119,12 +135,12 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     # leaves the stack upward: BRDF
                     i, j = cell_index(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi)
                     o = min(order, max_order) - 1
-                    brdf[o, 0, i, j] += w0
-                    brdf[o, 1, i, j] += w1
-                    brdf[o, 2, i, j] += w2
-                    brdf_sq[0, i, j] += w0 * w0
-                    brdf_sq[1, i, j] += w1 * w1
-                    brdf_sq[2, i, j] += w2 * w2
+                    brdf[i, j, o, 0] += w0
+                    brdf[i, j, o, 1] += w1
+                    brdf[i, j, o, 2] += w2
+                    brdf[i, j, max_order, 0] += w0 * w0
+                    brdf[i, j, max_order, 1] += w1 * w1
+                    brdf[i, j, max_order, 2] += w2 * w2
                     energy[E_REFLECTED, 0] += w0
                     energy[E_REFLECTED, 1] += w1
                     energy[E_REFLECTED, 2] += w2
@@ -141,12 +157,12 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 # leaves the stack downward: BTDF
                 i, j = cell_index(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi)
                 o = min(order, max_order) - 1
-                btdf[o, 0, i, j] += w0
-                btdf[o, 1, i, j] += w1
-                btdf[o, 2, i, j] += w2
-                btdf_sq[0, i, j] += w0 * w0
-                btdf_sq[1, i, j] += w1 * w1
-                btdf_sq[2, i, j] += w2 * w2
+                btdf[i, j, o, 0] += w0
+                btdf[i, j, o, 1] += w1
+                btdf[i, j, o, 2] += w2
+                btdf[i, j, max_order, 0] += w0 * w0
+                btdf[i, j, max_order, 1] += w1 * w1
+                btdf[i, j, max_order, 2] += w2 * w2
                 energy[E_TRANSMITTED, 0] += w0
                 energy[E_TRANSMITTED, 1] += w1
                 energy[E_TRANSMITTED, 2] += w2
@@ -184,10 +200,8 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 wx = -dx
                 wy = -dy
                 wz = -dz if from_above else dz
-                eta_above = region_eta[k]
-                eta_below = region_eta[k + 1]
                 is_cond = conductor_base and k == n_if - 1
-                if not is_cond and eta_above == eta_below:
+                if not is_cond and eta_dn[k] == 1.0:
                     # index-matched dielectric: the interface is optically absent
                     region = k + 1 if from_above else k
                 else:
@@ -209,8 +223,8 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     transmitted = False
                     if is_cond:
                         f0 = optics.fresnel_conductor(wm, cond[0], cond[3])
-                        f1 = optics.fresnel_conductor(wm, cond[1], cond[4])
-                        f2 = optics.fresnel_conductor(wm, cond[2], cond[5])
+                        f1 = f0 if cond_g_is_r else optics.fresnel_conductor(wm, cond[1], cond[4])
+                        f2 = f1 if cond_b_is_g else optics.fresnel_conductor(wm, cond[2], cond[5])
                         ab0 += w0 * (1.0 - f0)
                         ab1 += w1 * (1.0 - f1)
                         ab2 += w2 * (1.0 - f2)
@@ -219,7 +233,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                         w2 *= f2
                         ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                     else:
-                        eta = eta_below / eta_above if from_above else eta_above / eta_below
+                        eta = eta_dn[k] if from_above else 1.0 / eta_dn[k]
                         f = optics.fresnel_dielectric(wm, eta)
                         if next_float(state) < f:
                             ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
@@ -292,11 +306,11 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
     counts[C_EVENTS] += n_events_total
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                 param, n_theta, n_phi, max_order, height_correlated, event_cap,
-                brdf, brdf_sq, btdf, btdf_sq, energy, energy_sq, counts):
+                brdf, btdf, energy, energy_sq, counts):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each.
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
@@ -309,9 +323,7 @@ def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
         start = c * chunk_rays
         n = min(chunk_rays, n_rays_total - start)
         brdf[b].fill(0.0)
-        brdf_sq[b].fill(0.0)
         btdf[b].fill(0.0)
-        btdf_sq[b].fill(0.0)
         energy[b].fill(0.0)
         energy_sq[b].fill(0.0)
         counts[b].fill(0)
@@ -320,5 +332,4 @@ def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     lx, ly, lz, n, state, param, n_theta, n_phi, max_order, height_correlated,
-                    event_cap, brdf[b], brdf_sq[b], btdf[b], btdf_sq[b], energy[b], energy_sq[b],
-                    counts[b])
+                    event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])

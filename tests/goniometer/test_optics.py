@@ -153,18 +153,18 @@ def test_fresnel_dielectric_tabulated():
 
 def test_fresnel_conductor_tabulated():
     """Normal incidence closed form ((n-1)^2 + k^2) / ((n+1)^2 + k^2); at oblique incidence the
-    real-arithmetic form of Born & Wolf (a^2, b^2 of the complex refraction), written here
-    independently of the complex-arithmetic code under test; kappa = 0 equals the dielectric
-    formula, TIR included; grazing incidence reflects everything."""
-    for n, k in [(0.958, 6.69), (1.45, 1.0), (0.2, 3.0), (1.2, 0.01)]:
+    complex-amplitude form rs = (cos - w)/(cos + w), rp = (n^2 cos - w)/(n^2 cos + w) with
+    w = sqrt(n^2 - sin^2) (written here independently of the real-arithmetic code under test);
+    kappa = 0 equals the dielectric formula, TIR included; grazing incidence reflects everything."""
+    for n, k in [(0.958, 6.69), (1.45, 1.0), (0.2, 3.0), (1.2, 0.01), (1 / 1.5, 0.0), (0.9667, 0.6667)]:
         assert optics.fresnel_conductor(1.0, n, k) == pytest.approx(((n - 1) ** 2 + k**2) / ((n + 1) ** 2 + k**2), rel=1e-12)
         for c in np.linspace(0.02, 1.0, 17):
-            s2 = 1 - c * c
-            t = n * n - k * k - s2
-            a2b2 = math.sqrt(t * t + 4 * n * n * k * k)
-            a = math.sqrt(0.5 * (a2b2 + t))
-            rs = (a2b2 + c * c - 2 * a * c) / (a2b2 + c * c + 2 * a * c)
-            rp = rs * (a2b2 * c * c - 2 * a * c * s2 + s2 * s2) / (a2b2 * c * c + 2 * a * c * s2 + s2 * s2)
+            nc = complex(n, k)
+            w = np.sqrt(nc * nc - (1 - c * c) + 0j)
+            if w.imag < 0:
+                w = -w
+            rs = abs((c - w) / (c + w)) ** 2
+            rp = abs((nc * nc * c - w) / (nc * nc * c + w)) ** 2
             assert optics.fresnel_conductor(c, n, k) == pytest.approx(0.5 * (rs + rp), rel=1e-10)
     for c in np.linspace(0.0, 1.0, 23):
         for eta in (1.5, 1 / 1.5, 1.0, 2.4):

@@ -94,3 +94,11 @@ def test_bad_grid():
         SliceGrid("polar")
     with pytest.raises(ValueError, match="n_theta"):
         SliceGrid("classic", 0, 10)
+
+
+@pytest.mark.parametrize("param", ["classic", "half"])
+def test_transmission_cells_share_solid_angles_and_masks(param):
+    l = light_direction(35.0, 10.0)
+    r, t = SliceGrid(param, 18, 36), SliceGrid(param, 18, 36, "transmission")
+    np.testing.assert_array_equal(r.proj_solid_angle(l), t.proj_solid_angle(l))
+    np.testing.assert_array_equal(r.mask(l), t.mask(l))

@@ -1,0 +1,125 @@
+"""Throughput benchmark of the goniometer (`make bench`).
+
+For a plastic, a metal and a slab of the database (alpha0 = 0.05, half slices, 7 incident
+directions) it measures rays per second of wall time and rays per CPU-second (the stable
+figure on a shared machine), with 1 and 2 threads, compile time excluded; and the compile time
+of the kernel from an empty numba cache (in a subprocess) and its load time from the cache.
+Writes ``benchmarks/results/<date>-<host>.json`` and prints a table.
+
+Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from goniometer.simulate import SimulationSettings, simulate, warm_up
+from goniometer.stack import Interface, Lambertian, Medium, Stack
+
+HERE = Path(__file__).resolve().parent
+INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
+TAU_C = (0.05, 0.1, 0.4)
+
+MATERIALS = {
+    "plastic/P1-a0_0.05": Stack("plastic/P1-a0_0.05", (Interface(0.05, (1.5,) * 3), Medium(TAU_C),
+                                                        Lambertian((0.2, 0.5, 0.8))), "plastic"),
+    "metal/M2-a0_0.05-a1_0.2": Stack("metal/M2-a0_0.05-a1_0.2", (Interface(0.05, (1.5,) * 3), Medium(TAU_C),
+                                                                  Interface(0.2, (1.45,) * 3, (1.0, 0.01, 0.01))), "metal"),
+    "slab/S1-a0_0.05-a1_0.2": Stack("slab/S1-a0_0.05-a1_0.2", (Interface(0.05, (1.5,) * 3), Medium(TAU_C),
+                                                                Interface(0.2, (1.0,) * 3)), "slab"),
+}
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def compile_times() -> dict[str, float]:
+    """Seconds to compile the kernel into an empty cache, and to load it from that cache."""
+    code = "import time; t=time.perf_counter(); from goniometer.simulate import warm_up; warm_up(); print(time.perf_counter()-t)"
+    with tempfile.TemporaryDirectory() as d:
+        env = dict(os.environ, NUMBA_CACHE_DIR=d)
+        cold = float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                    check=True).stdout.strip())
+        warm = float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                    check=True).stdout.strip())
+    return {"compile_s": cold, "cache_load_s": warm}
+
+
+def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
+    warm_up()
+    rows = []
+    for name, stack in MATERIALS.items():
+        for t in threads:
+            s = SimulationSettings(incident_deg=INCIDENT, rays=rays_per_incident, parametrization="half",
+                                   threads=t, seed=1)
+            c0, w0 = time.process_time(), time.perf_counter()
+            r = simulate(stack, s)
+            cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+            traced = float(np.sum(r.elapsed_s))
+            n = rays_per_incident * len(INCIDENT)
+            rows.append({
+                "material": name, "threads": t, "rays": n,
+                "wall_s": wall, "trace_wall_s": traced, "cpu_s": cpu,
+                "rays_per_s": n / traced, "rays_per_cpu_s": n / cpu,
+                "mean_events_per_ray": float(np.mean(r.mean_events)),
+            })
+            print(f"{name:28s} threads={t}  {n / traced / 1e6:6.2f} M rays/s wall   "
+                  f"{n / cpu / 1e6:6.2f} M rays/CPU-s   ({wall:.1f} s wall, {cpu:.1f} s CPU)", flush=True)
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rays-per-incident", type=int, default=1_500_000, help="7 incident directions each (default 1.5M: 10.5M rays per run)")
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--out", type=Path)
+    ap.add_argument("--no-compile-time", action="store_true")
+    args = ap.parse_args()
+    threads = [int(x) for x in args.threads.split(",")]
+    threads = [t for t in threads if t <= numba.config.NUMBA_NUM_THREADS]
+    print(f"machine: {cpu_model()}, {os.cpu_count()} logical CPUs; numba {numba.__version__}")
+    ct = {} if args.no_compile_time else compile_times()
+    if ct:
+        print(f"kernel compile {ct['compile_s']:.1f} s, load from cache {ct['cache_load_s']:.2f} s")
+    rows = run(args.rays_per_incident, threads)
+    host = socket.gethostname()
+    out = args.out or HERE / "results" / f"{dt.date.today().isoformat()}-{host}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    doc = {
+        "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "host": host, "cpu": cpu_model(), "logical_cpus": os.cpu_count(),
+        "python": platform.python_version(), "numba": numba.__version__, "numpy": np.__version__,
+        "incident_deg": list(INCIDENT), "parametrization": "half", "resolution": [90, 360],
+        **ct, "results": rows,
+        "target_rays_per_cpu_s": 3.2e6,
+        "target_note": "Bati 2019's C++/OpenMP simulator: 160 million rays per slice in 50 s on one core",
+    }
+    tmp = out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(doc, indent=2))
+    tmp.replace(out)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""The interface every analytic layered model implements, and the model registry.
+
+Conventions (same as :mod:`goniometer.optics` and SLICES.md):
+
+* ``l`` is the unit light direction (pointing towards the light, ``l_z > 0``), shape (3,).
+* ``v`` is an array of unit outgoing directions (pointing towards the viewer), shape (..., 3):
+  upper hemisphere for the BRDF (``side="brdf"``), lower hemisphere for the BTDF (``side="btdf"``).
+* Values are BSDF values **without** the cosine factor, in 1/sr, RGB on the last axis: (..., 3).
+  BTDF values are flux based (SLICES.md), i.e. the radiance BTDF when light exits into air.
+* A BRDF is split into ``top`` -- the lobe of light reflected directly off the top interface
+  (bounce order 1 in the simulator) -- and ``internal`` -- everything else. For a BTDF ``top``
+  is zero and ``internal`` holds the whole BTDF.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from goniometer.stack import Interface, Lambertian, Medium, Stack
+
+SIDES = ("brdf", "btdf")
+
+
+class ModelError(ValueError):
+    """A model asked for something it cannot do (message names the model and the reason)."""
+
+
+@dataclass
+class ModelValue:
+    """Model output for one light direction: ``top`` and ``internal``, each (..., 3), 1/sr."""
+
+    top: np.ndarray
+    internal: np.ndarray
+
+    @property
+    def total(self) -> np.ndarray:
+        return self.top + self.internal
+
+
+class Model(ABC):
+    """An analytic layered BSDF model.
+
+    Subclasses set ``name`` (the fixed CLI name), ``description``, ``sides`` (the sides it can
+    evaluate) and implement :meth:`support_reason` and :meth:`_evaluate`.
+    """
+
+    name: str = ""
+    description: str = ""
+    sides: tuple[str, ...] = ("brdf",)
+
+    @abstractmethod
+    def support_reason(self, stack: Stack) -> str | None:
+        """``None`` if the model can represent ``stack``, otherwise a one-line reason."""
+
+    def supports(self, stack: Stack) -> bool:
+        return self.support_reason(stack) is None
+
+    def evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> ModelValue:
+        """f(l, v) split into top lobe and internal part; raises :class:`ModelError` if unsupported."""
+        if side not in self.sides:
+            raise ModelError(f"{self.name}: cannot evaluate the {side.upper()} (it models {', '.join(self.sides)})")
+        reason = self.support_reason(stack)
+        if reason is not None:
+            raise ModelError(f"{self.name}: {reason}")
+        l = np.asarray(l, dtype=np.float64).reshape(3)
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape[-1] != 3:
+            raise ModelError(f"{self.name}: v must have shape (..., 3), got {v.shape}")
+        return self._evaluate(stack, l, v, side)
+
+    @abstractmethod
+    def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
+        """Evaluate for a supported stack (inputs already checked)."""
+
+
+# ---------------------------------------------------------------------- stack descriptions
+
+@dataclass(frozen=True)
+class CoatedBase:
+    """The two-interface structure of Bati 2019's database: a dielectric coat over a base.
+
+    ``alpha0``/``eta0``: top interface roughness and (absolute) coat index; ``tau``: optical
+    depth of the coat medium (RGB, zeros if none); ``base``: "lambertian", "conductor" or
+    "dielectric"; ``rho`` (Lambertian), ``alpha1``/``eta1``/``kappa1`` (conductor or dielectric
+    base interface, absolute index of what lies below it).
+    """
+
+    alpha0: float
+    eta0: float
+    tau: np.ndarray
+    base: str
+    rho: np.ndarray | None = None
+    alpha1: float | None = None
+    eta1: np.ndarray | None = None
+    kappa1: np.ndarray | None = None
+
+
+def coated_base(stack: Stack) -> CoatedBase | None:
+    """Describe ``stack`` as [dielectric interface, (medium), base] or return None."""
+    layers = list(stack.layers)
+    if len(layers) < 2 or not isinstance(layers[0], Interface) or layers[0].is_conductor:
+        return None
+    top = layers[0]
+    rest = layers[1:]
+    tau = np.zeros(3)
+    if isinstance(rest[0], Medium):
+        tau = np.asarray(rest[0].optical_depth, dtype=float)
+        rest = rest[1:]
+    if len(rest) != 1:
+        return None
+    b = rest[0]
+    if isinstance(b, Lambertian):
+        return CoatedBase(top.roughness, top.ior[0], tau, "lambertian", rho=np.asarray(b.albedo, dtype=float))
+    if isinstance(b, Interface):
+        kind = "conductor" if b.is_conductor else "dielectric"
+        return CoatedBase(top.roughness, top.ior[0], tau, kind, alpha1=b.roughness,
+                          eta1=np.asarray(b.ior, dtype=float), kappa1=np.asarray(b.extinction, dtype=float))
+    return None

@@ -1,0 +1,29 @@
+"""The fixed model names and where they live (built on demand; no global state)."""
+
+from __future__ import annotations
+
+from models.base import Model, ModelError
+
+
+def all_models() -> dict[str, Model]:
+    """Every model of the harness, by its fixed name, in display order."""
+    found: list[Model] = []
+    try:
+        from models.weidlich_wilkie import Elek10, WW09, WWBati19
+        found += [WW09(), Elek10(), WWBati19()]
+    except ImportError:  # pragma: no cover - during development only
+        pass
+    try:
+        from models.belcour import BelcourBati19, BelcourBTDF, BelcourForward, BelcourSymmetric
+        found += [BelcourForward(), BelcourSymmetric(), BelcourBati19(), BelcourBTDF()]
+    except ImportError:  # pragma: no cover
+        pass
+    return {m.name: m for m in found}
+
+
+def get(name: str) -> Model:
+    """The model called ``name``; :class:`ModelError` naming the known ones otherwise."""
+    models = all_models()
+    if name not in models:
+        raise ModelError(f"unknown model {name!r} (known: {', '.join(models)})")
+    return models[name]

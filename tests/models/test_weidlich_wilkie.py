@@ -1,0 +1,419 @@
+"""Tests of the Weidlich & Wilkie family (models.weidlich_wilkie): ww09, elek10, ww-bati19.
+
+Reference values are computed here from first principles, with textbook formulas written in
+angle form (Snell's law on angles, Fresnel via sin/tan differences and the a/b form for
+conductors, GGX D and Lambda in tan(theta)), independently of goniometer.optics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import integrate
+
+from goniometer.stack import Interface, Lambertian, Medium, Stack
+from models.base import ModelError, coated_base
+from models.weidlich_wilkie import WW09, WW09_VARIANT, Elek10, WWBati19, evaluate_variant
+
+DEG = math.pi / 180.0
+MODELS = {"ww09": WW09(), "elek10": Elek10(), "ww-bati19": WWBati19()}
+
+
+# ---------------------------------------------------------------------- textbook optics
+
+def direction(theta: float, phi: float) -> np.ndarray:
+    """Unit vector of polar angle theta and azimuth phi (radians) about z."""
+    return np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
+
+
+def fresnel_dielectric_tb(theta_i: float, n: float) -> float:
+    """Unpolarised Fresnel reflectance, incidence angle theta_i, relative index n (TIR -> 1).
+
+    Textbook form R = [sin^2(ti - tt)/sin^2(ti + tt) + tan^2(ti - tt)/tan^2(ti + tt)] / 2.
+    """
+    if theta_i == 0.0:
+        return ((n - 1.0) / (n + 1.0)) ** 2
+    s = math.sin(theta_i) / n
+    if s >= 1.0:
+        return 1.0
+    tt = math.asin(s)
+    rs = math.sin(theta_i - tt) ** 2 / math.sin(theta_i + tt) ** 2
+    rp = math.tan(theta_i - tt) ** 2 / math.tan(theta_i + tt) ** 2
+    return 0.5 * (rs + rp)
+
+
+def fresnel_conductor_tb(theta_i: float, n: float, k: float) -> float:
+    """Unpolarised reflectance of a conductor n + i k (Born & Wolf / Cook-Torrance a, b form)."""
+    c = math.cos(theta_i)
+    s2 = math.sin(theta_i) ** 2
+    t0 = n * n - k * k - s2
+    a2b2 = math.sqrt(t0 * t0 + 4.0 * n * n * k * k)
+    a = math.sqrt(0.5 * (a2b2 + t0))
+    rs = (a2b2 - 2.0 * a * c + c * c) / (a2b2 + 2.0 * a * c + c * c)
+    rp = rs * (a2b2 * c * c - 2.0 * a * c * s2 + s2 * s2) / (a2b2 * c * c + 2.0 * a * c * s2 + s2 * s2)
+    return 0.5 * (rs + rp)
+
+
+def ggx_d_tb(theta_m: float, alpha: float) -> float:
+    """GGX D = alpha^2 / (pi cos^4 (alpha^2 + tan^2)^2) (Walter 2007, eq. 33)."""
+    t2 = math.tan(theta_m) ** 2
+    return alpha * alpha / (math.pi * math.cos(theta_m) ** 4 * (alpha * alpha + t2) ** 2)
+
+
+def smith_g1_tb(theta: float, alpha: float) -> float:
+    """GGX Smith G1 = 1 / (1 + Lambda), Lambda = (sqrt(1 + alpha^2 tan^2) - 1) / 2."""
+    lam = 0.5 * (math.sqrt(1.0 + alpha * alpha * math.tan(theta) ** 2) - 1.0)
+    return 1.0 / (1.0 + lam)
+
+
+def polar(w: np.ndarray) -> float:
+    return math.acos(min(1.0, float(w[2])))
+
+
+def angle(a: np.ndarray, b: np.ndarray) -> float:
+    return math.acos(min(1.0, float(np.dot(a, b))))
+
+
+def half(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    h = a + b
+    return h / np.linalg.norm(h)
+
+
+def ggx_brdf_tb(l: np.ndarray, v: np.ndarray, alpha: float, fresnel) -> float:
+    """F D G1 G1 / (4 cos cos) with F = fresnel(angle between l and h)."""
+    h = half(l, v)
+    return (fresnel(angle(l, h)) * ggx_d_tb(polar(h), alpha) * smith_g1_tb(polar(l), alpha)
+            * smith_g1_tb(polar(v), alpha) / (4.0 * l[2] * v[2]))
+
+
+def snell_about_n(w: np.ndarray, eta: float) -> np.ndarray:
+    """Inner direction (pointing up) of w refracted about z: same azimuth, sin t = sin i / eta."""
+    theta = math.asin(math.sin(polar(w)) / eta)
+    phi = math.atan2(w[1], w[0])
+    return direction(theta, phi)
+
+
+def snell_about(w: np.ndarray, m: np.ndarray, eta: float) -> np.ndarray:
+    """Inner direction (pointing up) of w refracted through a facet m, built from angles.
+
+    It lies in the plane of m and w, on w's side, at sin(t) = sin(i) / eta from m.
+    """
+    ti = angle(w, m)
+    tt = math.asin(math.sin(ti) / eta)
+    u = w - math.cos(ti) * m
+    u = u / np.linalg.norm(u)
+    return math.cos(tt) * m + math.sin(tt) * u
+
+
+# ---------------------------------------------------------------------- stacks
+
+def plastic_stack(alpha0=0.2, tau=(0.05, 0.1, 0.4), rho=(0.2, 0.5, 0.8), eta0=1.5) -> Stack:
+    return Stack("plastic", (Interface(alpha0, (eta0,) * 3), Medium(tau), Lambertian(rho)), "plastic")
+
+
+def metal_stack(alpha0=0.2, tau=(0.2, 0.2, 0.2), eta1=1.45, kappa1=(1.0, 0.01, 0.01), alpha1=0.05,
+                eta0=1.5) -> Stack:
+    return Stack("metal", (Interface(alpha0, (eta0,) * 3), Medium(tau), Interface(alpha1, (eta1,) * 3, kappa1)),
+                 "metal")
+
+
+# ---------------------------------------------------------------------- hand-computed references
+
+def top_tb(l, v, alpha0, eta0) -> float:
+    return ggx_brdf_tb(l, v, alpha0, lambda t: fresnel_dielectric_tb(t, eta0))
+
+
+def base_tb(stack: Stack, lb, vb, alpha1: float) -> np.ndarray:
+    """f_r1 at (lb, vb) inside the coat: rho/pi or the GGX conductor with index relative to the coat."""
+    cb = coated_base(stack)
+    if cb.base == "lambertian":
+        return cb.rho / math.pi
+    return np.array([ggx_brdf_tb(lb, vb, alpha1,
+                                 lambda t, c=c: fresnel_conductor_tb(t, cb.eta1[c] / cb.eta0, cb.kappa1[c] / cb.eta0))
+                     for c in range(3)])
+
+
+def expected_internal(name: str, stack: Stack, l: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The internal term of each variant, step by step from Bati 2019 eq. 2 / table 2 / eq. 5."""
+    cb = coated_base(stack)
+    eta, a0 = cb.eta0, cb.alpha0
+    h0 = half(l, v)
+    theta_d = angle(l, h0)  # = angle(v, h0)
+    if name == "ww09":
+        t01 = 1.0 - fresnel_dielectric_tb(theta_d, eta)
+        t10 = 1.0 - fresnel_dielectric_tb(angle(v, h0), eta)  # leaves through the facet h0
+        l1, v1 = snell_about(l, h0, eta), snell_about(v, h0, eta)
+        g = smith_g1_tb(polar(l1), a0) * smith_g1_tb(polar(v1), a0)
+        x = (1.0 - g) + t10 * g
+        fr1 = base_tb(stack, l, v, cb.alpha1 if cb.alpha1 is not None else 0.0)  # the bug: (l0, v0)
+    elif name == "elek10":
+        t01 = 1.0 - fresnel_dielectric_tb(theta_d, eta)
+        t10 = 1.0 - fresnel_dielectric_tb(angle(v, h0), eta)
+        l1, v1 = snell_about_n(l, eta), snell_about_n(v, eta)
+        g = smith_g1_tb(polar(l), a0) * smith_g1_tb(polar(v), a0)
+        x = (1.0 - g) + t10 * g
+        fr1 = base_tb(stack, l1, v1, max(a0, cb.alpha1) if cb.alpha1 is not None else 0.0)
+    else:  # ww-bati19, eq. 5
+        t01 = 1.0 - fresnel_dielectric_tb(polar(l), eta)
+        t10 = 1.0 - fresnel_dielectric_tb(polar(v), eta)
+        l1, v1 = snell_about_n(l, eta), snell_about_n(v, eta)
+        x = t10 / eta**2
+        fr1 = base_tb(stack, l1, v1, max(a0, cb.alpha1) if cb.alpha1 is not None else 0.0)
+    a = np.exp(-cb.tau * (1.0 / math.cos(polar(l1)) + 1.0 / math.cos(polar(v1))))
+    return t01 * fr1 * a * x
+
+
+LIGHTS = [(30.0, 20.0), (65.0, 0.0)]
+VIEWS = [(40.0, 160.0), (60.0, 90.0), (75.0, 250.0), (10.0, 0.0)]
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("kind", ["plastic", "metal"])
+@pytest.mark.parametrize("light", LIGHTS)
+def test_hand_computed_values(name, kind, light):
+    stack = plastic_stack() if kind == "plastic" else metal_stack()
+    l = direction(light[0] * DEG, light[1] * DEG)
+    views = [direction(t * DEG, p * DEG) for t, p in VIEWS]
+    got = MODELS[name].evaluate(stack, l, np.array(views))
+    for i, v in enumerate(views):
+        want_top = top_tb(l, v, 0.2, 1.5)
+        np.testing.assert_allclose(got.top[i], [want_top] * 3, rtol=1e-9, atol=0)
+        np.testing.assert_allclose(got.internal[i], expected_internal(name, stack, l, v), rtol=1e-9, atol=0)
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_hand_values_metallic_paint_smooth_coat(name):
+    """A smooth coat (alpha0 = 0.001) over a rough base (alpha1 = 0.2), eta1 = 1.9, coloured tau."""
+    stack = metal_stack(alpha0=0.001, tau=(0.05, 0.1, 0.4), eta1=1.9, alpha1=0.2)
+    l = direction(45.0 * DEG, 0.0)
+    views = [direction(30.0 * DEG, 200.0 * DEG), direction(80.0 * DEG, 45.0 * DEG)]
+    got = MODELS[name].evaluate(stack, l, np.array(views))
+    for i, v in enumerate(views):
+        np.testing.assert_allclose(got.internal[i], expected_internal(name, stack, l, v), rtol=1e-9, atol=0)
+
+
+def test_top_lobe_at_mirror_for_nearly_smooth_coat():
+    """alpha0 = 0.001 works normally: at the mirror direction D(h = n) = 1 / (pi alpha^2)."""
+    alpha, tl = 0.001, 45.0 * DEG
+    l, v = direction(tl, 0.0), direction(tl, math.pi)
+    g1 = smith_g1_tb(tl, alpha)
+    want = fresnel_dielectric_tb(tl, 1.5) / (math.pi * alpha**2) * g1 * g1 / (4.0 * math.cos(tl) ** 2)
+    for m in MODELS.values():
+        got = m.evaluate(plastic_stack(alpha0=alpha), l, v[None])
+        np.testing.assert_allclose(got.top[0], [want] * 3, rtol=1e-9)
+
+
+# ---------------------------------------------------------------------- shared limits
+
+def hemisphere(n_theta: int = 46, n_phi: int = 37, grazing: float = 89.9) -> np.ndarray:
+    """Grid of view directions (n_theta, n_phi, 3) from the pole to ``grazing`` degrees."""
+    th = np.linspace(0.0, grazing, n_theta) * DEG
+    ph = np.linspace(0.0, 360.0, n_phi) * DEG
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("kind", ["plastic", "metal"])
+def test_opaque_coat_leaves_only_the_top_lobe(name, kind):
+    make = plastic_stack if kind == "plastic" else metal_stack
+    thick, clear = make(tau=(1e3,) * 3), make(tau=(0.0,) * 3)
+    v = hemisphere()
+    for tl in (0.0, 45.0, 80.0):
+        l = direction(tl * DEG, 0.0)
+        a, b = MODELS[name].evaluate(thick, l, v), MODELS[name].evaluate(clear, l, v)
+        assert np.all(a.internal == 0.0)
+        assert np.array_equal(a.top, b.top)
+        assert b.internal.max() > 0.0
+
+
+@pytest.mark.parametrize("eta0", [1.5, 1.2])
+def test_bati19_jacobian_lambertian(eta0):
+    """tau = 0, Lambertian: internal = rho/pi T01(n.l) T10(n.v) / eta0^2, the 1/eta^2 shown explicitly."""
+    rho = np.array([0.2, 0.5, 0.8])
+    stack = plastic_stack(alpha0=0.001, tau=(0.0,) * 3, rho=tuple(rho), eta0=eta0)
+    l = direction(35.0 * DEG, 0.0)
+    views = [(0.0, 0.0), (20.0, 180.0), (50.0, 90.0), (85.0, 300.0)]
+    v = np.array([direction(t * DEG, p * DEG) for t, p in views])
+    got = WWBati19().evaluate(stack, l, v).internal
+    for i, (tv, _) in enumerate(views):
+        no_jacobian = rho / math.pi * (1.0 - fresnel_dielectric_tb(35.0 * DEG, eta0)) \
+            * (1.0 - fresnel_dielectric_tb(tv * DEG, eta0))
+        np.testing.assert_allclose(got[i] / no_jacobian, 1.0 / eta0**2, rtol=1e-9)
+
+
+def test_bati19_jacobian_conserves_the_escaping_flux():
+    """With the 1/eta^2 Jacobian, the albedo of the internal term of a clear coat over a white
+    Lambertian base equals T01(l) (1 - r_i): what enters, then the part of the Lambertian
+    radiance inside the coat that is not Fresnel-reflected back (r_i = internal hemispherical
+    reflectance, TIR included), integrated here over the *inner* hemisphere."""
+    eta = 1.5
+    stack = plastic_stack(alpha0=0.05, tau=(0.0,) * 3, rho=(1.0, 1.0, 1.0), eta0=eta)
+    tl = 40.0 * DEG
+    l = direction(tl, 0.0)
+    # model albedo: the internal term does not depend on phi_v; Gauss-Legendre in mu = cos(theta_v)
+    x, w = np.polynomial.legendre.leggauss(200)
+    mu, w = 0.5 * (x + 1.0), 0.5 * w
+    v = np.stack([np.sqrt(1.0 - mu**2) * np.cos(1.0), np.sqrt(1.0 - mu**2) * np.sin(1.0), mu], axis=-1)
+    f = WWBati19().evaluate(stack, l, v).internal[:, 0]
+    albedo = 2.0 * math.pi * float(np.sum(w * f * mu))
+    # inner hemispherical reflectance: 2 Int F(mu1, 1/eta) mu1 dmu1, TIR below the critical cosine
+    mu_c = math.sqrt(1.0 - 1.0 / eta**2)
+    r_i = mu_c**2 + 2.0 * integrate.quad(lambda m: fresnel_dielectric_tb(math.acos(m), 1.0 / eta) * m,
+                                         mu_c, 1.0, epsabs=1e-13, epsrel=1e-12, limit=200)[0]
+    want = (1.0 - fresnel_dielectric_tb(tl, eta)) * (1.0 - r_i)
+    # both quadratures converge to ~1e-15 (smooth integrand in mu; quad handles the sqrt kink at mu_c)
+    assert albedo == pytest.approx(want, rel=1e-10)
+
+
+@pytest.mark.parametrize("name", ["elek10", "ww-bati19"])
+def test_elek_roughness_rule(name):
+    """alpha1 <- max(alpha0, alpha1): frosted metal (0.2 / 0.001) == metallic patina (0.2 / 0.2)."""
+    v = hemisphere()
+    for tl in (0.0, 45.0, 80.0):
+        l = direction(tl * DEG, 0.0)
+        frosted = MODELS[name].evaluate(metal_stack(alpha0=0.2, alpha1=0.001), l, v)
+        patina = MODELS[name].evaluate(metal_stack(alpha0=0.2, alpha1=0.2), l, v)
+        assert np.array_equal(frosted.internal, patina.internal)
+        assert np.array_equal(frosted.top, patina.top)
+    # ww09 has no such rule
+    l = direction(45.0 * DEG, 0.0)
+    a = MODELS["ww09"].evaluate(metal_stack(alpha0=0.2, alpha1=0.001), l, v).internal
+    b = MODELS["ww09"].evaluate(metal_stack(alpha0=0.2, alpha1=0.2), l, v).internal
+    assert not np.allclose(a, b)
+
+
+def test_ww09_bug_has_no_impact_on_plastics_only():
+    """Bati 2019 footnote 3: evaluating f_r1 at (l0, v0) instead of (l1, v1) does not matter for a
+    Lambertian base (f_r1 is constant) but does for a conductor."""
+    fixed = replace(WW09_VARIANT, base_at_refracted=True)
+    v = hemisphere()
+    l = direction(45.0 * DEG, 0.0)
+    plastic, metal = coated_base(plastic_stack()), coated_base(metal_stack(alpha1=0.2))
+    assert np.array_equal(evaluate_variant(WW09_VARIANT, plastic, l, v).internal,
+                          evaluate_variant(fixed, plastic, l, v).internal)
+    a = evaluate_variant(WW09_VARIANT, metal, l, v).internal
+    b = evaluate_variant(fixed, metal, l, v).internal
+    assert np.max(np.abs(a - b) / np.maximum(b, 1e-300)) > 0.5
+
+
+def test_ww09_versus_elek10():
+    """What actually holds between ww09 and elek10.
+
+    * Plastics: the bug is invisible, but the absorption (pair refracted about h0 vs n) and the TIR
+      term (G(l1, v1) vs G(l0, v0)) differ, so the two differ off the normal when tau > 0.
+    * Plastics, tau = 0 and a nearly smooth coat: only G differs, and G ~ 1: equal to 1e-5.
+    * At l = v = n (h0 = n, alpha1 >= alpha0) both plastics and metals agree exactly.
+    * Metals away from the normal: large differences (f_r1 at unrefracted directions).
+    """
+    ww, el = MODELS["ww09"], MODELS["elek10"]
+    v = hemisphere(n_theta=40, grazing=85.0)
+    l = direction(45.0 * DEG, 0.0)
+    p = plastic_stack()
+    rel = np.abs(ww.evaluate(p, l, v).internal / el.evaluate(p, l, v).internal - 1.0)
+    assert rel.max() > 0.05
+    p0 = plastic_stack(alpha0=0.001, tau=(0.0,) * 3)
+    np.testing.assert_allclose(ww.evaluate(p0, l, v).internal, el.evaluate(p0, l, v).internal, rtol=1e-5)
+    n = np.array([0.0, 0.0, 1.0])
+    for stack in (plastic_stack(), metal_stack(alpha0=0.05, alpha1=0.2)):
+        np.testing.assert_allclose(ww.evaluate(stack, n, n[None]).internal, el.evaluate(stack, n, n[None]).internal,
+                                   rtol=1e-12)
+    m = metal_stack(alpha0=0.001, tau=(0.0,) * 3, alpha1=0.2)
+    a, b = ww.evaluate(m, l, v).internal, el.evaluate(m, l, v).internal
+    assert np.max(np.abs(a - b) / np.maximum(b, 1e-300)) > 0.5
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_transmittances_use_the_documented_normals(name):
+    """T10 choice: ww09 and elek10 take T10 about h0, so at a smooth, clear coat over a Lambertian
+    base (G ~ 1, a = 1) internal = rho/pi T01(h0)^2; ww-bati19 takes both about n."""
+    stack = plastic_stack(alpha0=1e-6, tau=(0.0,) * 3)
+    rho = np.array([0.2, 0.5, 0.8])
+    l, v = direction(20.0 * DEG, 0.0), direction(70.0 * DEG, 130.0 * DEG)
+    got = MODELS[name].evaluate(stack, l, v[None]).internal[0]
+    if name == "ww-bati19":
+        want = rho / math.pi * (1 - fresnel_dielectric_tb(20 * DEG, 1.5)) * (1 - fresnel_dielectric_tb(70 * DEG, 1.5)) / 2.25
+    else:
+        t = 1.0 - fresnel_dielectric_tb(angle(l, half(l, v)), 1.5)
+        want = rho / math.pi * t * t
+    np.testing.assert_allclose(got, want, rtol=1e-9)  # G differs from 1 by ~1e-12 at alpha0 = 1e-6
+
+
+# ---------------------------------------------------------------------- degenerate inputs
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_smooth_interfaces_and_lower_hemisphere_give_zeros(name):
+    m = MODELS[name]
+    l = direction(30.0 * DEG, 0.0)
+    v = hemisphere()
+    smooth_top = m.evaluate(plastic_stack(alpha0=0.0), l, v)
+    assert np.all(smooth_top.top == 0.0) and smooth_top.internal.max() > 0.0
+    smooth_all = m.evaluate(metal_stack(alpha0=0.0, alpha1=0.0), l, v)
+    assert np.all(smooth_all.top == 0.0) and np.all(smooth_all.internal == 0.0)
+    below = np.array([[0.3, 0.0, -math.sqrt(1 - 0.09)], [1.0, 0.0, 0.0], [np.nan, 0.0, 1.0]])
+    out = m.evaluate(metal_stack(), l, below)
+    assert np.all(out.top == 0.0) and np.all(out.internal == 0.0)
+    assert m.evaluate(plastic_stack(), l, v).total.shape == v.shape
+
+
+# ---------------------------------------------------------------------- refusals
+
+def _unsupported() -> dict[str, Stack]:
+    coat = Interface(0.2, (1.5,) * 3)
+    return {
+        "slab": Stack("slab", (coat, Medium((0.1,) * 3), Interface(0.2, (1.0,) * 3)), "slab"),
+        "conductor-only": Stack("c", (Interface(0.2, (1.45,) * 3, (1.0, 0.01, 0.01)),)),
+        "lambertian-only": Stack("l", (Lambertian((0.5,) * 3),)),
+        "dielectric-only": Stack("d", (coat,)),
+        "three-interfaces": Stack("3", (coat, Medium((0.1,) * 3), Interface(0.1, (1.3,) * 3), Medium((0.1,) * 3),
+                                        Interface(0.2, (1.45,) * 3, (1.0, 0.01, 0.01)))),
+    }
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+@pytest.mark.parametrize("which", list(_unsupported()))
+def test_refusals(name, which):
+    m, stack = MODELS[name], _unsupported()[which]
+    assert not m.supports(stack)
+    reason = m.support_reason(stack)
+    assert reason and "\n" not in reason
+    with pytest.raises(ModelError, match=name):
+        m.evaluate(stack, np.array([0.0, 0.0, 1.0]), np.array([[0.0, 0.0, 1.0]]))
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_brdf_only(name):
+    m = MODELS[name]
+    assert m.sides == ("brdf",)
+    assert m.supports(plastic_stack()) and m.supports(metal_stack())
+    with pytest.raises(ModelError):
+        m.evaluate(plastic_stack(), np.array([0.0, 0.0, 1.0]), np.array([[0.0, 0.0, -1.0]]), side="btdf")
+
+
+# ---------------------------------------------------------------------- database sweep
+
+def _database() -> list[Stack]:
+    out = []
+    for alpha0 in (0.001, 0.05, 0.2):
+        for tau in ((0.2, 0.2, 0.2), (0.05, 0.1, 0.4)):
+            for rho in ((0.5,) * 3, (0.2, 0.5, 0.8)):
+                out.append(plastic_stack(alpha0=alpha0, tau=tau, rho=rho))
+            for eta1 in (1.9, 1.45, 1.2):
+                for alpha1 in (0.001, 0.2):
+                    out.append(metal_stack(alpha0=alpha0, tau=tau, eta1=eta1, alpha1=alpha1))
+    return out
+
+
+@pytest.mark.parametrize("name", list(MODELS))
+def test_finite_and_non_negative_on_the_database(name):
+    m = MODELS[name]
+    v = hemisphere(n_theta=91, n_phi=73)
+    for stack in _database():
+        for tl in (0.0, 45.0, 80.0, 89.0):
+            out = m.evaluate(stack, direction(tl * DEG, 0.0), v)
+            for part in (out.top, out.internal):
+                assert np.all(np.isfinite(part)), (stack, tl)
+                assert np.all(part >= 0.0), (stack, tl)
