@@ -179,6 +179,55 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------- models / evaluate
+
+def cmd_models(args: argparse.Namespace) -> int:
+    from models.registry import all_models
+    models = all_models()
+    if args.json:
+        print(json.dumps({n: {"description": m.description, "sides": list(m.sides)} for n, m in models.items()}, indent=2))
+        return 0
+    width = max(len(n) for n in models)
+    for name, m in models.items():
+        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s}  {m.description}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from goniometer import store
+    from models.base import ModelError
+    from models.evaluate import evaluate, save_slices
+
+    try:
+        if args.save_slices:
+            store.check_writable(args.save_slices)
+        reference = store.read(args.file)
+        ev = evaluate(reference, args.model or None, s=args.subcells,
+                      progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
+    except (store.StoreError, ModelError) as e:
+        raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    if args.save_slices:
+        save_slices(args.save_slices, reference, ev)
+    if args.json:
+        print(json.dumps(ev.to_json(), indent=2))
+        return 0
+    what = "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF"
+    print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
+          f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
+    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'total mean':>11s}  noise floor")
+    for name, e in ev.errors.items():
+        i, t = e["internal"], e["total"]
+        rgb = " ".join(f"{x:9.3e}" for x in i["rmse"])
+        print(f"{name:16s} {i['rmse_mean']:13.4e} {rgb:>30s} {i['rmse_luminance']:10.3e} {t['rmse_mean']:11.4e}"
+              f"  {i['noise_floor_mean']:.2e}")
+    print(f"('internal' = {what}; noise floor = the error a perfect model would show against this reference)")
+    for name, reason in ev.skipped.items():
+        print(f"skipped {name}: {reason}")
+    if args.save_slices:
+        print(f"wrote {args.save_slices}")
+    return 0
+
+
 # ---------------------------------------------------------------------- parser
 
 def build_parser() -> argparse.ArgumentParser:
@@ -202,6 +251,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("models", help="list the analytic models and what they support")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_models)
+
+    p = sub.add_parser("evaluate", help="integrate models onto a simulated file and print their errors")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--model", action="append", metavar="NAME", help="a model to evaluate (repeatable; default: all that apply)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5", help="write the integrated model slices")
+    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell axis (default 5)")
+    p.set_defaults(func=cmd_evaluate)
     return parser
 
 

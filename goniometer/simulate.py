@@ -141,7 +141,8 @@ class SliceData:
 
     ``value``/``stderr``: (M, 3, n_theta, n_phi) in 1/sr, no cosine; ``orders``:
     (M, K, 3, n_theta, n_phi), order K meaning "K or more"; ``mask`` and
-    ``proj_solid_angle``: (M, n_theta, n_phi).
+    ``proj_solid_angle``: (M, n_theta, n_phi); ``stderr_internal``: standard error of the
+    internal part (orders >= 2, i.e. ``value - orders[:, 0]``), or None if unknown.
     """
 
     grid: SliceGrid
@@ -150,6 +151,7 @@ class SliceData:
     orders: np.ndarray
     mask: np.ndarray
     proj_solid_angle: np.ndarray
+    stderr_internal: np.ndarray | None = None
 
 
 @dataclass
@@ -208,7 +210,7 @@ class IncidentPart:
 
     index: int
     brdf: np.ndarray           # (K, 3, n_theta, n_phi) weight sums per order
-    brdf_sq: np.ndarray        # (3, n_theta, n_phi)
+    brdf_sq: np.ndarray        # (2, 3, n_theta, n_phi) squared weights: all exits, orders >= 2
     btdf: np.ndarray | None
     btdf_sq: np.ndarray | None
     energy: np.ndarray         # (N_ENERGY, 3)
@@ -230,8 +232,8 @@ def _trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     n_chunks = -(-settings.rays // settings.chunk_rays)
     batch = max(1, min(2 * threads, n_chunks))
     bt_shape = (nt, nph) if stack.transmits else (1, 1)
-    out_brdf = np.empty((batch, nt, nph, K + 1, 3))
-    out_btdf = np.empty((batch,) + bt_shape + (K + 1, 3))
+    out_brdf = np.empty((batch, nt, nph, K + 2, 3))
+    out_btdf = np.empty((batch,) + bt_shape + (K + 2, 3))
     out_energy = np.empty((batch, tracer.N_ENERGY, 3))
     out_energy_sq = np.empty((batch, tracer.N_ENERGY_SQ, 3))
     out_counts = np.empty((batch, tracer.N_COUNTS), dtype=np.int64)
@@ -252,9 +254,10 @@ def _trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     elapsed = time.perf_counter() - t0
 
     def split(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # (n_theta, n_phi, K + 1, 3) -> orders (K, 3, n_theta, n_phi), squares (3, n_theta, n_phi)
+        # (n_theta, n_phi, K + 2, 3) -> orders (K, 3, n_theta, n_phi) and squared weights
+        # (2, 3, n_theta, n_phi): [all exits, internal exits (order >= 2)]
         return (np.ascontiguousarray(h[:, :, :K, :].transpose(2, 3, 0, 1)),
-                np.ascontiguousarray(h[:, :, K, :].transpose(2, 0, 1)))
+                np.ascontiguousarray(h[:, :, K:, :].transpose(2, 3, 0, 1)))
 
     brdf, brdf_sq = split(acc[0])
     btdf, btdf_sq = split(acc[1]) if stack.transmits else (None, None)
@@ -268,15 +271,22 @@ def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.n
     nt, nph = grid.shape
     value = np.zeros((M, 3, nt, nph))
     stderr = np.zeros((M, 3, nt, nph))
+    stderr_internal = np.zeros((M, 3, nt, nph))
     orders = np.zeros((M, K, 3, nt, nph))
+
+    def std_error(s1: np.ndarray, s2: np.ndarray, inv: np.ndarray) -> np.ndarray:
+        # standard error of the mean of N per-ray contributions, divided by N Omega
+        var = np.maximum(s2 - s1 * s1 / n, 0.0) / max(n - 1, 1)
+        return np.sqrt(var * n) * inv
+
     for m, om in enumerate(omegas):
         inv = np.divide(1.0, n * om, out=np.zeros_like(om), where=om > 0)
         s1 = sums[m].sum(axis=0)
         value[m] = s1 * inv
         orders[m] = sums[m] * inv
-        var = np.maximum(sqs[m] - s1 * s1 / n, 0.0) / max(n - 1, 1)
-        stderr[m] = np.sqrt(var * n) * inv
-    return SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas))
+        stderr[m] = std_error(s1, sqs[m][0], inv)
+        stderr_internal[m] = std_error(sums[m][1:].sum(axis=0), sqs[m][1], inv)
+    return SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas), stderr_internal)
 
 
 def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPart],

@@ -54,7 +54,7 @@ def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
         y *= inv
         z *= inv
     theta = math.acos(min(1.0, z))
-    phi = math.atan2(y, x)
+    phi = math.atan2(y + 0.0, x + 0.0)  # + 0.0 turns -0.0 into +0.0: the pole maps to j = 0
     if phi < 0.0:
         phi += _TWO_PI
     if param == CLASSIC:

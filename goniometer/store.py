@@ -78,19 +78,7 @@ def write(path: str | Path, result: SimulationResult) -> Path:
 
 def _write(f: h5py.File, r: SimulationResult) -> None:
     s = r.settings
-    f.attrs["format"] = FORMAT
-    f.attrs["format_version"] = FORMAT_VERSION
-    f.attrs["software"] = f"goniometer {goniometer.__version__}"
-    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-    mat = f.create_group("material")
-    mat.attrs["name"] = r.stack.name
-    mat.attrs["category"] = r.stack.category
-    mat.create_dataset("config", data=r.stack.to_json())
-
-    inc = f.create_group("incident")
-    _scaled(inc, "theta_deg", r.theta_deg, units="deg")
-    _scaled(inc, "phi_deg", r.phi_deg, units="deg")
+    write_header(f, FORMAT, r.stack, r.theta_deg, r.phi_deg)
 
     sim = f.create_group("simulation")
     sim.attrs["rays_per_slice"] = s.rays
@@ -133,41 +121,73 @@ def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name:
     return d
 
 
-def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray) -> None:
-    g = f.create_group(name)
-    grid = sd.grid
-    g.attrs["parametrization"] = grid.parametrization
-    g.attrs["n_theta"] = grid.n_theta
-    g.attrs["n_phi"] = grid.n_phi
-    g.attrs["side"] = grid.side
-    K = sd.orders.shape[1]
-    th_name = "theta_v" if grid.parametrization == "classic" else "theta_h"
-    ph_name = "phi_v" if grid.parametrization == "classic" else "phi_h"
-    scales = {
-        "incident": _scaled(g, "incident", theta_deg, "deg", "incident elevation theta_l"),
-        "order": _scaled(g, "order", np.arange(1, K + 1, dtype=np.int64), None,
-                         f"bounce order (events at the top layer); {K} means {K} or more"),
-        "channel": _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
-        "theta": _scaled(g, "theta", grid.theta_centers_deg(), "deg",
-                         f"cell centre {th_name}" + (" (square-root mapped rows)" if grid.parametrization == "half" else "")),
-        "phi": _scaled(g, "phi", grid.phi_centers_deg(), "deg", f"cell centre {ph_name}"),
-    }
-    _scaled(g, "theta_edges_deg", grid.theta_edges_deg(), "deg", f"cell edges in {th_name}")
-    _scaled(g, "phi_edges_deg", grid.phi_edges_deg(), "deg", f"cell edges in {ph_name}")
+class SliceGroupWriter:
+    """Writes one group of slices (``/brdf``, ``/btdf``, or a model's group) with its dimension
+    scales: ``incident``, ``order`` (if K is given), ``channel``, ``theta``, ``phi`` and cell edges."""
 
-    def put(dname, data, dims, units=None, dtype=None):
-        d = g.create_dataset(dname, data=data, dtype=dtype, chunks=True, **_COMPRESSION)
+    def __init__(self, parent: h5py.Group, name: str, grid: SliceGrid, theta_deg: np.ndarray, K: int | None = None):
+        g = parent.create_group(name)
+        self.group = g
+        g.attrs["parametrization"] = grid.parametrization
+        g.attrs["n_theta"] = grid.n_theta
+        g.attrs["n_phi"] = grid.n_phi
+        g.attrs["side"] = grid.side
+        th_name = "theta_v" if grid.parametrization == "classic" else "theta_h"
+        ph_name = "phi_v" if grid.parametrization == "classic" else "phi_h"
+        self.scales = {
+            "incident": _scaled(g, "incident", theta_deg, "deg", "incident elevation theta_l"),
+            "channel": _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
+            "theta": _scaled(g, "theta", grid.theta_centers_deg(), "deg",
+                             f"cell centre {th_name}" + (" (square-root mapped rows)" if grid.parametrization == "half" else "")),
+            "phi": _scaled(g, "phi", grid.phi_centers_deg(), "deg", f"cell centre {ph_name}"),
+        }
+        if K is not None:
+            self.scales["order"] = _scaled(g, "order", np.arange(1, K + 1, dtype=np.int64), None,
+                                           f"bounce order (events at the top layer); {K} means {K} or more")
+        _scaled(g, "theta_edges_deg", grid.theta_edges_deg(), "deg", f"cell edges in {th_name}")
+        _scaled(g, "phi_edges_deg", grid.phi_edges_deg(), "deg", f"cell edges in {ph_name}")
+
+    def put(self, name: str, data: np.ndarray, dims: tuple[str, ...], units: str | None = None,
+            dtype=None, description: str | None = None) -> h5py.Dataset:
+        d = self.group.create_dataset(name, data=data, dtype=dtype, chunks=True, **_COMPRESSION)
         for axis, dim in enumerate(dims):
-            d.dims[axis].attach_scale(scales[dim])
+            d.dims[axis].attach_scale(self.scales[dim])
         if units:
             d.attrs["units"] = units
+        if description:
+            d.attrs["description"] = description
         return d
 
-    put("value", sd.value, ("incident", "channel", "theta", "phi"), "1/sr")
-    put("stderr", sd.stderr, ("incident", "channel", "theta", "phi"), "1/sr")
-    put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), "1/sr", dtype=np.float32)
-    put("mask", sd.mask, ("incident", "theta", "phi"))
-    put("proj_solid_angle", sd.proj_solid_angle, ("incident", "theta", "phi"), "sr")
+
+CELLS = ("incident", "channel", "theta", "phi")
+MAPS = ("incident", "theta", "phi")
+
+
+def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray) -> None:
+    w = SliceGroupWriter(f, name, sd.grid, theta_deg, K=sd.orders.shape[1])
+    w.put("value", sd.value, CELLS, "1/sr")
+    w.put("stderr", sd.stderr, CELLS, "1/sr")
+    if sd.stderr_internal is not None:
+        w.put("stderr_internal", sd.stderr_internal, CELLS, "1/sr",
+              description="standard error of the internal part (bounce orders >= 2)")
+    w.put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), "1/sr", dtype=np.float32)
+    w.put("mask", sd.mask, MAPS)
+    w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "sr")
+
+
+def write_header(f: h5py.File, fmt: str, stack: Stack, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
+    """Root attributes, ``/material`` and ``/incident`` shared by every file the project writes."""
+    f.attrs["format"] = fmt
+    f.attrs["format_version"] = FORMAT_VERSION
+    f.attrs["software"] = f"goniometer {goniometer.__version__}"
+    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    mat = f.create_group("material")
+    mat.attrs["name"] = stack.name
+    mat.attrs["category"] = stack.category
+    mat.create_dataset("config", data=stack.to_json())
+    inc = f.create_group("incident")
+    _scaled(inc, "theta_deg", theta_deg, units="deg")
+    _scaled(inc, "phi_deg", phi_deg, units="deg")
 
 
 # ---------------------------------------------------------------------- reading
@@ -241,4 +261,5 @@ def _read_slices(g: h5py.Group) -> SliceData:
         side = "transmission" if g.name.endswith("btdf") else "reflection"
     grid = SliceGrid(str(g.attrs["parametrization"]), int(g.attrs["n_theta"]), int(g.attrs["n_phi"]), str(side))
     return SliceData(grid=grid, value=g["value"][()], stderr=g["stderr"][()], orders=g["orders"][()],
-                     mask=g["mask"][()].astype(bool), proj_solid_angle=g["proj_solid_angle"][()])
+                     mask=g["mask"][()].astype(bool), proj_solid_angle=g["proj_solid_angle"][()],
+                     stderr_internal=g["stderr_internal"][()] if "stderr_internal" in g else None)

@@ -61,9 +61,10 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 event_cap, brdf, btdf, energy, energy_sq, counts):
     """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
 
-    ``brdf``/``btdf``: (n_theta, n_phi, K + 1, 3), cell-major so that one exit touches one or
+    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3), cell-major so that one exit touches one or
     two cache lines: rows ``0 .. K-1`` sum the exit weights of bounce orders ``1 .. K`` (K
-    meaning "K or more"), row ``K`` sums the squared weights. ``energy``: (N_ENERGY, 3) weight
+    meaning "K or more"), row ``K`` sums the squared weights of all exits and row ``K + 1``
+    those of internal exits (order >= 2), for the standard errors. ``energy``: (N_ENERGY, 3) weight
     sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals; ``counts``:
     (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced).
     """
@@ -138,9 +139,16 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     brdf[i, j, o, 0] += w0
                     brdf[i, j, o, 1] += w1
                     brdf[i, j, o, 2] += w2
-                    brdf[i, j, max_order, 0] += w0 * w0
-                    brdf[i, j, max_order, 1] += w1 * w1
-                    brdf[i, j, max_order, 2] += w2 * w2
+                    q0 = w0 * w0
+                    q1 = w1 * w1
+                    q2 = w2 * w2
+                    brdf[i, j, max_order, 0] += q0
+                    brdf[i, j, max_order, 1] += q1
+                    brdf[i, j, max_order, 2] += q2
+                    if o > 0:
+                        brdf[i, j, max_order + 1, 0] += q0
+                        brdf[i, j, max_order + 1, 1] += q1
+                        brdf[i, j, max_order + 1, 2] += q2
                     energy[E_REFLECTED, 0] += w0
                     energy[E_REFLECTED, 1] += w1
                     energy[E_REFLECTED, 2] += w2
@@ -160,9 +168,16 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 btdf[i, j, o, 0] += w0
                 btdf[i, j, o, 1] += w1
                 btdf[i, j, o, 2] += w2
-                btdf[i, j, max_order, 0] += w0 * w0
-                btdf[i, j, max_order, 1] += w1 * w1
-                btdf[i, j, max_order, 2] += w2 * w2
+                q0 = w0 * w0
+                q1 = w1 * w1
+                q2 = w2 * w2
+                btdf[i, j, max_order, 0] += q0
+                btdf[i, j, max_order, 1] += q1
+                btdf[i, j, max_order, 2] += q2
+                if o > 0:
+                    btdf[i, j, max_order + 1, 0] += q0
+                    btdf[i, j, max_order + 1, 1] += q1
+                    btdf[i, j, max_order + 1, 2] += q2
                 energy[E_TRANSMITTED, 0] += w0
                 energy[E_TRANSMITTED, 1] += w1
                 energy[E_TRANSMITTED, 2] += w2

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from goniometer.cli import main
@@ -149,3 +150,68 @@ def test_ctrl_c_leaves_no_partial_file(tmp_path):
     assert b"interrupted" in err
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir()] == ["p.toml"]
+
+
+# ----------------------------------------------------------------------------- models and evaluate
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    d = tmp_path_factory.mktemp("eval")
+    for name in ("plastic", "slab"):
+        assert main(["simulate", str(EXAMPLES / f"{name}.toml"), "--out", str(d / f"{name}.h5"), "--rays", "20000",
+                     "--incident", "0,60", "--resolution", "18x36"]) == 0
+    return d
+
+
+def test_models_lists_the_fixed_names(capsys):
+    assert main(["models", "--json"]) == 0
+    names = json.loads(capsys.readouterr().out)
+    assert {"ww09", "elek10", "ww-bati19"} <= set(names)
+    assert main(["models"]) == 0
+
+
+def test_evaluate_json_contract(simulated, capsys, tmp_path):
+    out = tmp_path / "model-slices.h5"
+    capsys.readouterr()
+    assert main(["evaluate", str(simulated / "plastic.h5"), "--json", "--save-slices", str(out)]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["material"] == "plastic/P1-a0_0.05" and d["category"] == "plastic" and d["side"] == "brdf"
+    assert {"ww09", "elek10", "ww-bati19"} <= set(d["models"])
+    for name, e in d["models"].items():
+        for part in ("internal", "total"):
+            E = e[part]
+            assert set(E) >= {"rmse", "rmse_mean", "rmse_luminance", "noise_floor", "noise_floor_mean"}
+            assert len(E["rmse"]) == 3 and len(E["noise_floor"]) == 3
+            assert all(x >= 0 for x in E["rmse"])
+    for name, reason in d["skipped"].items():
+        assert isinstance(reason, str) and reason
+    from models.evaluate import read_slices
+    sl = read_slices(out, "ww-bati19", "brdf")
+    assert sl["value"].shape == (2, 3, 18, 36)
+    np.testing.assert_allclose(sl["value"], sl["top"] + sl["internal"])
+
+
+def test_evaluate_table_and_bad_input(simulated, capsys, tmp_path):
+    assert main(["evaluate", str(simulated / "plastic.h5"), "--model", "ww09"]) == 0
+    assert "ww09" in capsys.readouterr().out
+    out = tmp_path / "never.h5"
+    cases = [
+        (["evaluate", str(simulated / "plastic.h5"), "--model", "nope", "--save-slices", str(out)], "unknown model"),
+        (["evaluate", str(simulated / "slab.h5"), "--model", "ww09", "--save-slices", str(out)], "ww09"),
+        (["evaluate", str(tmp_path / "missing.h5")], "no such file"),
+    ]
+    bad = tmp_path / "truncated.h5"
+    bad.write_bytes((simulated / "plastic.h5").read_bytes()[:5000])
+    cases.append((["evaluate", str(bad)], "truncated.h5"))
+    nobtdf = tmp_path / "nobtdf.h5"
+    nobtdf.write_bytes((simulated / "slab.h5").read_bytes())
+    import h5py
+    with h5py.File(nobtdf, "a") as f:
+        del f["btdf"]
+    cases.append((["evaluate", str(nobtdf)], "no BTDF"))
+    for argv, expected in cases:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("gonio: error: ") and expected in err and "\n" not in err, err
+        assert not out.exists()

@@ -1,0 +1,94 @@
+"""Errors between reference slices and model slices (Bati 2019, eq. 4; SLICES.md "Errors").
+
+Per colour channel c, over the M incident directions and the valid (unmasked) cells::
+
+    E_c = sqrt( (1/M) sum_m sum_cells (f_ref,c - f_model,c)^2 Omega(cell) )
+
+reported per channel, as the mean over channels, and for the luminance (Rec. 709 weights
+0.2126, 0.7152, 0.0722 applied to the RGB values before differencing). The reference noise floor
+is the same formula with ``(f_ref - f_model)^2`` replaced by the reference's squared standard
+error: the error a perfect model would show, on average, because the reference is noisy
+(``E[(f_ref - f_true)^2] = stderr^2``).
+
+"internal" compares the internal paths only (bounce order 1 dropped from the reference and the
+top lobe from the model: plastics, metals); "total" compares everything. For a BTDF both are the
+whole BTDF.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from goniometer.simulate import SliceData
+from models.integrate import ModelSlices
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def rmse(ref: np.ndarray, model: np.ndarray, omega: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Eq. 4 per channel: ``ref``/``model`` (M, C, n_theta, n_phi), ``omega``/``mask`` (M, n_theta, n_phi)."""
+    M = ref.shape[0]
+    d2 = (ref - model) ** 2 * (omega * mask)[:, None]
+    return np.sqrt(d2.sum(axis=(0, 2, 3)) / M)
+
+
+def noise_floor(stderr: np.ndarray, omega: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Eq. 4 with the squared difference replaced by the squared standard error (per channel)."""
+    M = stderr.shape[0]
+    return np.sqrt((stderr**2 * (omega * mask)[:, None]).sum(axis=(0, 2, 3)) / M)
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """Rec. 709 luminance of (M, 3, ...) RGB values, keeping a channel axis of length 1."""
+    return np.einsum("c,mc...->m...", LUMINANCE, rgb)[:, None]
+
+
+def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, omega: np.ndarray,
+                 mask: np.ndarray) -> dict:
+    """The JSON error object ``E`` of ``gonio evaluate --json``.
+
+    The luminance noise floor uses ``sum_c w_c stderr_c`` per cell, an upper bound on the
+    standard error of the luminance (the channels of a simulation share their paths, so their
+    errors are correlated; the bound is exact when they are fully correlated).
+    """
+    e = rmse(ref, model, omega, mask)
+    nf = noise_floor(ref_stderr, omega, mask)
+    lum = rmse(luminance(ref), luminance(model), omega, mask)[0]
+    lum_se = luminance(ref_stderr)
+    return {
+        "rmse": [float(x) for x in e],
+        "rmse_mean": float(np.mean(e)),
+        "rmse_luminance": float(lum),
+        "noise_floor": [float(x) for x in nf],
+        "noise_floor_mean": float(np.mean(nf)),
+        "noise_floor_luminance": float(noise_floor(lum_se, omega, mask)[0]),
+    }
+
+
+def reference_parts(sd: SliceData, internal: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Reference values and standard errors, internal paths only (order 1 dropped) or total.
+
+    When a file lacks ``stderr_internal`` the total standard error is used, which bounds the
+    internal one from above.
+    """
+    if not internal:
+        return sd.value, sd.stderr
+    # sum orders >= 2 rather than subtract order 1 from the total: orders may be stored in float32,
+    # and a sharp first-order peak would leave its rounding error in the difference
+    value = sd.orders[:, 1:].astype(np.float64).sum(axis=1)
+    se = sd.stderr_internal if sd.stderr_internal is not None else sd.stderr
+    return value, se
+
+
+def compare(sd: SliceData, ms: ModelSlices, drop_first_order: bool) -> dict:
+    """``{"internal": E, "total": E}`` for one model on one side.
+
+    ``drop_first_order``: plastics and metals (BRDF) compare internal paths for "internal";
+    for a BTDF "internal" and "total" are the same comparison.
+    """
+    total = error_object(sd.value, sd.stderr, ms.total, sd.proj_solid_angle, sd.mask)
+    if not drop_first_order:
+        return {"internal": total, "total": total}
+    ref, se = reference_parts(sd, internal=True)
+    internal = error_object(ref, se, ms.internal, sd.proj_solid_angle, sd.mask)
+    return {"internal": internal, "total": total}

@@ -1,0 +1,120 @@
+"""Evaluate models against a simulated file: which side, which models, errors, saved slices.
+
+The comparison side follows Bati 2019: a stack that transmits (a slab) is judged on its BTDF,
+every other stack on its BRDF. For a BRDF, "internal" drops the reflection off the top interface
+(bounce order 1 in the reference, the top lobe in the model); for a BTDF "internal" and "total"
+are the same comparison.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from goniometer import store
+from goniometer.simulate import SimulationResult
+from goniometer.stack import Stack
+from models import errors, registry
+from models.base import ModelError
+from models.integrate import ModelSlices, integrate
+
+MODEL_SLICES_FORMAT = "goniometer.model-slices"
+
+
+def comparison_side(stack: Stack) -> str:
+    """``"btdf"`` for stacks that transmit (slabs), ``"brdf"`` otherwise."""
+    return "btdf" if stack.transmits else "brdf"
+
+
+@dataclass
+class Evaluation:
+    """Errors of every evaluated model and the reasons others were skipped."""
+
+    material: str
+    category: str
+    side: str
+    errors: dict[str, dict] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    slices: dict[str, ModelSlices] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """The object printed by ``gonio evaluate --json``."""
+        return {"material": self.material, "category": self.category, "side": self.side,
+                "models": self.errors, "skipped": self.skipped}
+
+
+def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int = 5,
+             progress=None) -> Evaluation:
+    """Integrate models onto ``reference`` and compute their errors.
+
+    ``names=None`` evaluates every model that supports the stack and side and lists the others as
+    skipped with their reason; explicitly named models that cannot represent the stack raise
+    :class:`ModelError` (a user asked for something impossible). ``progress(name)`` is called
+    before each model.
+    """
+    stack = reference.stack
+    side = comparison_side(stack)
+    if (side == "brdf" and reference.brdf is None) or (side == "btdf" and reference.btdf is None):
+        raise ModelError(f"the file has no {side.upper()} slices, which a {stack.base}-base stack is judged on")
+    available = registry.all_models()
+    if names:
+        unknown = [n for n in names if n not in available]
+        if unknown:
+            raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join(available)})")
+    result = Evaluation(stack.name, stack.category, side)
+    sd = reference.brdf if side == "brdf" else reference.btdf
+    for name, model in available.items():
+        if names and name not in names:
+            continue
+        reason = model.support_reason(stack)
+        if reason is None and side not in model.sides:
+            reason = f"models the {'/'.join(x.upper() for x in model.sides)}; this stack is judged on its {side.upper()}"
+        if reason is not None:
+            if names:
+                raise ModelError(f"{name}: {reason}")
+            result.skipped[name] = reason
+            continue
+        if progress is not None:
+            progress(name)
+        ms = integrate(model, reference, side, s)
+        result.slices[name] = ms
+        result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf"))
+    return result
+
+
+def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evaluation) -> Path:
+    """Write the integrated model slices, laid out like the reference (atomic).
+
+    Format ``goniometer.model-slices`` version 1: ``/material``, ``/incident`` as in the
+    reference; per model a group ``/<model>/<side>`` with ``value`` (= top + internal), ``top``,
+    ``internal`` (M, 3, n_theta, n_phi; 1/sr) and the reference's ``mask`` and
+    ``proj_solid_angle``; attribute ``subcells``.
+    """
+    p = store.check_writable(path)
+    sd = reference.brdf if evaluation.side == "brdf" else reference.btdf
+    with store.atomic_path(p) as tmp:
+        with h5py.File(tmp, "w") as f:
+            store.write_header(f, MODEL_SLICES_FORMAT, reference.stack, reference.theta_deg, reference.phi_deg)
+            f.attrs["reference_side"] = evaluation.side
+            for name, ms in evaluation.slices.items():
+                g = f.create_group(name)
+                w = store.SliceGroupWriter(g, evaluation.side, ms.grid, reference.theta_deg)
+                w.group.attrs["subcells"] = ms.subcells
+                w.put("value", ms.total, store.CELLS, "1/sr")
+                w.put("top", ms.top, store.CELLS, "1/sr", description="lobe reflected off the top interface")
+                w.put("internal", ms.internal, store.CELLS, "1/sr", description="everything but the top lobe")
+                w.put("mask", sd.mask, store.MAPS)
+                w.put("proj_solid_angle", sd.proj_solid_angle, store.MAPS, "sr")
+    return p
+
+
+def read_slices(path: str | Path, model: str, side: str) -> dict[str, np.ndarray]:
+    """Read one model's saved slices (``value``, ``top``, ``internal``, ``mask``, ``proj_solid_angle``)."""
+    with h5py.File(path, "r") as f:
+        if f.attrs.get("format") != MODEL_SLICES_FORMAT:
+            raise store.StoreError(f"{path}: not a {MODEL_SLICES_FORMAT} file")
+        g = f[f"{model}/{side}"]
+        return {k: np.asarray(g[k][()]) for k in ("value", "top", "internal", "mask", "proj_solid_angle")}
