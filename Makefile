@@ -7,7 +7,11 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench clean
+.PHONY: setup test test-slow demo bench database clean
+
+QUALITY ?= quick
+DATABASE ?= configs/bati2019.toml
+DB_OUT ?= results/bati2019
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,6 +35,9 @@ demo: $(STAMP)
 	@echo
 	@for m in plastic metal slab; do $(GONIO) info $(DEMO)/$$m.h5 || exit $$?; echo; done
 	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5"
+
+database: $(STAMP)
+	$(GONIO) database simulate $(DATABASE) --out $(DB_OUT) --quality $(QUALITY)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py

@@ -39,8 +39,10 @@ class SimulationSettings:
     """What to simulate. ``rays`` is per incident direction.
 
     ``incident_deg`` are elevations theta_l in [0, 90); ``incident_phi_deg`` azimuths in
-    [0, 360) (default 0 for all). ``chunk_rays`` is part of the determinism contract: the same
-    (seed, chunk_rays) gives the same bits whatever ``threads``.
+    [0, 360) (default 0 for all). ``chunk_rays`` (rays per random stream and histogram) and
+    ``chunks_per_task`` (chunks summed together before being added to the total) are part of the
+    determinism contract: the same (seed, chunk_rays, chunks_per_task) gives the same bits
+    whatever ``threads``, locally or distributed.
     """
 
     incident_deg: tuple[float, ...] = DEFAULT_INCIDENT
@@ -53,6 +55,7 @@ class SimulationSettings:
     max_order: int = 5
     threads: int | None = None
     chunk_rays: int = 1 << 17
+    chunks_per_task: int = 8
     event_cap: int = tracer.EVENT_CAP
 
     def __post_init__(self) -> None:
@@ -89,6 +92,7 @@ class SimulationSettings:
         if self.threads is not None:
             _int_in(self.threads, "threads", 1, numba.config.NUMBA_NUM_THREADS)
         _int_in(self.chunk_rays, "chunk_rays", 1, 1 << 30)
+        _int_in(self.chunks_per_task, "chunks_per_task", 1, 1 << 20)
         _int_in(self.event_cap, "event_cap", 1, 10**9)
 
     @property
@@ -186,8 +190,8 @@ def warm_up() -> float:
     from goniometer.stack import Interface, Lambertian, Medium
     t0 = time.perf_counter()
     tiny = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
-    _trace_incident(tiny, SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4),
-                                             chunk_rays=8, threads=1), 0, None)
+    trace_incident(tiny, SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4),
+                                            chunk_rays=8, threads=1), 0)
     return time.perf_counter() - t0
 
 
@@ -195,18 +199,115 @@ def simulate(stack: Stack, settings: SimulationSettings,
              progress: Callable[[int], None] | None = None) -> SimulationResult:
     """Simulate all incident directions of ``settings`` for ``stack``.
 
-    ``progress``, if given, is called with the number of rays just finished (after every batch).
+    ``progress``, if given, is called with the number of rays just finished (after every task).
     Compile time of the kernel is measured apart (``compile_s``), not in ``elapsed_s``.
     """
     settings.validate()
     compile_s = warm_up()
-    parts = [_trace_incident(stack, settings, m, progress) for m in range(len(settings.incident_deg))]
+    parts = [trace_incident(stack, settings, m, progress) for m in range(len(settings.incident_deg))]
     return assemble(stack, settings, parts, compile_s=compile_s)
 
 
 @dataclass
+class Sums:
+    """Raw kernel sums in the kernel's layout: what a task returns and an incident accumulates.
+
+    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.tracer.trace_chunk`;
+    ``btdf`` is (1, 1, K + 2, 3) for opaque stacks); ``energy`` (N_ENERGY, 3); ``energy_sq``
+    (N_ENERGY_SQ, 3); ``counts`` (N_COUNTS,) int64.
+    """
+
+    brdf: np.ndarray
+    btdf: np.ndarray
+    energy: np.ndarray
+    energy_sq: np.ndarray
+    counts: np.ndarray
+
+    @classmethod
+    def zeros(cls, stack: Stack, settings: SimulationSettings) -> "Sums":
+        nt, nph = settings.resolution
+        k2 = settings.max_order + 2
+        bt = (nt, nph) if stack.transmits else (1, 1)
+        return cls(np.zeros((nt, nph, k2, 3)), np.zeros(bt + (k2, 3)), np.zeros((tracer.N_ENERGY, 3)),
+                   np.zeros((tracer.N_ENERGY_SQ, 3)), np.zeros(tracer.N_COUNTS, dtype=np.int64))
+
+    def add(self, other: "Sums") -> None:
+        """In-place ``self += other`` (field by field; the order of additions is the caller's)."""
+        self.brdf += other.brdf
+        self.btdf += other.btdf
+        self.energy += other.energy
+        self.energy_sq += other.energy_sq
+        self.counts += other.counts
+
+
+def n_tasks(settings: SimulationSettings) -> int:
+    """Number of tasks of one incident direction (task t covers chunks t*c .. t*c + c - 1)."""
+    return -(-settings.rays // (settings.chunk_rays * settings.chunks_per_task))
+
+
+def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
+                parallel: bool = True) -> list[Sums]:
+    """Trace tasks ``first_task .. first_task + count - 1`` of incident direction ``m``.
+
+    All their chunks run in parallel (numba threads); each task's chunk histograms are then
+    summed in chunk order starting from zero. A task's result depends only on (stack, settings,
+    m, task index) -- not on threads or on which machine runs it -- which is what makes local and
+    distributed runs bit-identical. ``parallel=False`` uses no numba threads (for callers that
+    run concurrently themselves, like Dask worker threads).
+    """
+    p = pack(stack)
+    l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
+    nt, nph = settings.resolution
+    K = settings.max_order
+    cpt = settings.chunks_per_task
+    n_chunks_total = -(-settings.rays // settings.chunk_rays)
+    first_chunk = first_task * cpt
+    nb = max(0, min(count * cpt, n_chunks_total - first_chunk))
+    bt = (nt, nph) if stack.transmits else (1, 1)
+    outs = (np.empty((nb, nt, nph, K + 2, 3)), np.empty((nb,) + bt + (K + 2, 3)),
+            np.empty((nb, tracer.N_ENERGY, 3)), np.empty((nb, tracer.N_ENERGY_SQ, 3)),
+            np.empty((nb, tracer.N_COUNTS), dtype=np.int64))
+    if parallel:
+        numba.set_num_threads(settings.n_threads)
+    kernel = tracer.trace_batch if parallel else tracer.trace_batch_serial
+    if nb > 0:
+        kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
+                           first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
+                           nt, nph, K, settings.masking == "height-correlated", settings.event_cap, *outs)
+    results = []
+    for t in range(count):
+        total = Sums.zeros(stack, settings)
+        for b in range(t * cpt, min((t + 1) * cpt, nb)):  # fixed order: chunk index
+            total.add(Sums(*(o[b] for o in outs)))
+        results.append(total)
+    return results
+
+
+def task_rays(settings: SimulationSettings, task: int) -> int:
+    """Number of rays of task ``task``."""
+    per = settings.chunk_rays * settings.chunks_per_task
+    return max(0, min(per, settings.rays - task * per))
+
+
+def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
+                   progress: Callable[[int], None] | None = None) -> "IncidentPart":
+    """Trace every task of incident direction ``m`` locally and sum them in task order."""
+    T = n_tasks(settings)
+    per_call = max(1, -(-2 * settings.n_threads // settings.chunks_per_task))
+    acc = Sums.zeros(stack, settings)
+    t0 = time.perf_counter()
+    for first in range(0, T, per_call):
+        count = min(per_call, T - first)
+        for t, sums in enumerate(trace_tasks(stack, settings, m, first, count)):
+            acc.add(sums)
+            if progress is not None:
+                progress(task_rays(settings, first + t))
+    return IncidentPart.from_sums(m, acc, settings.max_order, stack.transmits, time.perf_counter() - t0)
+
+
+@dataclass
 class IncidentPart:
-    """Raw sums for one incident direction (what resumable runs checkpoint)."""
+    """Raw sums for one incident direction, split into orders and squares (what checkpoints hold)."""
 
     index: int
     brdf: np.ndarray           # (K, 3, n_theta, n_phi) weight sums per order
@@ -218,50 +319,33 @@ class IncidentPart:
     counts: np.ndarray         # (N_COUNTS,)
     elapsed_s: float
 
+    @classmethod
+    def from_sums(cls, m: int, acc: Sums, K: int, transmits: bool, elapsed_s: float) -> "IncidentPart":
+        def split(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            # (n_theta, n_phi, K + 2, 3) -> orders (K, 3, n_theta, n_phi) and squared weights
+            # (2, 3, n_theta, n_phi): [all exits, internal exits (order >= 2)]
+            return (np.ascontiguousarray(h[:, :, :K, :].transpose(2, 3, 0, 1)),
+                    np.ascontiguousarray(h[:, :, K:, :].transpose(2, 3, 0, 1)))
 
-def _trace_incident(stack: Stack, settings: SimulationSettings, m: int,
-                    progress: Callable[[int], None] | None) -> IncidentPart:
-    """Trace all chunks of incident direction ``m`` and sum their histograms in chunk order."""
-    p = pack(stack)
-    l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
-    nt, nph = settings.resolution
-    K = settings.max_order
-    param = 0 if settings.parametrization == "classic" else 1
-    threads = settings.n_threads
-    numba.set_num_threads(threads)
-    n_chunks = -(-settings.rays // settings.chunk_rays)
-    batch = max(1, min(2 * threads, n_chunks))
-    bt_shape = (nt, nph) if stack.transmits else (1, 1)
-    out_brdf = np.empty((batch, nt, nph, K + 2, 3))
-    out_btdf = np.empty((batch,) + bt_shape + (K + 2, 3))
-    out_energy = np.empty((batch, tracer.N_ENERGY, 3))
-    out_energy_sq = np.empty((batch, tracer.N_ENERGY_SQ, 3))
-    out_counts = np.empty((batch, tracer.N_COUNTS), dtype=np.int64)
-    outs_all = (out_brdf, out_btdf, out_energy, out_energy_sq, out_counts)
-    acc = [np.zeros(a.shape[1:], a.dtype) for a in outs_all]
-    t0 = time.perf_counter()
-    for first in range(0, n_chunks, batch):
-        nb = min(batch, n_chunks - first)
-        outs = tuple(a[:nb] for a in outs_all)
-        tracer.trace_batch(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
-                           first, settings.seed, m, param, nt, nph, K,
-                           settings.masking == "height-correlated", settings.event_cap, *outs)
-        for b in range(nb):  # fixed summation order: chunk index
-            for a, o in zip(acc, outs):
-                a += o[b]
-        if progress is not None:
-            progress(min(settings.rays, (first + nb) * settings.chunk_rays) - first * settings.chunk_rays)
-    elapsed = time.perf_counter() - t0
+        brdf, brdf_sq = split(acc.brdf)
+        btdf, btdf_sq = split(acc.btdf) if transmits else (None, None)
+        return cls(m, brdf, brdf_sq, btdf, btdf_sq, acc.energy, acc.energy_sq, acc.counts, elapsed_s)
 
-    def split(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # (n_theta, n_phi, K + 2, 3) -> orders (K, 3, n_theta, n_phi) and squared weights
-        # (2, 3, n_theta, n_phi): [all exits, internal exits (order >= 2)]
-        return (np.ascontiguousarray(h[:, :, :K, :].transpose(2, 3, 0, 1)),
-                np.ascontiguousarray(h[:, :, K:, :].transpose(2, 3, 0, 1)))
+    def save(self, path) -> None:
+        """Checkpoint to an ``.npz`` file (atomically: temporary name, then rename)."""
+        import os
+        tmp = f"{path}.tmp-{os.getpid()}"
+        arrays = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
+        with open(tmp, "wb") as fh:
+            np.savez(fh, index=self.index, elapsed_s=self.elapsed_s, **arrays)
+        os.replace(tmp, path)
 
-    brdf, brdf_sq = split(acc[0])
-    btdf, btdf_sq = split(acc[1]) if stack.transmits else (None, None)
-    return IncidentPart(m, brdf, brdf_sq, btdf, btdf_sq, acc[2], acc[3], acc[4], elapsed)
+    @classmethod
+    def load(cls, path) -> "IncidentPart":
+        with np.load(path) as z:
+            get = (lambda k: z[k] if k in z.files else None)
+            return cls(int(z["index"]), z["brdf"], z["brdf_sq"], get("btdf"), get("btdf_sq"), z["energy"],
+                       z["energy_sq"], z["counts"], float(z["elapsed_s"]))
 
 
 def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.ndarray],

@@ -88,6 +88,7 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     sim.attrs["elapsed_s"] = float(np.sum(r.elapsed_s))
     sim.attrs["threads"] = r.threads
     sim.attrs["chunk_rays"] = s.chunk_rays
+    sim.attrs["chunks_per_task"] = s.chunks_per_task
     sim.attrs["event_cap"] = s.event_cap
     sim.attrs["compile_s"] = r.compile_s
     sim.attrs["rays_per_s"] = r.rays_per_s
@@ -206,7 +207,34 @@ def read(path: str | Path) -> SimulationResult:
         raise StoreError(f"{p}: not a readable {FORMAT} file ({e})") from None
 
 
-def _read(f: h5py.File, p: Path) -> SimulationResult:
+def describe(path: str | Path) -> tuple[Stack, SimulationSettings]:
+    """The stack and settings of a file without loading its slices; checks that the datasets of
+    the contract are present with consistent shapes (raises :class:`StoreError`)."""
+    p = Path(path)
+    try:
+        with h5py.File(p, "r") as f:
+            stack, settings = _header(f, p)
+            M = len(settings.incident_deg)
+            nt, nph = settings.resolution
+            sides = ["brdf"] + (["btdf"] if stack.transmits else [])
+            for side in sides:
+                for name, shape in (("value", (M, 3, nt, nph)), ("stderr", (M, 3, nt, nph)),
+                                    ("orders", (M, settings.max_order, 3, nt, nph)), ("mask", (M, nt, nph)),
+                                    ("proj_solid_angle", (M, nt, nph))):
+                    key = f"{side}/{name}"
+                    if key not in f or f[key].shape != shape:
+                        raise StoreError(f"{p}: /{key} is missing or not of shape {shape}")
+            for k in ENERGY_TERMS:
+                if f"energy/{k}" not in f:
+                    raise StoreError(f"{p}: missing /energy/{k}")
+            return stack, settings
+    except StoreError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise StoreError(f"{p}: not a readable {FORMAT} file ({e})") from None
+
+
+def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
     if f.attrs.get("format") != FORMAT:
         raise StoreError(f"{p}: not a {FORMAT} file (format attribute {f.attrs.get('format')!r})")
     version = int(f.attrs.get("format_version", -1))
@@ -222,21 +250,29 @@ def _read(f: h5py.File, p: Path) -> SimulationResult:
     except (StackError, json.JSONDecodeError) as e:
         raise StoreError(f"{p}: /material/config is not a valid stack ({e})") from None
     sim = f["simulation"].attrs
-    theta = f["incident/theta_deg"][()]
-    phi = f["incident/phi_deg"][()]
-    brdf = _read_slices(f["brdf"])
+    brdf = f["brdf"].attrs
     settings = SimulationSettings(
-        incident_deg=tuple(float(x) for x in theta),
-        incident_phi_deg=tuple(float(x) for x in phi),
+        incident_deg=tuple(float(x) for x in f["incident/theta_deg"][()]),
+        incident_phi_deg=tuple(float(x) for x in f["incident/phi_deg"][()]),
         rays=int(sim["rays_per_slice"]),
-        parametrization=brdf.grid.parametrization,
-        resolution=(brdf.grid.n_theta, brdf.grid.n_phi),
+        parametrization=str(brdf["parametrization"]),
+        resolution=(int(brdf["n_theta"]), int(brdf["n_phi"])),
         seed=int(sim["seed"]),
         masking=str(sim["masking"]),
         max_order=int(sim["max_order"]),
         chunk_rays=int(sim.get("chunk_rays", 1 << 17)),
+        chunks_per_task=int(sim.get("chunks_per_task", 8)),
         event_cap=int(sim.get("event_cap", 10_000)),
     )
+    return stack, settings
+
+
+def _read(f: h5py.File, p: Path) -> SimulationResult:
+    stack, settings = _header(f, p)
+    sim = f["simulation"].attrs
+    theta = f["incident/theta_deg"][()]
+    phi = f["incident/phi_deg"][()]
+    brdf = _read_slices(f["brdf"])
     btdf = _read_slices(f["btdf"]) if "btdf" in f else None
     en = f["energy"]
     M = len(theta)

@@ -348,3 +348,30 @@ def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
         trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     lx, ly, lz, n, state, param, n_theta, n_phi, max_order, height_correlated,
                     event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+
+
+@numba.njit(cache=True, error_model='numpy')
+def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                       lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
+                       param, n_theta, n_phi, max_order, height_correlated, event_cap,
+                       brdf, btdf, energy, energy_sq, counts):
+    """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
+
+    For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
+    default threading layer must not be entered by several threads at once.
+    """
+    for b in range(brdf.shape[0]):
+        c = first_chunk + b
+        start = c * chunk_rays
+        n = min(chunk_rays, n_rays_total - start)
+        brdf[b].fill(0.0)
+        btdf[b].fill(0.0)
+        energy[b].fill(0.0)
+        energy_sq[b].fill(0.0)
+        counts[b].fill(0)
+        if n <= 0:
+            continue
+        state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
+        trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                    lx, ly, lz, n, state, param, n_theta, n_phi, max_order, height_correlated,
+                    event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])

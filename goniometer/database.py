@@ -1,0 +1,452 @@
+"""Material databases: definition files that expand to many named materials, and resumable,
+optionally distributed, simulation of all of them into one HDF5 file per material.
+
+Definition (see ``configs/bati2019.toml``): ``name``, ``[simulation]`` (incident_deg, resolution,
+seed, masking, parametrization: a name or ``{classic_if_alpha0_at_least = a, otherwise = p}``),
+``[quality]`` (rays per incident direction by quality name), ``[symbols.<param>]`` (named values),
+and ``[[family]]`` tables (category, name format, grid of parameter lists, variants, layers whose
+string values ``"$param"`` are substituted).
+
+Results directory layout::
+
+    <out>/database.json                 manifest: database name, fingerprint, quality, format version
+    <out>/<category>/<material>.h5      one slices file per finished material (atomic writes)
+    <out>/.partial/<material>/m<k>.npz   checkpoints of finished incident directions of an
+                                        unfinished material (removed when it is written)
+
+A rerun skips finished materials, resumes unfinished ones from their checkpoints, and refuses a
+directory that holds another database, quality or format (nothing is overwritten). A finished
+file that cannot be read is reported and re-simulated only on request.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import itertools
+import json
+import os
+import shutil
+import time
+import tomllib
+from collections import deque
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+from goniometer import store
+from goniometer.simulate import (IncidentPart, SettingsError, SimulationSettings, Sums, assemble, n_tasks,
+                                 task_rays, trace_incident, trace_tasks, warm_up)
+from goniometer.stack import Stack, StackError, stack_from_dict
+
+MANIFEST = "database.json"
+RESULTS_FORMAT = "goniometer.database-results"
+RESULTS_VERSION = 1
+PARAMS_REPORTED = ("alpha0", "alpha1", "tau", "rho", "eta1")
+
+
+class DatabaseError(ValueError):
+    """An invalid database file or results directory (message names the file and the problem)."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """One expanded material: its stack, the paper's short name and its parameters."""
+
+    name: str
+    category: str
+    paper_name: str
+    stack: Stack
+    params: dict[str, Any]
+    parametrization: str
+
+
+@dataclass(frozen=True)
+class Database:
+    name: str
+    path: str
+    incident_deg: tuple[float, ...]
+    resolution: tuple[int, int]
+    seed: int
+    masking: str
+    qualities: dict[str, int]
+    materials: tuple[Material, ...]
+    description: str = ""
+
+    def settings_for(self, material: Material, quality: str, threads: int | None = None) -> SimulationSettings:
+        if quality not in self.qualities:
+            raise DatabaseError(f"{self.path}: quality {quality!r} is not one of {', '.join(self.qualities)}")
+        return SimulationSettings(incident_deg=self.incident_deg, rays=self.qualities[quality],
+                                  parametrization=material.parametrization, resolution=self.resolution,
+                                  seed=self.seed, masking=self.masking, threads=threads)
+
+    def fingerprint(self) -> str:
+        """Hash of everything that determines the results (names, stacks, settings)."""
+        doc = {"name": self.name, "incident": self.incident_deg, "resolution": self.resolution, "seed": self.seed,
+               "masking": self.masking,
+               "materials": [[m.name, m.stack.to_json(), m.parametrization] for m in self.materials]}
+        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+    def select(self, only: str | None) -> list[Material]:
+        """Materials whose name matches the glob ``only`` (all if None)."""
+        if not only:
+            return list(self.materials)
+        chosen = [m for m in self.materials if fnmatch.fnmatchcase(m.name, only)]
+        if not chosen:
+            raise DatabaseError(f"--only {only!r} matches no material of {self.name}")
+        return chosen
+
+
+# ---------------------------------------------------------------------- loading
+
+def load_database(path: str | Path) -> Database:
+    """Load and expand a database definition; raises :class:`DatabaseError`."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise DatabaseError(f"{p}: cannot read: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise DatabaseError(f"{p}: invalid TOML: {e}") from None
+    allowed = {"name", "description", "simulation", "quality", "symbols", "family"}
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise DatabaseError(f"{p}: {unknown[0]}: unknown key (allowed: {', '.join(sorted(allowed))})")
+    name = data.get("name")
+    if not isinstance(name, str) or not name:
+        raise DatabaseError(f"{p}: name: required, a non-empty string")
+    sim = data.get("simulation", {})
+    qualities = data.get("quality", {})
+    if not qualities or not all(isinstance(v, int) and v > 0 for v in qualities.values()):
+        raise DatabaseError(f"{p}: quality: a table of positive ray counts per quality name is required")
+    symbols = data.get("symbols", {})
+    families = data.get("family", [])
+    if not families:
+        raise DatabaseError(f"{p}: family: at least one [[family]] is required")
+    param_rule = sim.get("parametrization", "classic")
+    materials: list[Material] = []
+    for fi, fam in enumerate(families):
+        materials.extend(_expand_family(p, fi, fam, symbols, param_rule))
+    seen: dict[str, int] = {}
+    for i, m in enumerate(materials):
+        if m.name in seen:
+            raise DatabaseError(f"{p}: material name {m.name!r} is produced twice (materials {seen[m.name]} and {i})")
+        seen[m.name] = i
+    db = Database(name=name, path=str(p), incident_deg=tuple(float(x) for x in sim.get("incident_deg", (0, 15, 30, 45, 60, 70, 80))),
+                  resolution=tuple(sim.get("resolution", (90, 360))), seed=int(sim.get("seed", 1)),
+                  masking=str(sim.get("masking", "separable")), qualities=dict(qualities),
+                  materials=tuple(materials), description=str(data.get("description", "")))
+    try:
+        for m in materials[:1]:
+            for q in qualities:
+                db.settings_for(m, q)
+    except SettingsError as e:
+        raise DatabaseError(f"{p}: simulation: {e}") from None
+    return db
+
+
+def _expand_family(path: Path, fi: int, fam: dict, symbols: dict, param_rule) -> Iterator[Material]:
+    where = f"{path}: family[{fi}]"
+    for key in ("category", "name", "layers"):
+        if key not in fam:
+            raise DatabaseError(f"{where}.{key}: required")
+    grid = fam.get("grid", {})
+    variants = fam.get("variants", [{}])
+    keys = list(grid)
+    for values in itertools.product(*(grid[k] for k in keys)):
+        for variant in variants:
+            params = dict(zip(keys, values))
+            params.update(variant)
+            try:
+                name = fam["name"].format(**params)
+            except (KeyError, IndexError) as e:
+                raise DatabaseError(f"{where}.name: {fam['name']!r} uses an unknown parameter {e}") from None
+            layers = [_substitute(layer, params, symbols, f"{where} ({name})") for layer in fam["layers"]]
+            try:
+                stack = stack_from_dict({"name": name, "category": fam["category"], "layers": layers},
+                                        source=f"{path}: {name}")
+            except StackError as e:
+                raise DatabaseError(str(e)) from None
+            reported = {}
+            for k in PARAMS_REPORTED:
+                if k in params:
+                    v = params[k]
+                    if isinstance(v, str) and k in symbols:
+                        reported[f"{k}_name"] = v
+                        v = symbols[k][v]
+                    reported[k] = v
+            yield Material(name=name, category=fam["category"], paper_name=str(params.get("variant", name)),
+                           stack=stack, params=reported, parametrization=_parametrization(param_rule, params, where))
+
+
+def _substitute(value: Any, params: dict, symbols: dict, where: str) -> Any:
+    if isinstance(value, dict):
+        return {k: _substitute(v, params, symbols, where) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_substitute(v, params, symbols, where) for v in value]
+    if isinstance(value, str) and value.startswith("$"):
+        key = value[1:]
+        if key not in params:
+            raise DatabaseError(f"{where}: {value!r} names no parameter (have: {', '.join(params)})")
+        v = params[key]
+        if isinstance(v, str):
+            if key not in symbols or v not in symbols[key]:
+                raise DatabaseError(f"{where}: {key} = {v!r} is not a symbol of [symbols.{key}]")
+            v = symbols[key][v]
+        return v
+    return value
+
+
+def _parametrization(rule, params: dict, where: str) -> str:
+    if isinstance(rule, str):
+        return rule
+    if isinstance(rule, dict) and "classic_if_alpha0_at_least" in rule:
+        a0 = params.get("alpha0")
+        if a0 is None:
+            raise DatabaseError(f"{where}: the parametrization rule needs an alpha0 parameter")
+        return "classic" if a0 >= rule["classic_if_alpha0_at_least"] else str(rule.get("otherwise", "half"))
+    raise DatabaseError(f"{where}: parametrization rule {rule!r} is not understood")
+
+
+# ---------------------------------------------------------------------- results directory
+
+def material_path(out_dir: Path, material: Material) -> Path:
+    return Path(out_dir) / f"{material.name}.h5"
+
+
+def _partial_dir(out_dir: Path, material: Material) -> Path:
+    return Path(out_dir) / ".partial" / material.name
+
+
+def _manifest(db: Database, quality: str) -> dict:
+    return {"format": RESULTS_FORMAT, "format_version": RESULTS_VERSION, "slices_format": store.FORMAT,
+            "slices_format_version": store.FORMAT_VERSION, "database": db.name, "fingerprint": db.fingerprint(),
+            "quality": quality, "rays_per_slice": db.qualities[quality], "definition": db.path}
+
+
+def check_results_dir(db: Database, out_dir: Path, quality: str) -> None:
+    """Refuse a directory that holds results of another database, quality or format version."""
+    out = Path(out_dir)
+    mf = out / MANIFEST
+    want = _manifest(db, quality)
+    if mf.exists():
+        try:
+            have = json.loads(mf.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise DatabaseError(f"{mf}: unreadable manifest ({e}); move the directory aside") from None
+        for key, label in (("format", "format"), ("format_version", "format version"),
+                           ("slices_format_version", "slices format version"), ("database", "database"),
+                           ("fingerprint", "database definition"), ("quality", "quality")):
+            if have.get(key) != want[key]:
+                raise DatabaseError(f"{out}: holds results of {label} {have.get(key)!r}, not {want[key]!r}; "
+                                    f"use another --out (nothing was changed)")
+    elif out.exists() and any(out.rglob("*.h5")):
+        raise DatabaseError(f"{out}: holds .h5 files but no {MANIFEST}: not a results directory of "
+                            f"`gonio database simulate`; use another --out (nothing was changed)")
+
+
+def material_status(db: Database, out_dir: Path, material: Material, quality: str) -> str:
+    """``"done"``, ``"partial"`` (checkpoints exist), ``"missing"`` or ``"corrupt"``."""
+    p = material_path(out_dir, material)
+    if p.exists():
+        try:
+            stack, settings = store.describe(p)
+        except store.StoreError:
+            return "corrupt"
+        expected = db.settings_for(material, quality)
+        if stack.to_json() != material.stack.to_json() or not _same_run(settings, expected):
+            return "corrupt"
+        return "done"
+    if any(_partial_dir(out_dir, material).glob("m*.npz")):
+        return "partial"
+    return "missing"
+
+
+def _same_run(a: SimulationSettings, b: SimulationSettings) -> bool:
+    keys = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
+            "max_order", "chunk_rays", "chunks_per_task", "event_cap")
+    return all(getattr(a, k) == getattr(b, k) for k in keys)
+
+
+@dataclass
+class RunSummary:
+    simulated: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    resumed: list[str] = field(default_factory=list)
+    resimulated: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
+
+
+def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick", only: str | None = None,
+                      threads: int | None = None, scheduler: str | None = None,
+                      resimulate_corrupted: bool = False,
+                      progress: Callable[[int], None] | None = None,
+                      on_material: Callable[[Material, str], None] | None = None,
+                      client: Any = None) -> RunSummary:
+    """Simulate the selected materials of ``db`` into ``out_dir`` (resumable; see module docstring).
+
+    ``progress(rays)`` is called as rays finish (for an overall bar); ``on_material(material,
+    status)`` when a material starts (status as :func:`material_status`). ``scheduler`` (a Dask
+    address such as ``tcp://host:8786``) or ``client`` (a ``distributed.Client``) runs the
+    (material, incident, task) tasks on a Dask cluster; results are bit-identical to a local run.
+    """
+    out = Path(out_dir)
+    materials = db.select(only)
+    check_results_dir(db, out, quality)
+    statuses = {m.name: material_status(db, out, m, quality) for m in materials}
+    corrupt = [n for n, s in statuses.items() if s == "corrupt"]
+    if corrupt and not resimulate_corrupted:
+        raise DatabaseError(f"{out}: {len(corrupt)} finished file(s) cannot be read or do not match the database "
+                            f"(first: {material_path(out, next(m for m in materials if m.name == corrupt[0]))}); "
+                            f"rerun with --resimulate-corrupted to move them aside and simulate them again")
+    out.mkdir(parents=True, exist_ok=True)
+    mf = out / MANIFEST
+    if not mf.exists():
+        tmp = out / f".{MANIFEST}.tmp-{os.getpid()}"
+        tmp.write_text(json.dumps(_manifest(db, quality), indent=2))
+        os.replace(tmp, mf)
+    summary = RunSummary()
+    t0 = time.perf_counter()
+    todo = []
+    for m in materials:
+        st = statuses[m.name]
+        if st == "done":
+            summary.skipped.append(m.name)
+            continue
+        if st == "corrupt":
+            p = material_path(out, m)
+            os.replace(p, p.with_name(p.name + f".corrupt-{int(time.time())}"))
+            summary.resimulated.append(m.name)
+        elif st == "partial":
+            summary.resumed.append(m.name)
+        todo.append(m)
+    own_client = None
+    if scheduler is not None and client is None:
+        client = own_client = _dask_client(scheduler)
+    try:
+        if client is None:
+            warm_up()
+        for m in todo:
+            if on_material is not None:
+                on_material(m, statuses[m.name])
+            _simulate_material(db, out, m, quality, threads, progress, client)
+            summary.simulated.append(m.name)
+    finally:
+        if own_client is not None:
+            own_client.close()
+    summary.elapsed_s = time.perf_counter() - t0
+    return summary
+
+
+def _simulate_material(db: Database, out: Path, material: Material, quality: str, threads: int | None,
+                       progress: Callable[[int], None] | None, client: Any) -> Path:
+    settings = db.settings_for(material, quality, threads)
+    pdir = _partial_dir(out, material)
+    pdir.mkdir(parents=True, exist_ok=True)
+    meta = {"fingerprint": db.fingerprint(), "quality": quality, "material": material.name,
+            "settings": [settings.rays, settings.seed, settings.chunk_rays, settings.chunks_per_task]}
+    meta_path = pdir / "meta.json"
+    if not meta_path.exists() or json.loads(meta_path.read_text()) != meta:
+        for old in pdir.glob("m*.npz"):
+            old.unlink()
+        meta_path.write_text(json.dumps(meta))
+    parts: dict[int, IncidentPart] = {}
+    for k in range(len(settings.incident_deg)):
+        ck = pdir / f"m{k:02d}.npz"
+        if ck.exists():
+            try:
+                parts[k] = IncidentPart.load(ck)
+                if progress is not None:
+                    progress(settings.rays)
+                continue
+            except (OSError, ValueError, KeyError):
+                ck.unlink()
+    remaining = [k for k in range(len(settings.incident_deg)) if k not in parts]
+    if client is None:
+        for k in remaining:
+            part = trace_incident(material.stack, settings, k, progress)
+            part.save(pdir / f"m{k:02d}.npz")
+            parts[k] = part
+    else:
+        for k, part in _dask_incidents(client, material.stack, settings, remaining, progress):
+            part.save(pdir / f"m{k:02d}.npz")
+            parts[k] = part
+    result = assemble(material.stack, settings, [parts[k] for k in sorted(parts)])
+    path = material_path(out, material)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    store.write(path, result)
+    shutil.rmtree(pdir, ignore_errors=True)
+    return path
+
+
+# ---------------------------------------------------------------------- Dask
+
+def _dask_client(address: str):
+    try:
+        from distributed import Client
+    except ImportError:
+        raise DatabaseError("--scheduler needs the Dask distributed package: pip install 'goniometer[distributed]'") from None
+    try:
+        return Client(address, timeout="30s")
+    except (OSError, TimeoutError) as e:
+        raise DatabaseError(f"cannot reach the Dask scheduler at {address}: {e}") from None
+
+
+def run_task(stack_json: str, settings: SimulationSettings, m: int, task: int) -> Sums:
+    """One (material, incident, task) unit of work, as run on a Dask worker (no numba threads)."""
+    return trace_tasks(Stack.from_json(stack_json), settings, m, task, 1, parallel=False)[0]
+
+
+def _dask_incidents(client, stack: Stack, settings: SimulationSettings, incidents: list[int],
+                    progress: Callable[[int], None] | None, window: int | None = None
+                    ) -> Iterator[tuple[int, IncidentPart]]:
+    """Run the tasks of ``incidents`` on the cluster, keeping at most ``window`` in flight, and
+    sum each incident's task results in task order (as :func:`trace_incident` does)."""
+    if window is None:
+        workers = max(1, sum(client.nthreads().values()))
+        window = 4 * workers
+    stack_json = stack.to_json()
+    specs = [(k, t) for k in incidents for t in range(n_tasks(settings))]
+    inflight: deque = deque()
+    it = iter(specs)
+    acc: dict[int, Sums] = {}
+    started: dict[int, float] = {}
+    last_task = {k: n_tasks(settings) - 1 for k in incidents}
+
+    def submit_next() -> bool:
+        spec = next(it, None)
+        if spec is None:
+            return False
+        k, t = spec
+        started.setdefault(k, time.perf_counter())
+        inflight.append((k, t, client.submit(run_task, stack_json, settings, k, t, pure=False)))
+        return True
+
+    for _ in range(window):
+        if not submit_next():
+            break
+    while inflight:
+        k, t, fut = inflight.popleft()
+        sums = fut.result()
+        fut.release()
+        if k not in acc:
+            acc[k] = Sums.zeros(stack, settings)
+        acc[k].add(sums)  # tasks arrive here in (incident, task) order
+        if progress is not None:
+            progress(task_rays(settings, t))
+        submit_next()
+        if t == last_task[k]:
+            yield k, IncidentPart.from_sums(k, acc.pop(k), settings.max_order, stack.transmits,
+                                            time.perf_counter() - started[k])
+
+
+def list_rows(db: Database, out_dir: str | Path | None = None, quality: str = "quick") -> list[dict]:
+    """One row per material for ``gonio database list`` (with its status if ``out_dir`` is given)."""
+    rows = []
+    for m in db.materials:
+        row = {"name": m.name, "category": m.category, "paper_name": m.paper_name,
+               "parametrization": m.parametrization, **m.params}
+        if out_dir is not None:
+            row["status"] = material_status(db, Path(out_dir), m, quality)
+        rows.append(row)
+    return rows
