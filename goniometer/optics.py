@@ -35,26 +35,34 @@ _INV_PI = 1.0 / math.pi
 # --------------------------------------------------------------------------- Fresnel
 
 @numba.njit(cache=True)
-def fresnel_dielectric(cos_i: float, eta: float) -> float:
-    """Exact unpolarised Fresnel reflectance of a dielectric boundary.
+def fresnel_dielectric_cos_t(cos_i: float, eta: float):
+    """Exact unpolarised Fresnel reflectance of a dielectric boundary and the refracted cosine.
 
     ``cos_i`` is the cosine between the incident direction and the (micro)normal
     on the incident side (its absolute value is used). ``eta`` = n_far / n_near.
-    Total internal reflection returns 1. ``eta == 1`` returns 0; otherwise grazing
-    incidence (``cos_i = 0``) returns 1.
+    Returns ``(F, cos_t)``: total internal reflection gives ``(1, 0)``; ``eta == 1`` gives
+    ``(0, cos_i)``; otherwise grazing incidence (``cos_i = 0``) gives ``(1, cos_t)``.
     """
-    if eta == 1.0:
-        return 0.0
     c = min(abs(cos_i), 1.0)
-    if c == 0.0:
-        return 1.0
+    if eta == 1.0:
+        return 0.0, c
     sin2_t = (1.0 - c * c) / (eta * eta)
     if sin2_t >= 1.0:
-        return 1.0
+        return 1.0, 0.0
     cos_t = math.sqrt(1.0 - sin2_t)
+    if c == 0.0:
+        return 1.0, cos_t
     rs = (c - eta * cos_t) / (c + eta * cos_t)
     rp = (eta * c - cos_t) / (eta * c + cos_t)
-    return 0.5 * (rs * rs + rp * rp)
+    return 0.5 * (rs * rs + rp * rp), cos_t
+
+
+@numba.njit(cache=True)
+def fresnel_dielectric(cos_i: float, eta: float) -> float:
+    """Exact unpolarised Fresnel reflectance of a dielectric boundary (see
+    :func:`fresnel_dielectric_cos_t`): total internal reflection returns 1, ``eta == 1``
+    returns 0, otherwise grazing incidence returns 1."""
+    return fresnel_dielectric_cos_t(cos_i, eta)[0]
 
 
 @numba.njit(cache=True)
@@ -215,9 +223,17 @@ def refract(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, et
     sin2_t = inv_eta * inv_eta * max(0.0, 1.0 - c * c)
     if sin2_t >= 1.0:
         return 0.0, 0.0, 0.0, False
-    cos_t = math.sqrt(1.0 - sin2_t)
-    k = inv_eta * c - cos_t
-    return k * mx - inv_eta * wx, k * my - inv_eta * wy, k * mz - inv_eta * wz, True
+    x, y, z = refract_known(wx, wy, wz, mx, my, mz, inv_eta, c, math.sqrt(1.0 - sin2_t))
+    return x, y, z, True
+
+
+@numba.njit(cache=True)
+def refract_known(wx: float, wy: float, wz: float, mx: float, my: float, mz: float,
+                  inv_eta: float, cos_i: float, cos_t: float):
+    """:func:`refract` when ``cos_i = w.m`` and the refracted cosine ``cos_t`` (e.g. from
+    :func:`fresnel_dielectric_cos_t`) are already known; ``inv_eta`` = n_near / n_far."""
+    k = inv_eta * cos_i - cos_t
+    return k * mx - inv_eta * wx, k * my - inv_eta * wy, k * mz - inv_eta * wz
 
 
 # --------------------------------------------------------------------------- microfacet BSDFs (Walter 2007)

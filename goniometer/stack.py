@@ -39,7 +39,9 @@ class StackError(ValueError):
 
 @dataclass(frozen=True)
 class Interface:
-    """GGX rough interface. ``roughness`` is alpha in [0, 1] (0 = perfectly smooth).
+    """GGX rough interface. ``roughness`` is alpha in [0, 1] (0 = perfectly smooth) along the
+    interface's tangent x axis; ``roughness_y`` (None = isotropic) along its y axis, the tangent
+    frame being rotated by ``rotation_deg`` about z from the macro frame (x towards phi = 0).
 
     ``ior`` and ``extinction`` are the absolute index ``eta + i kappa`` of the medium below (RGB).
     """
@@ -47,15 +49,21 @@ class Interface:
     roughness: float
     ior: RGB
     extinction: RGB = (0.0, 0.0, 0.0)
+    roughness_y: float | None = None
+    rotation_deg: float = 0.0
 
     @property
     def is_conductor(self) -> bool:
         return max(self.extinction) > 0.0
 
     @property
+    def is_anisotropic(self) -> bool:
+        return self.roughness_y is not None and self.roughness_y != self.roughness
+
+    @property
     def alpha_xy(self) -> tuple[float, float]:
         """GGX roughness along the interface's tangent x and y axes."""
-        return (self.roughness, self.roughness)
+        return (self.roughness, self.roughness if self.roughness_y is None else self.roughness_y)
 
 
 @dataclass(frozen=True)
@@ -111,6 +119,9 @@ class Stack:
         for x in self.layers:
             if isinstance(x, Interface):
                 d: dict[str, Any] = {"type": "interface", "roughness": x.roughness}
+                if x.is_anisotropic:
+                    d["roughness"] = list(x.alpha_xy)
+                    d["rotation_deg"] = x.rotation_deg
                 if x.is_conductor:
                     d["ior"] = list(x.ior)
                     d["extinction"] = list(x.extinction)
@@ -185,6 +196,9 @@ def pack(stack: Stack) -> PackedStack:
     for layer in stack.layers:
         if isinstance(layer, Interface):
             if_alpha[k] = layer.alpha_xy
+            if layer.is_anisotropic:
+                psi = np.radians(layer.rotation_deg)
+                if_rot[k] = (np.cos(psi), np.sin(psi))
             if layer.is_conductor:
                 above = region_eta[region]
                 cond[0:3] = np.asarray(layer.ior) / above
@@ -210,7 +224,7 @@ def pack(stack: Stack) -> PackedStack:
 # ---------------------------------------------------------------------- loading
 
 _LAYER_KEYS = {
-    "interface": {"type", "roughness", "ior", "extinction"},
+    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg"},
     "medium": {"type", "optical_depth"},
     "lambertian": {"type", "albedo"},
 }
@@ -277,16 +291,43 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
         raise StackError(f"{where}.{unknown[0]}: unknown key for a {kind} layer "
                          f"(allowed: {', '.join(sorted(_LAYER_KEYS[kind]))})")
     if kind == "interface":
-        rough = _scalar(d, "roughness", where, lo=0.0, hi=1.0)
+        rough, rough_y, rotation = _roughness(d, where)
         ior = _rgb(d, "ior", where, positive=True)
         ext = _rgb(d, "extinction", where, lo=0.0, default=0.0)
         if max(ext) <= 0.0 and len(set(ior)) != 1:
             raise StackError(f"{where}.ior: a dielectric interface takes one index for all channels "
                              f"(got {list(ior)}); an RGB index needs extinction > 0 (a conductor)")
-        return Interface(roughness=rough, ior=ior, extinction=ext)
+        return Interface(roughness=rough, ior=ior, extinction=ext, roughness_y=rough_y, rotation_deg=rotation)
     if kind == "medium":
         return Medium(optical_depth=_rgb(d, "optical_depth", where, lo=0.0))
     return Lambertian(albedo=_rgb(d, "albedo", where, lo=0.0, hi=1.0))
+
+
+def _roughness(d: dict, where: str) -> tuple[float, float | None, float]:
+    """``roughness`` (alpha, or [alpha_x, alpha_y]) and ``rotation_deg`` of an interface table."""
+    if "roughness" not in d:
+        raise StackError(f"{where}.roughness: required")
+    r = d["roughness"]
+    w = f"{where}.roughness"
+    if isinstance(r, list):
+        if len(r) != 2:
+            raise StackError(f"{w}: an anisotropic roughness is [alpha_x, alpha_y], got {len(r)} value(s)")
+        ax, ay = (_number(x, w) for x in r)
+        for v in (ax, ay):
+            _check_range(v, w, 0.0, 1.0, False)
+    else:
+        ax = _number(r, w)
+        _check_range(ax, w, 0.0, 1.0, False)
+        ay = ax
+    rotation = 0.0
+    if "rotation_deg" in d:
+        rotation = _number(d["rotation_deg"], f"{where}.rotation_deg")
+        if ax == ay:
+            raise StackError(f"{where}.rotation_deg: a rotation needs an anisotropic roughness "
+                             f"[alpha_x, alpha_y] with alpha_x != alpha_y")
+        if not 0.0 <= rotation < 360.0:
+            raise StackError(f"{where}.rotation_deg: {rotation:g} is outside [0, 360)")
+    return ax, (ay if ay != ax else None), rotation
 
 
 def _number(x: Any, where: str) -> float:
@@ -342,8 +383,11 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
         where = f"{source}: layers[{i}]"
         last = i == len(layers) - 1
         if isinstance(x, Interface):
-            if not 0.0 <= x.roughness <= 1.0:
-                raise StackError(f"{where}.roughness: {x.roughness} is outside [0, 1]")
+            for a in x.alpha_xy:
+                if not 0.0 <= a <= 1.0:
+                    raise StackError(f"{where}.roughness: {a} is outside [0, 1]")
+            if x.rotation_deg != 0.0 and not x.is_anisotropic:
+                raise StackError(f"{where}.rotation_deg: a rotation needs an anisotropic roughness")
             if x.is_conductor and not last:
                 raise StackError(f"{where}.extinction: a conductor (extinction > 0) must be the last layer")
         elif isinstance(x, Medium):

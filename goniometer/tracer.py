@@ -248,12 +248,12 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                         w2 *= f2
                         ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                     else:
-                        eta = eta_dn[k] if from_above else 1.0 / eta_dn[k]
-                        f = optics.fresnel_dielectric(wm, eta)
+                        inv_eta = 1.0 / eta_dn[k] if from_above else eta_dn[k]
+                        f, cos_t = optics.fresnel_dielectric_cos_t(wm, 1.0 / inv_eta)
                         if next_float(state) < f:
                             ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                         else:
-                            ox, oy, oz, _ = optics.refract(wx, wy, wz, mx, my, mz, eta)
+                            ox, oy, oz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
                             transmitted = True
                     # single-scattering microfacet model: wrong side -> lost to masking
                     if (transmitted and oz >= 0.0) or (not transmitted and oz <= 0.0):

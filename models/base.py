@@ -50,19 +50,27 @@ class Model(ABC):
     name: str = ""
     description: str = ""
     sides: tuple[str, ...] = ("brdf",)
+    #: whether the model handles anisotropic interfaces (roughness [alpha_x, alpha_y])
+    anisotropic: bool = False
 
     @abstractmethod
     def support_reason(self, stack: Stack) -> str | None:
         """``None`` if the model can represent ``stack``, otherwise a one-line reason."""
 
+    def reason(self, stack: Stack) -> str | None:
+        """:meth:`support_reason` preceded by the checks every model shares (anisotropy)."""
+        if not self.anisotropic and any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers):
+            return "isotropic interfaces only (this stack has an anisotropic roughness)"
+        return self.support_reason(stack)
+
     def supports(self, stack: Stack) -> bool:
-        return self.support_reason(stack) is None
+        return self.reason(stack) is None
 
     def evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> ModelValue:
         """f(l, v) split into top lobe and internal part; raises :class:`ModelError` if unsupported."""
         if side not in self.sides:
             raise ModelError(f"{self.name}: cannot evaluate the {side.upper()} (it models {', '.join(self.sides)})")
-        reason = self.support_reason(stack)
+        reason = self.reason(stack)
         if reason is not None:
             raise ModelError(f"{self.name}: {reason}")
         l = np.asarray(l, dtype=np.float64).reshape(3)

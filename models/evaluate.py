@@ -69,7 +69,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     for name, model in available.items():
         if names and name not in names:
             continue
-        reason = model.support_reason(stack)
+        reason = model.reason(stack)
         if reason is None and side not in model.sides:
             reason = f"models the {'/'.join(x.upper() for x in model.sides)}; this stack is judged on its {side.upper()}"
         if reason is not None:
