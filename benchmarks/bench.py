@@ -88,12 +88,42 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     return rows
 
 
+def bench_models(repeats: int = 3) -> list[dict]:
+    """Seconds to integrate each model onto one material (7 incident directions, 90 x 360 cells,
+    5 x 5 sub-cells) on one thread, after warm-up (best of ``repeats``)."""
+    from models.integrate import integrate
+    from models.registry import all_models
+    numba.set_num_threads(1)
+    rows = []
+    refs = {}
+    for name in ("plastic/P1-a0_0.05", "metal/M2-a0_0.05-a1_0.2", "slab/S1-a0_0.05-a1_0.2"):
+        st = MATERIALS[name]
+        refs[name] = simulate(st, SimulationSettings(incident_deg=INCIDENT, rays=1000, parametrization="half", threads=1))
+    for mname, model in all_models().items():
+        for name, ref in refs.items():
+            side = "btdf" if ref.stack.transmits else "brdf"
+            if not model.supports(ref.stack) or side not in model.sides:
+                continue
+            integrate(model, ref, side)  # warm-up (compilation, tables)
+            best = min(_timed(lambda: integrate(model, ref, side)) for _ in range(repeats))
+            rows.append({"model": mname, "material": name, "seconds": best})
+            print(f"integrate {mname:16s} on {name:28s} {best:6.2f} s (1 thread)", flush=True)
+    return rows
+
+
+def _timed(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays-per-incident", type=int, default=1_500_000, help="7 incident directions each (default 1.5M: 10.5M rays per run)")
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--no-compile-time", action="store_true")
+    ap.add_argument("--no-models", action="store_true", help="skip the model-integration timings")
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
     threads = [t for t in threads if t <= numba.config.NUMBA_NUM_THREADS]
@@ -102,6 +132,7 @@ def main() -> int:
     if ct:
         print(f"kernel compile {ct['compile_s']:.1f} s, load from cache {ct['cache_load_s']:.2f} s")
     rows = run(args.rays_per_incident, threads)
+    model_rows = [] if args.no_models else bench_models()
     host = socket.gethostname()
     out = args.out or HERE / "results" / f"{dt.date.today().isoformat()}-{host}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -110,7 +141,8 @@ def main() -> int:
         "host": host, "cpu": cpu_model(), "logical_cpus": os.cpu_count(),
         "python": platform.python_version(), "numba": numba.__version__, "numpy": np.__version__,
         "incident_deg": list(INCIDENT), "parametrization": "half", "resolution": [90, 360],
-        **ct, "results": rows,
+        **ct, "results": rows, "model_integration": model_rows,
+        "model_integration_note": "one material, 7 incident directions, 90x360 half cells, 5x5 sub-cells, 1 thread, after warm-up",
         "target_rays_per_cpu_s": 3.2e6,
         "target_note": "Bati 2019's C++/OpenMP simulator: 160 million rays per slice in 50 s on one core",
     }
