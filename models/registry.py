@@ -6,18 +6,12 @@ from models.base import Model, ModelError
 
 
 def all_models() -> dict[str, Model]:
-    """Every model of the harness, by its fixed name, in display order."""
-    found: list[Model] = []
-    try:
-        from models.weidlich_wilkie import Elek10, WW09, WWBati19
-        found += [WW09(), Elek10(), WWBati19()]
-    except ImportError:  # pragma: no cover - during development only
-        pass
-    try:
-        from models.belcour import BelcourBati19, BelcourBTDF, BelcourForward, BelcourSymmetric
-        found += [BelcourForward(), BelcourSymmetric(), BelcourBati19(), BelcourBTDF()]
-    except ImportError:  # pragma: no cover
-        pass
+    """Every analytic model of the harness, by its fixed name, in display order."""
+    from models.belcour import BelcourBati19, BelcourBTDF, BelcourForward, BelcourSymmetric
+    from models.multilayer_lut import MultilayerLUT
+    from models.weidlich_wilkie import Elek10, WW09, WWBati19
+    found: list[Model] = [WW09(), Elek10(), WWBati19(), BelcourForward(), BelcourSymmetric(), BelcourBati19(),
+                          BelcourBTDF(), MultilayerLUT()]
     return {m.name: m for m in found}
 
 
