@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench database clean
+.PHONY: setup test test-slow demo bench database report clean
 
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
@@ -38,6 +38,9 @@ demo: $(STAMP)
 
 database: $(STAMP)
 	$(GONIO) database simulate $(DATABASE) --out $(DB_OUT) --quality $(QUALITY)
+
+report: $(STAMP)
+	$(GONIO) report $(DB_OUT) --out $(DB_OUT)/report
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py

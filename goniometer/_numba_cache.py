@@ -31,13 +31,18 @@ def cache_root() -> Path:
 
 
 def source_key() -> str:
-    """Hash of the project's Python sources and the numba version."""
+    """Hash of the project's numba-bearing Python sources (files that mention numba) and the
+    numba version. Compiled code can only depend on njit functions and the constants they read,
+    which live in such files; editing a report or CLI module does not invalidate the cache."""
     root = Path(__file__).resolve().parent.parent
     h = hashlib.sha256(numba.__version__.encode())
     for pkg in ("goniometer", "models"):
         for p in sorted((root / pkg).rglob("*.py")):
+            data = p.read_bytes()
+            if b"numba" not in data:
+                continue
             h.update(p.relative_to(root).as_posix().encode())
-            h.update(p.read_bytes())
+            h.update(data)
     return h.hexdigest()[:16]
 
 

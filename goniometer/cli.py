@@ -285,6 +285,37 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------- report
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from models.report import ReportError, build_report
+    from tqdm import tqdm
+    incidents = None
+    if args.incidents:
+        incidents, _ = _incident_list(args.incidents)
+    bar = tqdm(total=None, unit="material", file=sys.stderr, dynamic_ncols=True, disable=None, desc="report")
+
+    def progress(done: int, total: int, message: str) -> None:
+        bar.total = total
+        bar.n = done
+        bar.set_postfix_str(message[:80])
+        bar.refresh()
+
+    try:
+        with bar:
+            summary = build_report(args.results, args.out, models=args.model or None, subcells=args.subcells,
+                                   progress=progress, incidents_for_figures=incidents, definition=args.definition)
+    except ReportError as e:
+        raise UsageError(str(e)) from None
+    for w in summary.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"{len(summary.materials)} material(s), {summary.records} (material, model) record(s); "
+          f"{len(summary.evaluated)} evaluated, {len(summary.reused)} reused from the cache")
+    print(f"errors: {summary.errors_json}")
+    print(f"open: {summary.index_html}")
+    return 0
+
+
 # ---------------------------------------------------------------------- parser
 
 def build_parser() -> argparse.ArgumentParser:
@@ -327,6 +358,15 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--resimulate-corrupted", action="store_true",
                    help="move unreadable finished files aside and simulate them again")
     q.set_defaults(func=cmd_database_simulate)
+
+    p = sub.add_parser("report", help="error tables, figures and an HTML browser for a simulated database")
+    p.add_argument("results", metavar="RESULTS_DIR")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--model", action="append", metavar="NAME", help="models to evaluate (default: all that apply)")
+    p.add_argument("--subcells", type=int, default=5)
+    p.add_argument("--incidents", metavar="LIST", help="incident elevations to draw figures for (default: all)")
+    p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved")
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("models", help="list the analytic models and what they support")
     p.add_argument("--json", action="store_true")

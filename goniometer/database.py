@@ -221,7 +221,8 @@ def _partial_dir(out_dir: Path, material: Material) -> Path:
 def _manifest(db: Database, quality: str) -> dict:
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_VERSION, "slices_format": store.FORMAT,
             "slices_format_version": store.FORMAT_VERSION, "database": db.name, "fingerprint": db.fingerprint(),
-            "quality": quality, "rays_per_slice": db.qualities[quality], "definition": db.path}
+            "quality": quality, "rays_per_slice": db.qualities[quality],
+            "definition": str(Path(db.path).resolve())}
 
 
 def check_results_dir(db: Database, out_dir: Path, quality: str) -> None:
