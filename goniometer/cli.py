@@ -182,14 +182,51 @@ def cmd_info(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------- models / evaluate
 
 def cmd_models(args: argparse.Namespace) -> int:
-    from models.registry import all_models
-    models = all_models()
+    from models.registry import FITTED, catalogue
+    models = catalogue()
     if args.json:
-        print(json.dumps({n: {"description": m.description, "sides": list(m.sides)} for n, m in models.items()}, indent=2))
+        print(json.dumps({n: {"description": m.description, "sides": list(m.sides), "fitted": n in FITTED,
+                              "anisotropic": bool(m.anisotropic)} for n, m in models.items()}, indent=2))
         return 0
     width = max(len(n) for n in models)
     for name, m in models.items():
-        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s}  {m.description}")
+        kind = "fitted" if name in FITTED else "analytic"
+        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {m.description}")
+    print("(fitted models are fitted to a file on request: gonio fit FILE.h5 --model hp15|ggx1|ggx2, "
+          "or gonio evaluate FILE.h5 --model hp15-fit)")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from goniometer import store
+    from models.base import ModelError
+    from models.fit import fit
+    try:
+        reference = store.read(args.file)
+        if reference.brdf is None:
+            raise ModelError(f"{args.model}: the file has no BRDF slices to fit")
+
+        def progress(start: int, cost: float) -> None:
+            if not args.json:
+                print(f"start {start}: cost {cost:.6g}", file=sys.stderr)
+
+        result = fit(reference, args.model, starts=args.starts, seed=args.seed, weighting=args.weighting,
+                     progress=progress)
+    except (store.StoreError, ModelError) as e:
+        raise UsageError(f"{args.file}: {e}") from None
+    d = result.to_json()
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    print(f"{reference.stack.name}: {result.model.name} fitted to the BRDF of {len(reference.theta_deg)} incident "
+          f"direction(s) ({result.weighting} weighting, {result.starts} start(s), {result.elapsed_s:.1f} s)")
+    print(("converged: " if result.converged else "NOT converged: ") + result.message)
+    for k, v in result.params.items():
+        print(f"  {k:8s} = {v}")
+    if result.errors:
+        e = result.errors["total"]
+        print(f"RMSE (eq. 4) mean {e['rmse_mean']:.4e}  (R G B) {' '.join(f'{x:.3e}' for x in e['rmse'])}  "
+              f"luminance {e['rmse_luminance']:.3e}  noise floor {e['noise_floor_mean']:.2e}")
     return 0
 
 
@@ -367,6 +404,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--incidents", metavar="LIST", help="incident elevations to draw figures for (default: all)")
     p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved")
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"))
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--starts", type=int, default=4, help="optimiser starts (default 4)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--weighting", choices=("paper", "eq4"), default="paper",
+                   help="the paper's eq. 29 weighting (default) or eq. 4 directly")
+    p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("models", help="list the analytic models and what they support")
     p.add_argument("--json", action="store_true")

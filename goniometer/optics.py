@@ -91,7 +91,8 @@ def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     rs = (t1 - t2) / (t1 + t2)
     t3 = a2b2 * c2 + s2 * s2
     t4 = t2 * s2
-    rp = rs * (t3 - t4) / (t3 + t4)
+    # t3 + t4 = 0 only for the degenerate index 0 at normal incidence, a perfect reflector
+    rp = rs * (t3 - t4) / (t3 + t4) if t3 + t4 > 0.0 else rs
     return 0.5 * (rs + rp)
 
 

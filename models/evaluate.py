@@ -39,11 +39,16 @@ class Evaluation:
     errors: dict[str, dict] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     slices: dict[str, ModelSlices] = field(default_factory=dict)
+    fits: dict[str, dict] = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        """The object printed by ``gonio evaluate --json``."""
-        return {"material": self.material, "category": self.category, "side": self.side,
-                "models": self.errors, "skipped": self.skipped}
+        """The object printed by ``gonio evaluate --json`` (``fits``: parameters and convergence of
+        fitted models, when any was asked for)."""
+        out = {"material": self.material, "category": self.category, "side": self.side,
+               "models": self.errors, "skipped": self.skipped}
+        if self.fits:
+            out["fits"] = self.fits
+        return out
 
 
 def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int = 5,
@@ -52,18 +57,20 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
 
     ``names=None`` evaluates every model that supports the stack and side and lists the others as
     skipped with their reason; explicitly named models that cannot represent the stack raise
-    :class:`ModelError` (a user asked for something impossible). ``progress(name)`` is called
-    before each model.
+    :class:`ModelError` (a user asked for something impossible). Fitted models (``hp15-fit``,
+    ``ggx1-fit``, ``ggx2-fit``) are fitted to this file's BRDF when named (they take seconds to
+    minutes) and listed as skipped otherwise. ``progress(name)`` is called before each model.
     """
     stack = reference.stack
     side = comparison_side(stack)
     if (side == "brdf" and reference.brdf is None) or (side == "btdf" and reference.btdf is None):
         raise ModelError(f"the file has no {side.upper()} slices, which a {stack.base}-base stack is judged on")
     available = registry.all_models()
+    fitted = registry.fitted_models()
     if names:
-        unknown = [n for n in names if n not in available]
+        unknown = [n for n in names if n not in available and n not in fitted]
         if unknown:
-            raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join(available)})")
+            raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join([*available, *fitted])})")
     result = Evaluation(stack.name, stack.category, side)
     sd = reference.brdf if side == "brdf" else reference.btdf
     for name, model in available.items():
@@ -82,6 +89,21 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         ms = integrate(model, reference, side, s)
         result.slices[name] = ms
         result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf"))
+    for name in fitted:
+        if not names or name not in names:
+            result.skipped[name] = f"fitted to the file on request only (--model {name})"
+            continue
+        if side != "brdf":
+            raise ModelError(f"{name}: fitted models are BRDF models; this stack is judged on its {side.upper()}")
+        if progress is not None:
+            progress(name)
+        from models.fit import fit
+        fr = fit(reference, name, errors=False)
+        ms = integrate(fr.model, reference, side, s)
+        result.slices[name] = ms
+        # a fit has no top/internal split: both parts compare the whole BRDF
+        result.errors[name] = errors.compare(sd, ms, drop_first_order=False)
+        result.fits[name] = {"params": fr.params, "converged": fr.converged, "message": fr.message}
     return result
 
 

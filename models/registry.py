@@ -15,6 +15,21 @@ def all_models() -> dict[str, Model]:
     return {m.name: m for m in found}
 
 
+#: models fitted to a file on request (``gonio fit``, ``gonio evaluate --model NAME``)
+FITTED = ("hp15-fit", "ggx1-fit", "ggx2-fit")
+
+
+def fitted_models() -> dict[str, type[Model]]:
+    """The fitted model classes by name (they need parameters: build them with a fit)."""
+    from models.fit import GGX1Fit, GGX2Fit, HP15Fit
+    return {c.name: c for c in (HP15Fit, GGX1Fit, GGX2Fit)}
+
+
+def catalogue() -> dict[str, Model | type[Model]]:
+    """Every name the harness knows: the analytic models, then the fitted ones."""
+    return {**all_models(), **fitted_models()}
+
+
 def get(name: str) -> Model:
     """The model called ``name``; :class:`ModelError` naming the known ones otherwise."""
     models = all_models()

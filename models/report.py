@@ -1339,7 +1339,7 @@ def _selectors(results: list[MaterialResult]) -> tuple[dict[str, list[dict]], di
 def _html_data(results: list[MaterialResult], styles: dict, overview: dict, meta: dict) -> dict:
     sel, values = _selectors(results)
     cats = list(dict.fromkeys(r.material.category for r in results))
-    models = registry.all_models()
+    models = registry.catalogue()
     mats = []
     for r in sorted(results, key=lambda r: (cats.index(r.material.category), _sort_key(r.material))):
         m = r.material
@@ -1504,7 +1504,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     if subcells < 1:
         raise ReportError(f"subcells = {subcells}: must be >= 1")
     if models is not None:
-        known = registry.all_models()
+        known = registry.catalogue()
         unknown = [n for n in models if n not in known]
         if unknown:
             raise ReportError(f"unknown model {unknown[0]!r} (known: {', '.join(known)})")
@@ -1513,7 +1513,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     out.mkdir(parents=True, exist_ok=True)
     summary = ReportSummary(out, out / "index.html", out / "errors.json", missing=missing, warnings=list(warnings))
     code, report_key = model_code_key(), report_code_key()
-    styles = model_style(registry.all_models())
+    styles = model_style([*registry.all_models(), *(models or ())])
     results: list[MaterialResult] = []
     for k, mat in enumerate(materials):
         t1 = time.perf_counter()

@@ -106,7 +106,7 @@ from goniometer import optics
 from goniometer._numba_cache import cache_root
 
 #: bump whenever the definition, numerics or layout of a table changes
-TABLE_VERSION = 1
+TABLE_VERSION = 2
 
 N_MU = 64
 N_ALPHA = 64
@@ -190,7 +190,8 @@ def _grid_signature(height_correlated: bool) -> str:
         "version": TABLE_VERSION, "masking": _masking(height_correlated),
         "N_MU": N_MU, "N_ALPHA": N_ALPHA, "N_X": N_X, "ETA_MAX": ETA_MAX, "N_ETA": N_ETA,
         "KAPPA_MAX": KAPPA_MAX, "N_KAPPA": N_KAPPA, "N_ETA_UP": N_ETA_UP, "QUAD_R": QUAD_R,
-        "QUAD_PHI": QUAD_PHI, "MU_FLOOR": MU_FLOOR,
+        "QUAD_PHI": QUAD_PHI, "MU_FLOOR": MU_FLOOR, "x_nodes": "(k/(N_X-1))^2", "mu_nodes": "(k/(N_MU-1))^2",
+        "alpha_nodes": "(k/(N_ALPHA-1))^2", "quadrature": "vndf-disc GL r x GL phi halves",
     }, sort_keys=True)
 
 

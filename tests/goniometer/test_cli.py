@@ -215,3 +215,19 @@ def test_evaluate_table_and_bad_input(simulated, capsys, tmp_path):
         err = capsys.readouterr().err.strip()
         assert err.startswith("gonio: error: ") and expected in err and "\n" not in err, err
         assert not out.exists()
+
+
+def test_fit_and_fitted_models_in_evaluate(simulated, capsys):
+    assert main(["fit", str(simulated / "plastic.h5"), "--model", "ggx1", "--json", "--starts", "2"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["model"] == "ggx1-fit" and set(d["params"]) >= {"kd", "ks", "alpha"} and isinstance(d["converged"], bool)
+    assert all(np.isfinite(x) for v in d["params"].values() for x in np.atleast_1d(v))
+    assert main(["evaluate", str(simulated / "plastic.h5"), "--model", "ggx1-fit", "--model", "ww09", "--json"]) == 0
+    e = json.loads(capsys.readouterr().out)
+    assert set(e["models"]) == {"ggx1-fit", "ww09"} and "ggx1-fit" in e["fits"]
+    assert e["models"]["ggx1-fit"]["internal"] == e["models"]["ggx1-fit"]["total"]
+    # a slab is judged on its BTDF: a fitted BRDF model is refused there, one line, exit 2
+    assert main(["evaluate", str(simulated / "slab.h5"), "--model", "ggx1-fit"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gonio: error: ") and "BRDF models" in err and "\n" not in err
+    assert main(["fit", str(simulated / "missing.h5"), "--model", "hp15"]) == 2

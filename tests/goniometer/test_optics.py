@@ -170,6 +170,9 @@ def test_fresnel_conductor_tabulated():
         for eta in (1.5, 1 / 1.5, 1.0, 2.4):
             assert optics.fresnel_conductor(c, eta, 0.0) == pytest.approx(optics.fresnel_dielectric(c, eta), abs=1e-12)
     assert optics.fresnel_conductor(0.0, 1.45, 1.0) == pytest.approx(1.0)
+    # the degenerate index 0 is a perfect reflector at every angle
+    for c in (1.0, 0.5, 1e-3):
+        assert optics.fresnel_conductor(c, 0.0, 0.0) == pytest.approx(1.0)
 
 
 def test_refract_obeys_snell_and_reflect_is_mirror():
