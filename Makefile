@@ -34,7 +34,13 @@ demo: $(STAMP)
 	done
 	@echo
 	@for m in plastic metal slab; do $(GONIO) info $(DEMO)/$$m.h5 || exit $$?; echo; done
-	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5"
+	$(GONIO) evaluate $(DEMO)/metal.h5
+	@echo
+	$(GONIO) database simulate $(DATABASE) --out $(DEMO)/bati2019 --quality demo --only '*2-a0_0.2*'
+	$(GONIO) report $(DEMO)/bati2019 --out $(DEMO)/bati2019-report
+	@echo
+	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5 and $(DEMO)/bati2019/"
+	@echo "HTML report: $(abspath $(DEMO))/bati2019-report/index.html"
 
 database: $(STAMP)
 	$(GONIO) database simulate $(DATABASE) --out $(DB_OUT) --quality $(QUALITY)
