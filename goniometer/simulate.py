@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from goniometer import tracer
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.slices import SliceGrid, boundary_tables, light_direction
 from goniometer.stack import Stack, pack
 
 DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
@@ -271,9 +271,10 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
         numba.set_num_threads(settings.n_threads)
     kernel = tracer.trace_batch if parallel else tracer.trace_batch_serial
     if nb > 0:
+        tables = boundary_tables(settings.parametrization, nt, nph)
         kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
-                           first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
-                           nt, nph, K, settings.masking == "height-correlated", settings.event_cap, *outs)
+               first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
+               nt, nph, *tables, K, settings.masking == "height-correlated", settings.event_cap, *outs)
     results = []
     for t in range(count):
         total = Sums.zeros(stack, settings)

@@ -70,6 +70,105 @@ def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
 
 
 @numba.njit(cache=True)
+def fast_acos(x: float) -> float:
+    """arccos of ``x`` in [0, 1] to 2e-8 rad (Abramowitz & Stegun 4.4.46). Only used to guess a
+    row that :func:`cell_index_fast` then corrects exactly against the row boundaries."""
+    p = -0.0012624911
+    p = p * x + 0.0066700901
+    p = p * x - 0.0170881256
+    p = p * x + 0.0308918810
+    p = p * x - 0.0501743046
+    p = p * x + 0.0889789874
+    p = p * x - 0.2145988016
+    p = p * x + 1.5707963050
+    return math.sqrt(max(0.0, 1.0 - x)) * p
+
+
+@numba.njit(cache=True)
+def fast_angle(x: float, y: float) -> float:
+    """Azimuth of (x, y) in [0, 2 pi) to about 1e-5 rad (a guess corrected by the caller)."""
+    ax = abs(x)
+    ay = abs(y)
+    mx = max(ax, ay)
+    if mx == 0.0:
+        return 0.0
+    a = min(ax, ay) / mx
+    s = a * a
+    r = ((-0.0464964749 * s + 0.15931422) * s - 0.327622764) * s * a + a
+    if ay > ax:
+        r = _HALF_PI - r
+    if x < 0.0:
+        r = math.pi - r
+    if y < 0.0:
+        r = _TWO_PI - r
+    return r
+
+
+def boundary_tables(param: str, n_theta: int, n_phi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cosines of the row boundaries (n_theta + 1, decreasing from 1) and cosines and sines of the
+    column boundaries (n_phi + 1) that :func:`cell_index_fast` tests against."""
+    u = np.arange(n_theta + 1) / n_theta
+    theta = _HALF_PI * (u if param == "classic" else u * u)
+    row_cos = np.cos(theta)
+    row_cos[0] = 1.0
+    phi = _TWO_PI * np.arange(n_phi + 1) / n_phi
+    col_cos, col_sin = np.cos(phi), np.sin(phi)
+    col_cos[n_phi], col_sin[n_phi] = 1.0, 0.0
+    return row_cos, col_cos, col_sin
+
+
+@numba.njit(cache=True)
+def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: float,
+                    vx: float, vy: float, vz: float, n_theta: int, n_phi: int,
+                    row_cos: np.ndarray, col_cos: np.ndarray, col_sin: np.ndarray):
+    """:func:`cell_index` for the tracer's hot loop: a polynomial guess of the row and column,
+    corrected against the exact boundaries of :func:`boundary_tables` (row i holds
+    ``row_cos[i+1] < cos theta <= row_cos[i]``, column j the azimuths between boundaries j and
+    j + 1). Agrees with :func:`cell_index` except within rounding of a boundary."""
+    z = -vz if transmission else vz
+    if z <= 0.0:
+        return -1, -1
+    if param == CLASSIC:
+        x = vx
+        y = vy
+    else:
+        x = lx + vx
+        y = ly + vy
+        z = lz + z
+        inv = 1.0 / math.sqrt(x * x + y * y + z * z)
+        x *= inv
+        y *= inv
+        z *= inv
+    z = min(1.0, z)
+    theta = fast_acos(z)
+    if param == CLASSIC:
+        i = int(theta * (n_theta / _HALF_PI))
+    else:
+        i = int(math.sqrt(theta / _HALF_PI) * n_theta)
+    i = min(max(i, 0), n_theta - 1)
+    while i > 0 and z > row_cos[i]:
+        i -= 1
+    while i < n_theta - 1 and z <= row_cos[i + 1]:
+        i += 1
+    if x == 0.0 and y == 0.0:
+        return i, 0
+    j = int(fast_angle(x, y) * (n_phi / _TWO_PI))
+    if j >= n_phi:
+        j = n_phi - 1
+    if n_phi >= 8:
+        if col_cos[j] * y - col_sin[j] * x < 0.0:
+            j = j - 1 if j > 0 else n_phi - 1
+        elif col_cos[j + 1] * y - col_sin[j + 1] * x >= 0.0:
+            j = j + 1 if j < n_phi - 1 else 0
+    else:
+        phi = math.atan2(y + 0.0, x + 0.0)
+        if phi < 0.0:
+            phi += _TWO_PI
+        j = min(int(phi / _TWO_PI * n_phi), n_phi - 1)
+    return i, j
+
+
+@numba.njit(cache=True)
 def _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s):
     """Centre direction v (reflection side) and projected solid angle of half sub-cell (i, a; j, b)."""
     u0 = (i + a / s) / n_theta

@@ -30,7 +30,7 @@ import numpy as np
 
 from goniometer import optics
 from goniometer.rng import next_float, stream_state
-from goniometer.slices import cell_index
+from goniometer.slices import cell_index_fast
 
 # rows of the per-chunk energy array
 E_REFLECTED = 0
@@ -57,8 +57,8 @@ EVENT_CAP = 10_000
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
-                lx, ly, lz, n_rays, state, param, n_theta, n_phi, max_order, height_correlated,
-                event_cap, brdf, btdf, energy, energy_sq, counts):
+                lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
+                height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts):
     """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
 
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3), cell-major so that one exit touches one or
@@ -134,7 +134,8 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
             if dz > 0.0:
                 if region == 0:
                     # leaves the stack upward: BRDF
-                    i, j = cell_index(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi)
+                    i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
+                                           row_cos, col_cos, col_sin)
                     o = min(order, max_order) - 1
                     brdf[i, j, o, 0] += w0
                     brdf[i, j, o, 1] += w1
@@ -163,7 +164,8 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 from_above = True
             elif transmit_base:
                 # leaves the stack downward: BTDF
-                i, j = cell_index(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi)
+                i, j = cell_index_fast(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
+                                       row_cos, col_cos, col_sin)
                 o = min(order, max_order) - 1
                 btdf[i, j, o, 0] += w0
                 btdf[i, j, o, 1] += w1
@@ -324,7 +326,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                param, n_theta, n_phi, max_order, height_correlated, event_cap,
+                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                 brdf, btdf, energy, energy_sq, counts):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each.
 
@@ -346,14 +348,14 @@ def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
             continue
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
-                    lx, ly, lz, n, state, param, n_theta, n_phi, max_order, height_correlated,
-                    event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+                    lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
+                    height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                       param, n_theta, n_phi, max_order, height_correlated, event_cap,
+                       param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                        brdf, btdf, energy, energy_sq, counts):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
@@ -373,5 +375,5 @@ def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, cond, rho, base
             continue
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
-                    lx, ly, lz, n, state, param, n_theta, n_phi, max_order, height_correlated,
-                    event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+                    lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
+                    height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])

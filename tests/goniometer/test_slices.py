@@ -102,3 +102,31 @@ def test_transmission_cells_share_solid_angles_and_masks(param):
     r, t = SliceGrid(param, 18, 36), SliceGrid(param, 18, 36, "transmission")
     np.testing.assert_array_equal(r.proj_solid_angle(l), t.proj_solid_angle(l))
     np.testing.assert_array_equal(r.mask(l), t.mask(l))
+
+
+@pytest.mark.parametrize("param", ["classic", "half"])
+@pytest.mark.parametrize("side", ["reflection", "transmission"])
+@pytest.mark.parametrize("res", [(90, 360), (7, 11), (300, 1000), (3, 4)])
+def test_fast_cell_index_agrees_with_the_exact_one(param, side, res):
+    """The tracer's polynomial-guess-then-correct binning equals the acos/atan2 binning for random
+    directions, directions on the cell boundaries' neighbourhood, the pole and the horizon."""
+    from goniometer.slices import boundary_tables, cell_index, cell_index_fast, CLASSIC, HALF
+    nt, nph = res
+    code = CLASSIC if param == "classic" else HALF
+    tables = boundary_tables(param, nt, nph)
+    rng = np.random.default_rng(1)
+    v = rng.normal(size=(20000, 3))
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    v[:, 2] = np.abs(v[:, 2]) * (-1 if side == "transmission" else 1)
+    # add directions 1e-9 rad either side of classic boundaries
+    th = np.repeat((np.arange(nt + 1) / nt) * np.pi / 2, 2) + np.tile([-1e-9, 1e-9], nt + 1)
+    ph = rng.random(th.size) * 2 * np.pi
+    extra = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+    extra[:, 2] *= -1 if side == "transmission" else 1
+    v = np.concatenate([v, extra, [[0, 0, 1 if side == "reflection" else -1]]])
+    for theta_l, phi_l in ((0.0, 0.0), (50.0, 30.0), (85.0, 200.0)):
+        l = light_direction(theta_l, phi_l)
+        for d in v:
+            a = cell_index(code, side == "transmission", *l, *d, nt, nph)
+            b = cell_index_fast(code, side == "transmission", *l, *d, nt, nph, *tables)
+            assert a == b, (d, a, b)
