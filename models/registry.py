@@ -8,10 +8,11 @@ from models.base import Model, ModelError
 def all_models() -> dict[str, Model]:
     """Every analytic model of the harness, by its fixed name, in display order."""
     from models.belcour import BelcourBati19, BelcourBTDF, BelcourForward, BelcourSymmetric
+    from models.belcour_aniso import BelcourAniso
     from models.multilayer_lut import MultilayerLUT
     from models.weidlich_wilkie import Elek10, WW09, WWBati19
     found: list[Model] = [WW09(), Elek10(), WWBati19(), BelcourForward(), BelcourSymmetric(), BelcourBati19(),
-                          BelcourBTDF(), MultilayerLUT()]
+                          BelcourBTDF(), BelcourAniso(), MultilayerLUT()]
     return {m.name: m for m in found}
 
 
