@@ -32,6 +32,24 @@ _TWO_PI = 2.0 * math.pi
 
 
 @numba.njit(cache=True)
+def slice_direction(param: int, transmission: bool, lx: float, ly: float, lz: float,
+                    vx: float, vy: float, vz: float):
+    """The unit vector whose polar angles the slice bins: ``v`` (classic) or ``normalize(l + v)``
+    (half), with ``v`` mirrored to the upper side for transmission. ``z <= 0`` means ``v`` is on the
+    wrong side of the surface for this slice."""
+    z = -vz if transmission else vz
+    if z <= 0.0:
+        return vx, vy, z
+    if param == CLASSIC:
+        return vx, vy, z
+    x = lx + vx
+    y = ly + vy
+    z = lz + z
+    inv = 1.0 / math.sqrt(x * x + y * y + z * z)
+    return x * inv, y * inv, z * inv
+
+
+@numba.njit(cache=True)
 def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
                vx: float, vy: float, vz: float, n_theta: int, n_phi: int):
     """Cell ``(i, j)`` of the outgoing direction ``v`` for light direction ``l``.
@@ -39,20 +57,9 @@ def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
     ``param`` is :data:`CLASSIC` or :data:`HALF`. Returns ``(-1, -1)`` if ``v`` is
     not on the slice's side of the surface.
     """
-    z = -vz if transmission else vz
+    x, y, z = slice_direction(param, transmission, lx, ly, lz, vx, vy, vz)
     if z <= 0.0:
         return -1, -1
-    if param == CLASSIC:
-        x = vx
-        y = vy
-    else:
-        x = lx + vx
-        y = ly + vy
-        z = lz + z
-        inv = 1.0 / math.sqrt(x * x + y * y + z * z)
-        x *= inv
-        y *= inv
-        z *= inv
     theta = math.acos(min(1.0, z))
     phi = math.atan2(y + 0.0, x + 0.0)  # + 0.0 turns -0.0 into +0.0: the pole maps to j = 0
     if phi < 0.0:
@@ -125,20 +132,9 @@ def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: fl
     corrected against the exact boundaries of :func:`boundary_tables` (row i holds
     ``row_cos[i+1] < cos theta <= row_cos[i]``, column j the azimuths between boundaries j and
     j + 1). Agrees with :func:`cell_index` except within rounding of a boundary."""
-    z = -vz if transmission else vz
+    x, y, z = slice_direction(param, transmission, lx, ly, lz, vx, vy, vz)
     if z <= 0.0:
         return -1, -1
-    if param == CLASSIC:
-        x = vx
-        y = vy
-    else:
-        x = lx + vx
-        y = ly + vy
-        z = lz + z
-        inv = 1.0 / math.sqrt(x * x + y * y + z * z)
-        x *= inv
-        y *= inv
-        z *= inv
     z = min(1.0, z)
     theta = fast_acos(z)
     if param == CLASSIC:

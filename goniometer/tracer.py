@@ -323,33 +323,43 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
     counts[C_EVENTS] += n_events_total
 
 
+@numba.njit(cache=True, error_model='numpy')
+def trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+               lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
+               param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
+               brdf, btdf, energy, energy_sq, counts):
+    """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it.
+
+    Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
+    draws from the stream ``(seed, incident_index, c)``.
+    """
+    c = first_chunk + b
+    n = min(chunk_rays, n_rays_total - c * chunk_rays)
+    brdf[b].fill(0.0)
+    btdf[b].fill(0.0)
+    energy[b].fill(0.0)
+    energy_sq[b].fill(0.0)
+    counts[b].fill(0)
+    if n <= 0:
+        return
+    state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
+    trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
+                height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+
+
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                 param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                 brdf, btdf, energy, energy_sq, counts):
-    """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each.
-
-    Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
-    draws from the stream ``(seed, incident_index, c)``. Output arrays carry a leading
-    dimension B (the batch); they are zeroed here.
-    """
-    n_batch = brdf.shape[0]
-    for b in numba.prange(n_batch):
-        c = first_chunk + b
-        start = c * chunk_rays
-        n = min(chunk_rays, n_rays_total - start)
-        brdf[b].fill(0.0)
-        btdf[b].fill(0.0)
-        energy[b].fill(0.0)
-        energy_sq[b].fill(0.0)
-        counts[b].fill(0)
-        if n <= 0:
-            continue
-        state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
-                    lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                    height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+    """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
+    (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch)."""
+    for b in numba.prange(brdf.shape[0]):
+        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
+                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
+                   brdf, btdf, energy, energy_sq, counts)
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -363,17 +373,7 @@ def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, cond, rho, base
     default threading layer must not be entered by several threads at once.
     """
     for b in range(brdf.shape[0]):
-        c = first_chunk + b
-        start = c * chunk_rays
-        n = min(chunk_rays, n_rays_total - start)
-        brdf[b].fill(0.0)
-        btdf[b].fill(0.0)
-        energy[b].fill(0.0)
-        energy_sq[b].fill(0.0)
-        counts[b].fill(0)
-        if n <= 0:
-            continue
-        state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
-                    lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                    height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
+                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
+                   brdf, btdf, energy, energy_sq, counts)
