@@ -239,7 +239,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if args.save_slices:
             store.check_writable(args.save_slices)
         reference = store.read(args.file)
-        ev = evaluate(reference, args.model or None, s=args.subcells,
+        ev = evaluate(reference, args.model or None, s=args.subcells, isotropize=args.isotropize,
                       progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
     except (store.StoreError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
@@ -258,6 +258,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"{name:16s} {i['rmse_mean']:13.4e} {rgb:>30s} {i['rmse_luminance']:10.3e} {t['rmse_mean']:11.4e}"
               f"  {i['noise_floor_mean']:.2e}")
     print(f"('internal' = {what}; noise floor = the error a perfect model would show against this reference)")
+    for name, note in ev.approximations.items():
+        print(f"note {name}: {note}")
     for name, reason in ev.skipped.items():
         print(f"skipped {name}: {reason}")
     if args.save_slices:
@@ -341,7 +343,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     try:
         with bar:
             summary = build_report(args.results, args.out, models=args.model or None, subcells=args.subcells,
-                                   progress=progress, incidents_for_figures=incidents, definition=args.definition)
+                                   progress=progress, incidents_for_figures=incidents, definition=args.definition,
+                                   fits=args.fits, isotropize=args.isotropize)
     except ReportError as e:
         raise UsageError(str(e)) from None
     for w in summary.warnings:
@@ -403,6 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--subcells", type=int, default=5)
     p.add_argument("--incidents", metavar="LIST", help="incident elevations to draw figures for (default: all)")
     p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved")
+    p.add_argument("--fits", action="store_true", help="also fit hp15, ggx1 and ggx2 to every BRDF (slow)")
+    p.add_argument("--isotropize", choices=("mean",),
+                   help="let isotropic models evaluate anisotropic stacks with the mean roughness")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file")
@@ -425,6 +431,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5", help="write the integrated model slices")
     p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell axis (default 5)")
+    p.add_argument("--isotropize", choices=("mean",),
+                   help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the output)")
     p.set_defaults(func=cmd_evaluate)
     return parser
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from goniometer import store
 from goniometer.simulate import SimulationResult
-from goniometer.stack import Stack
+from goniometer.stack import Interface, Stack
 from models import errors, registry
 from models.base import ModelError
 from models.integrate import ModelSlices, integrate
@@ -40,6 +40,7 @@ class Evaluation:
     skipped: dict[str, str] = field(default_factory=dict)
     slices: dict[str, ModelSlices] = field(default_factory=dict)
     fits: dict[str, dict] = field(default_factory=dict)
+    approximations: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         """The object printed by ``gonio evaluate --json`` (``fits``: parameters and convergence of
@@ -48,18 +49,39 @@ class Evaluation:
                "models": self.errors, "skipped": self.skipped}
         if self.fits:
             out["fits"] = self.fits
+        if self.approximations:
+            out["approximations"] = self.approximations
         return out
 
 
+ISOTROPIZE = ("mean",)
+
+
+def isotropized(stack: Stack, rule: str = "mean") -> Stack:
+    """``stack`` with every anisotropic interface replaced by an isotropic one of roughness
+    (alpha_x + alpha_y) / 2 (rule "mean"), its rotation dropped: how an isotropic model is fed
+    an anisotropic material when asked to (``--isotropize mean``)."""
+    if rule not in ISOTROPIZE:
+        raise ModelError(f"isotropize: {rule!r} is not one of {', '.join(ISOTROPIZE)}")
+    layers = []
+    for x in stack.layers:
+        if isinstance(x, Interface) and x.is_anisotropic:
+            x = Interface(0.5 * sum(x.alpha_xy), x.ior, x.extinction)
+        layers.append(x)
+    return Stack(stack.name, tuple(layers), stack.category)
+
+
 def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int = 5,
-             progress=None) -> Evaluation:
+             progress=None, isotropize: str | None = None) -> Evaluation:
     """Integrate models onto ``reference`` and compute their errors.
 
     ``names=None`` evaluates every model that supports the stack and side and lists the others as
     skipped with their reason; explicitly named models that cannot represent the stack raise
     :class:`ModelError` (a user asked for something impossible). Fitted models (``hp15-fit``,
     ``ggx1-fit``, ``ggx2-fit``) are fitted to this file's BRDF when named (they take seconds to
-    minutes) and listed as skipped otherwise. ``progress(name)`` is called before each model.
+    minutes) and listed as skipped otherwise. ``isotropize="mean"`` lets isotropic models evaluate
+    an anisotropic stack through :func:`isotropized` (recorded in ``approximations``); by default
+    they skip it. ``progress(name)`` is called before each model.
     """
     stack = reference.stack
     side = comparison_side(stack)
@@ -73,10 +95,18 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join([*available, *fitted])})")
     result = Evaluation(stack.name, stack.category, side)
     sd = reference.brdf if side == "brdf" else reference.btdf
+    anisotropic = any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers)
     for name, model in available.items():
         if names and name not in names:
             continue
-        reason = model.reason(stack)
+        model_stack = stack
+        if anisotropic and isotropize and not model.anisotropic:
+            model_stack = isotropized(stack, isotropize)
+            result.approximations[name] = (f"isotropic model fed the anisotropic interfaces' {isotropize} "
+                                           f"roughness (alpha_x + alpha_y) / 2")
+        reason = model.reason(model_stack)
+        if reason is not None and anisotropic and not model.anisotropic and not isotropize:
+            reason += "; --isotropize mean evaluates it with the mean roughness"
         if reason is None and side not in model.sides:
             reason = f"models the {'/'.join(x.upper() for x in model.sides)}; this stack is judged on its {side.upper()}"
         if reason is not None:
@@ -86,7 +116,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             continue
         if progress is not None:
             progress(name)
-        ms = integrate(model, reference, side, s)
+        ms = integrate(model, reference, side, s, stack=model_stack)
         result.slices[name] = ms
         result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf"))
     for name in fitted:

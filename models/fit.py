@@ -711,6 +711,8 @@ class FittedModel(Model):
 
     sides = ("brdf",)
     kind: str = ""
+    #: a fit describes the file, whatever the stack: anisotropic materials are fitted like others
+    anisotropic = True
 
     def __init__(self, x: Sequence[float] | np.ndarray) -> None:
         self.family = FAMILIES[self.kind]()

@@ -55,8 +55,10 @@ def integrate_slice(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarr
     return out[0], out[1]
 
 
-def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5) -> ModelSlices:
-    """Integrate ``model`` for the stack of ``reference`` onto its ``side`` ("brdf"/"btdf") cells."""
+def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None
+              ) -> ModelSlices:
+    """Integrate ``model`` onto the ``side`` ("brdf"/"btdf") cells of ``reference``, for the
+    reference's stack or, if given, ``stack`` (e.g. an isotropized stand-in)."""
     sd: SliceData | None = reference.brdf if side == "brdf" else reference.btdf
     if sd is None:
         raise ModelError(f"the reference file has no {side.upper()} slices")
@@ -65,5 +67,5 @@ def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5) 
     top = np.zeros((M, 3, nt, nph))
     internal = np.zeros((M, 3, nt, nph))
     for m, (t, p) in enumerate(zip(reference.theta_deg, reference.phi_deg)):
-        top[m], internal[m] = integrate_slice(model, reference.stack, sd.grid, light_direction(t, p), s)
+        top[m], internal[m] = integrate_slice(model, stack or reference.stack, sd.grid, light_direction(t, p), s)
     return ModelSlices(model.name, side, sd.grid, top, internal, s)

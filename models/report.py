@@ -401,9 +401,10 @@ def _reference_digest(path: Path, previous: dict | None) -> dict:
     return {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _sha256_file(path)}
 
 
-def _evaluation_key(digest: str, code: str, subcells: int, models: Sequence[str] | None) -> str:
+def _evaluation_key(digest: str, code: str, subcells: int, models: Sequence[str] | None,
+                    isotropize: str | None = None) -> str:
     doc = {"v": CACHE_VERSION, "reference": digest, "code": code, "subcells": subcells,
-           "models": sorted(models) if models is not None else "all"}
+           "models": sorted(models) if models is not None else "all", "isotropize": isotropize}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -420,8 +421,8 @@ def _read_json(path: Path) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
-def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int
-                   ) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
+def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int,
+                   isotropize: str | None = None) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time so
     that one failing model does not lose the others. Returns the ``gonio evaluate --json``
     object (with ``failed``: model -> message for models that raised) and model -> (top, internal).
@@ -437,7 +438,7 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
     slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
         try:
-            ev = evaluate(reference, [name], s=subcells)
+            ev = evaluate(reference, [name], s=subcells, isotropize=isotropize)
         except ModelError as e:
             msg = str(e)
             doc["skipped"][name] = msg[len(name) + 2:] if msg.startswith(f"{name}: ") else msg
@@ -446,6 +447,9 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
             doc["failed"][name] = f"{type(e).__name__}: {e}"
             continue
         doc["models"][name] = ev.errors[name]
+        for key in ("fits", "approximations"):
+            if name in getattr(ev, key):
+                doc.setdefault(key, {})[name] = getattr(ev, key)[name]
         ms = ev.slices[name]
         slices[name] = (ms.top, ms.internal)
     return doc, slices
@@ -1348,6 +1352,7 @@ def _html_data(results: list[MaterialResult], styles: dict, overview: dict, meta
                      "side": r.evaluation["side"], "parametrization": m.parametrization,
                      "resolution": list(m.resolution), "rays": m.rays,
                      "errors": r.evaluation["models"], "skipped": r.evaluation.get("skipped", {}),
+                     "approximations": r.evaluation.get("approximations", {}),
                      "failed": r.evaluation.get("failed", {}), **r.figures})
     return {"format": REPORT_FORMAT, "version": REPORT_VERSION, "meta": meta, "categories": cats,
             "selectors": sel, "materials": mats, "overview": overview,
@@ -1431,18 +1436,18 @@ def render_html(data: dict, checks: list[dict], tables: dict, summary_lines: lis
 # ---------------------------------------------------------------------- orchestration
 
 def _material_result(mat: ReportMaterial, out: Path, models: Sequence[str] | None, subcells: int, code: str,
-                     ) -> tuple[MaterialResult, SimulationResult | None]:
+                     isotropize: str | None = None) -> tuple[MaterialResult, SimulationResult | None]:
     """Cached or fresh evaluation of one material (and the reference if it had to be read)."""
     json_path, h5_path = _cache_paths(out, mat.name)
     cached = _read_json(json_path)
     ok_cache = cached is not None and cached.get("format") == CACHE_FORMAT and cached.get("version") == CACHE_VERSION
     digest = _reference_digest(mat.path, cached.get("reference") if ok_cache else None)
-    key = _evaluation_key(digest["sha256"], code, subcells, models)
+    key = _evaluation_key(digest["sha256"], code, subcells, models, isotropize)
     if ok_cache and cached.get("key") == key and _slices_key(h5_path) == key:
         return MaterialResult(mat, cached["evaluation"], key, None, True), None
     ref = _read_reference(mat.path)
     t0 = time.perf_counter()
-    evaluation, slices = run_evaluation(ref, models, subcells)
+    evaluation, slices = run_evaluation(ref, models, subcells, isotropize)
     entry = {"format": CACHE_FORMAT, "version": CACHE_VERSION, "key": key, "reference": digest,
              "reference_path": str(mat.path), "evaluation": evaluation, "subcells": subcells,
              "elapsed_s": time.perf_counter() - t0}
@@ -1485,7 +1490,8 @@ def _files_exist(out: Path, figures: dict) -> bool:
 def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequence[str] | None = None,
                  subcells: int = 5, progress: Progress | None = None,
                  incidents_for_figures: Sequence[float] | None = None,
-                 definition: str | Path | None = None) -> ReportSummary:
+                 definition: str | Path | None = None, fits: bool = False,
+                 isotropize: str | None = None) -> ReportSummary:
     """Evaluate every finished material of ``results_dir`` and write the report into ``out_dir``.
 
     ``models``: model names (default: every model of the registry that applies to each
@@ -1493,8 +1499,13 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     ``progress(done, total, message)``: called once per material, after it is done;
     ``incidents_for_figures``: incident elevations (degrees) to draw figures for (default all;
     errors always use every incident); ``definition``: the database definition when the one named
-    in the manifest has moved. Raises :class:`ReportError` on bad input.
+    in the manifest has moved; ``fits``: also fit the compact models (hp15-fit, ggx1-fit,
+    ggx2-fit) to every BRDF (seconds to minutes each); ``isotropize="mean"``: let isotropic models
+    evaluate anisotropic stacks with the mean roughness (noted per material). Raises
+    :class:`ReportError` on bad input.
     """
+    if fits:
+        models = list(dict.fromkeys([*(models or registry.all_models()), *registry.FITTED]))
     t0 = time.perf_counter()
     rd, out = Path(results_dir), Path(out_dir)
     if rd.exists() and out.exists() and rd.resolve() == out.resolve():
@@ -1517,7 +1528,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     results: list[MaterialResult] = []
     for k, mat in enumerate(materials):
         t1 = time.perf_counter()
-        res, ref = _material_result(mat, out, models, subcells, code)
+        res, ref = _material_result(mat, out, models, subcells, code, isotropize)
         t2 = time.perf_counter()
         drawn = _figures(res, ref, out, styles, incidents_for_figures, report_key)
         t3 = time.perf_counter()

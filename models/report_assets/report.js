@@ -189,6 +189,7 @@
     notes.innerHTML = "";
     const items = [];
     Object.entries(m.skipped || {}).forEach(function (kv) { items.push(el("li", { text: "not applicable — " + kv[0] + ": " + kv[1] })); });
+    Object.entries(m.approximations || {}).forEach(function (kv) { items.push(el("li", { text: "approximation — " + kv[0] + ": " + kv[1] })); });
     Object.entries(m.failed || {}).forEach(function (kv) { items.push(el("li", { "class": "warn", text: "failed — " + kv[0] + ": " + kv[1] })); });
     if (items.length) { notes.appendChild(el("ul", { "class": "hint" }, items)); }
   }
