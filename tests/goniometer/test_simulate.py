@@ -70,3 +70,39 @@ def test_height_correlated_masking_loses_less():
     assert np.all(hc.energy["masking_loss"] < sep.energy["masking_loss"])
     assert np.all(hc.energy["reflected"] > sep.energy["reflected"])
     np.testing.assert_allclose(hc.energy["absorbed"] + hc.energy["reflected"] + hc.energy["masking_loss"], 1.0, atol=1e-12)
+
+
+def test_event_cap_is_reported_and_booked(plastic, tmp_path):
+    """Paths stopped by the event cap are counted and their weight booked in ``capped`` (so the
+    energy terms still add up), and the CLI warns about them."""
+    r = simulate(plastic, SimulationSettings(incident_deg=(30.0,), rays=20_000, resolution=(9, 18), event_cap=3))
+    assert r.capped_paths[0] > 0 and np.all(r.capped[0] > 0)
+    total = sum(r.energy[k] for k in r.energy) + r.roulette + r.capped
+    np.testing.assert_allclose(total, 1.0, atol=1e-12)
+    from goniometer import store
+    from goniometer.cli import _print_summary
+    import io
+    import contextlib
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        _print_summary(r)
+    assert "event cap" in buf.getvalue()
+    store.write(tmp_path / "c.h5", r)
+    back = store.read(tmp_path / "c.h5")
+    assert back.capped_paths[0] == r.capped_paths[0] and np.array_equal(back.capped, r.capped)
+
+
+def test_russian_roulette_is_unbiased_in_expectation(plastic):
+    """The roulette balance (weight killed minus weight added) is zero within its standard error,
+    estimated from independent seeds."""
+    vals = []
+    for seed in range(8):
+        r = simulate(plastic, SimulationSettings(incident_deg=(40.0,), rays=40_000, resolution=(9, 18), seed=seed))
+        vals.append(r.roulette[0])
+    vals = np.array(vals)
+    mean, se = vals.mean(axis=0), vals.std(axis=0, ddof=1) / np.sqrt(len(vals))
+    from scipy import stats
+    from tests.conftest import P_FALSE_ALARM
+    t_lim = stats.t.isf(P_FALSE_ALARM / 2, len(vals) - 1)  # Student t: the stderr is estimated
+    assert np.all(np.abs(mean) < t_lim * se + 1e-12), (mean, se)
+    assert np.any(vals != 0)  # roulette did happen
