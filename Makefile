@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench database report clean
+.PHONY: setup test test-slow demo bench database report validate-inverse clean
 
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
@@ -48,8 +48,12 @@ database: $(STAMP)
 report: $(STAMP)
 	$(GONIO) report $(DB_OUT) --out $(DB_OUT)/report
 
+validate-inverse: $(STAMP)
+	$(GONIO) validate-inverse configs/inverse/cases.toml --simulate --json results/inverse/validation.json --report results/inverse/report
+
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py
+	$(PY) benchmarks/bench_inverse.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -434,6 +434,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--isotropize", choices=("mean",),
                    help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the output)")
     p.set_defaults(func=cmd_evaluate)
+
+    from models.inverse_cli import add_parsers as add_inverse_parsers
+    add_inverse_parsers(sub)
     return parser
 
 

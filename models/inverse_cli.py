@@ -1,0 +1,259 @@
+"""``gonio invert`` and ``gonio validate-inverse``: the command line of the inverse method
+(:mod:`models.inverse`, :mod:`models.inverse_validation`).
+
+Registered by :func:`add_parsers` (one line in ``goniometer.cli.build_parser``). User errors raise
+``goniometer.cli.UsageError`` (one line ``gonio: error: ...``, exit status 2). A well-formed
+request that has no physical solution is not a usage error: ``gonio invert`` prints
+``not physically achievable: ...`` on stderr and exits with status 1 (:data:`EXIT_NOT_ACHIEVABLE`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+EXIT_NOT_ACHIEVABLE = 1
+
+
+def _usage(msg: str):
+    from goniometer.cli import UsageError
+    return UsageError(msg)
+
+
+def _check_out(path: str | None, suffix: str, option: str, create_parent: bool = False) -> Path | None:
+    if path is None:
+        return None
+    p = Path(path)
+    if p.suffix.lower() != suffix:
+        raise _usage(f"{option}: {path!r} should end in {suffix}")
+    if p.exists() and p.is_dir():
+        raise _usage(f"{option}: {path!r} is a directory")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.exists():
+        if not create_parent:
+            raise _usage(f"{option}: directory {str(parent)!r} does not exist")
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise _usage(f"{option}: cannot create {str(parent)!r}: {e.strerror or e}") from None
+    return p
+
+
+# ---------------------------------------------------------------------------- invert
+
+def _options(args: argparse.Namespace):
+    from models.inverse import InverseError, InverseOptions
+    try:
+        return InverseOptions(eta_max=args.eta_max, variance_channel=args.variance_channel,
+                              top_variance=args.top_variance)
+    except InverseError as e:
+        raise _usage(str(e)) from None
+
+
+def _material_text(inv, stack, checks) -> str:
+    """The TOML material (SIMULATION.md contract) with the request as comments."""
+    head = ["# written by `gonio invert` (Bati 2021 inverse method, models.inverse)",
+            f"# base: {inv.base}; eta_max = {inv.options.eta_max:g}; lobes (top first), requested -> forward model:"]
+    for k, (lobe, c) in enumerate(zip(inv.lobes, checks)):
+        sol = inv.solutions[k]
+        head.append(f"#   lobe {k + 1}: {lobe.describe()} -> R={_rgb(c.R_forward)} sigma={_rgb(c.sigma_forward)}")
+        head.append("#     choices: " + ", ".join(f"{key}={_val(v)}" for key, v in sol.choices.items()))
+    if inv.searched:
+        head.append("#   (some default choices were moved by the search so that every lobe is achievable)")
+    return "\n".join(head) + "\n" + stack.to_toml()
+
+
+def _rgb(a: Any) -> str:
+    a = np.atleast_1d(np.asarray(a, dtype=float))
+    if a.size == 1 or (a.size == 3 and np.ptp(a) == 0):
+        return f"{a[0]:.5g}"
+    return "[" + ", ".join(f"{x:.5g}" for x in a) + "]"
+
+
+def _val(v: Any) -> str:
+    if isinstance(v, str):
+        return v
+    a = np.atleast_1d(np.asarray(v, dtype=float))
+    return _rgb(a) if a.size in (1, 3) else str(v)
+
+
+def cmd_invert(args: argparse.Namespace) -> int:
+    from models import inverse
+    from models.inverse import InverseError
+    from models.inverse_validation import _atomic_bytes, forward_check
+    if not args.lobe:
+        raise _usage("invert: at least one --lobe is required (e.g. --lobe \"R=0.04 sigma=0 layers=1\")")
+    try:
+        lobes = [inverse.parse_lobe(t) for t in args.lobe]
+        picks = inverse.parse_picks(args.pick, len(lobes))
+    except InverseError as e:
+        raise _usage(str(e)) from None
+    out = _check_out(args.out, ".toml", "--out")
+    classes_png = _check_out(args.classes, ".png", "--classes")
+    options = _options(args)
+    try:
+        inv = inverse.solve(lobes, args.base, picks, options, name=args.name)
+    except InverseError as e:
+        raise _usage(str(e)) from None
+    if not inv.achievable:
+        print(f"not physically achievable: {inv.reason}", file=sys.stderr)
+        if classes_png is not None and inv.classes:
+            from models.inverse_validation import classes_figure, save_png
+            save_png(classes_figure(inv), classes_png)
+            print(f"wrote {classes_png} (classes down to the failing lobe)", file=sys.stderr)
+        if args.json:
+            print(json.dumps(inverse._jsonable(inv.to_json()), indent=2))
+        return EXIT_NOT_ACHIEVABLE
+    stack = inv.stack()
+    checks = forward_check(inv)
+    if out is not None:
+        _atomic_bytes(out, _material_text(inv, stack, checks).encode())
+    if classes_png is not None:
+        from models.inverse_validation import classes_figure, save_png
+        save_png(classes_figure(inv), classes_png)
+    if args.json:
+        d = inverse._jsonable(inv.to_json())
+        d["stack"] = json.loads(stack.to_json())
+        for k, c in enumerate(checks):
+            d["lobes"][k]["R_forward"] = c.R_forward.tolist()
+            d["lobes"][k]["sigma_forward"] = c.sigma_forward.tolist()
+        print(json.dumps(d, indent=2))
+        return 0
+    print(f"{stack.name} ({stack.category}), {len(stack.interfaces)} interface(s), solved in "
+          f"{1000 * inv.elapsed_s:.1f} ms" + (" (default choices moved by the search)" if inv.searched else ""))
+    for layer in json.loads(stack.to_json())["layers"]:
+        print("  " + ", ".join(f"{k}={_val(v) if not isinstance(v, str) else v}" for k, v in layer.items()))
+    print(f"{'lobe':>4}  {'R requested':>22} {'R forward':>22}  {'sigma req.':>10} {'sigma forward':>24}")
+    for k, (lobe, c) in enumerate(zip(lobes, checks)):
+        print(f"{k + 1:>4}  {_rgb(lobe.rgb):>22} {_rgb(c.R_forward):>22}  {lobe.sigma:>10.4g} "
+              f"{_rgb(c.sigma_forward):>24}")
+    if out is not None:
+        print(f"wrote {out} (simulate it with: gonio simulate {out} --out FILE.h5 --incident 0 --parametrization half)")
+    if classes_png is not None:
+        print(f"wrote {classes_png}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- validate-inverse
+
+def cmd_validate_inverse(args: argparse.Namespace) -> int:
+    from models.inverse import InverseError
+    from models import inverse_validation as V
+    try:
+        cases = V.load_cases(args.cases)
+    except InverseError as e:
+        raise _usage(str(e)) from None
+    json_out = _check_out(args.json, ".json", "--json", create_parent=True)
+    if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
+        raise _usage(f"--report: {args.report!r} exists and is not a directory")
+    if args.rays is not None and args.rays < 1000:
+        raise _usage(f"--rays: at least 1000, got {args.rays}")
+    resolution = (90, 8)
+    if args.resolution:
+        try:
+            a, b = args.resolution.lower().split("x")
+            resolution = (int(a), int(b))
+        except ValueError:
+            raise _usage(f"--resolution: {args.resolution!r} is not N_THETAxN_PHI (e.g. 90x8)") from None
+        if not (8 <= resolution[0] <= 2000 and 1 <= resolution[1] <= 3600):
+            raise _usage(f"--resolution: {args.resolution!r} out of range (n_theta 8..2000, n_phi 1..3600)")
+    if args.only:
+        import fnmatch
+        cases = [c for c in cases if fnmatch.fnmatch(c.name, args.only)]
+        if not cases:
+            raise _usage(f"--only: no case matches {args.only!r}")
+    options = _options(args)
+
+    def progress(done: int, total: int, name: str) -> None:
+        print(f"[{done}/{total}] {name}", file=sys.stderr)
+
+    results = V.run_validation(cases, simulate=args.simulate, rays=args.rays or V.DEFAULT_RAYS,
+                               resolution=resolution, seed=args.seed, options=options, threads=args.threads,
+                               progress=progress)
+    doc = V.validation_json(results, args.simulate, {"cases_file": str(args.cases), "rays": args.rays or V.DEFAULT_RAYS,
+                                                      "resolution": list(resolution), "seed": args.seed})
+    if json_out is not None:
+        V.write_json(json_out, doc)
+    if args.report:
+        paths = V.write_report(results, args.report, args.simulate)
+    _print_table(results, args.simulate)
+    s = doc["summary"]
+    print(f"{s['cases']} case(s), {s['achievable']} achievable; largest forward error R "
+          f"{_pct(s['max_R_forward_rel_error'])}, sigma {_pct(s['max_sigma_forward_error'])}")
+    if s["unexpected"]:
+        print(f"unexpected achievability: {', '.join(s['unexpected'])}")
+    if json_out is not None:
+        print(f"wrote {json_out}")
+    if args.report:
+        print(f"report: {paths['markdown']} (open {paths['html']})")
+    return 1 if s["unexpected"] else 0
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.3f}%"
+
+
+def _print_table(results, simulate: bool) -> None:
+    for r in results:
+        if not r.achievable:
+            print(f"{r.case.name}: not physically achievable{'' if not r.case.expect_achievable else ' (UNEXPECTED)'}: "
+                  f"{r.inversion.reason}")
+            continue
+        er, es = r.max_forward_error()
+        print(f"{r.case.name}: forward error R {_pct(er)}, sigma {_pct(es)}")
+        for k, c in enumerate(r.checks):
+            line = (f"    lobe {k + 1}: R {_rgb(c.R_requested)} -> {_rgb(c.R_forward)}; sigma {c.sigma_requested:.4g} "
+                    f"-> {_rgb(c.sigma_forward)}")
+            if simulate:
+                if c.R_simulated is not None:
+                    line += f"; simulated R {_rgb(c.R_simulated)}, sigma {_rgb(c.sigma_simulated)}"
+                elif c.group:
+                    line += f"; simulated together with lobes {c.group}"
+            print(line)
+
+
+# ---------------------------------------------------------------------------- registration
+
+def add_parsers(subparsers) -> None:
+    """Register ``invert`` and ``validate-inverse`` on the ``gonio`` sub-command parser."""
+    p = subparsers.add_parser("invert", help="lobes at normal incidence -> a layered material (Bati 2021 inverse)")
+    p.add_argument("--lobe", action="append", metavar="SPEC",
+                   help='a lobe, top first, e.g. "R=0.03,0.06,0.09 sigma=0.05 layers=2" (repeatable)')
+    p.add_argument("--base", choices=("dielectric", "conductor"), default="dielectric",
+                   help="the last lobe ends on a dielectric (default) or a conductor")
+    p.add_argument("--pick", default="center", metavar="center|PARAMS",
+                   help="which point of each equivalence class: center (default) or K.NAME=VALUE items, "
+                        "NAME in u1, eta1, root, u2, eta2, tau0, tau1 (e.g. \"1.u1=0.2 2.tau1=0,0.3,0\")")
+    p.add_argument("--eta-max", dest="eta_max", type=float, default=4.0, help="largest dielectric index (default 4)")
+    p.add_argument("--variance-channel", dest="variance_channel", choices=("minimax", "max"), default="minimax",
+                   help="achromatic roughness of coloured lobes: minimax over channels (default) or the "
+                        "channel of maximal reflectance (the paper)")
+    p.add_argument("--top-variance", dest="top_variance", choices=("exact", "paper"), default="exact",
+                   help="first interface of a stacked 2-layer lobe: exact variance (default) or alg. 5 as printed")
+    p.add_argument("--out", metavar="STACK.toml", help="write the material file")
+    p.add_argument("--classes", metavar="OUT.png", help="plot the equivalence classes")
+    p.add_argument("--name", default="inverse", help="material name (default inverse)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_invert)
+
+    p = subparsers.add_parser("validate-inverse", help="run target lobe configurations through the inverse method "
+                                                       "and check them (forward model, optional simulation)")
+    p.add_argument("cases", metavar="CASES.toml")
+    p.add_argument("--json", metavar="OUT.json", help="write the results as JSON")
+    p.add_argument("--simulate", action="store_true", help="also simulate every stack at normal incidence")
+    p.add_argument("--report", metavar="DIR", help="write report.md, index.html and figures into DIR")
+    p.add_argument("--rays", type=int, help="rays per simulation (default 4,000,000)")
+    p.add_argument("--resolution", metavar="N_THETAxN_PHI", help="half slices of the simulation (default 90x8)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--threads", type=int)
+    p.add_argument("--only", metavar="GLOB", help="cases whose name matches")
+    p.add_argument("--eta-max", dest="eta_max", type=float, default=4.0)
+    p.add_argument("--variance-channel", dest="variance_channel", choices=("minimax", "max"), default="minimax")
+    p.add_argument("--top-variance", dest="top_variance", choices=("exact", "paper"), default="exact")
+    p.set_defaults(func=cmd_validate_inverse)
