@@ -231,3 +231,21 @@ def test_fit_and_fitted_models_in_evaluate(simulated, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("gonio: error: ") and "BRDF models" in err and "\n" not in err
     assert main(["fit", str(simulated / "missing.h5"), "--model", "hp15"]) == 2
+
+
+def test_incident_azimuth_out_of_range_and_fit_without_brdf(simulated, tmp_path, capsys):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(GOOD)
+    out = tmp_path / "x.h5"
+    assert main(["simulate", str(cfg), "--out", str(out), "--incident", "30:360"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "incident_phi_deg: 360 is outside [0, 360)" in err and "\n" not in err and not out.exists()
+    # a file without BRDF slices cannot be fitted by a BRDF model
+    import h5py
+    nobrdf = tmp_path / "btdf-only.h5"
+    nobrdf.write_bytes((simulated / "slab.h5").read_bytes())
+    with h5py.File(nobrdf, "a") as f:
+        del f["brdf"]
+    assert main(["fit", str(nobrdf), "--model", "ggx1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gonio: error: ") and "brdf" in err.lower() and "\n" not in err
