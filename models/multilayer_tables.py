@@ -119,10 +119,11 @@ Cache
 One file ``multilayer-lut.npz`` in ``$GONIOMETER_CACHE`` (default ``~/.cache/goniometer``, see
 :func:`goniometer._numba_cache.cache_root`), written atomically (temporary file + rename) with
 :data:`TABLE_VERSION` and the grid signature inside; a file whose version or grid differs is
-rebuilt, never reused. :func:`load_tables` builds on first use and memoises the loaded tables in an
-``lru_cache`` (cleared by :func:`build_tables`), the module's only state. Build: 166 000 nodes x
-2 048 quadrature points, about 10 s of CPU time (5 s on 2 idle cores with numba
-``parallel=True``), plus 2-4 s of compilation the first time.
+rebuilt, never reused (the file handling is :mod:`models.table_cache`). :func:`load_tables`
+builds on first use and memoises the loaded tables in an ``lru_cache`` (cleared by
+:func:`build_tables`), the module's only state. Build: 166 000 nodes x 2 048 quadrature points,
+about 10 s of CPU time (5 s on 2 idle cores with numba ``parallel=True``), plus 2-4 s of
+compilation the first time.
 """
 
 from __future__ import annotations
@@ -130,7 +131,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -140,7 +140,7 @@ import numba
 import numpy as np
 
 from goniometer import optics
-from goniometer._numba_cache import cache_root
+from models import table_cache
 
 #: bump whenever the definition, numerics or layout of the tables changes
 TABLE_VERSION = 1
@@ -442,15 +442,13 @@ class Tables:
         return t.reshape(mu.shape), c.reshape(mu.shape)
 
 
-def default_cache_dir() -> Path:
-    """``$GONIOMETER_CACHE`` if set, else ``~/.cache/goniometer`` (the project's cache root)."""
-    return cache_root().expanduser()
+#: the project's cache directory (``$GONIOMETER_CACHE`` or ``~/.cache/goniometer``)
+default_cache_dir = table_cache.default_cache_dir
 
 
 def table_path(cache_dir: str | os.PathLike | None = None) -> Path:
     """Where the tables live."""
-    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    return d / FILE_NAME
+    return table_cache.cache_directory(cache_dir) / FILE_NAME
 
 
 def compute_tables(progress: Progress | None = None) -> dict[str, np.ndarray]:
@@ -486,22 +484,6 @@ def compute_tables(progress: Progress | None = None) -> dict[str, np.ndarray]:
     return out
 
 
-def _save_atomic(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None) -> Path:
     """(Re)build the tables and write them atomically; returns the file's path.
 
@@ -509,39 +491,28 @@ def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress 
     """
     path = table_path(cache_dir)
     t = compute_tables(progress)
-    _save_atomic(path, version=np.int64(TABLE_VERSION), signature=np.array(_grid_signature()),
-                 up=t["up"], down=t["down"], alpha=alpha_nodes(), mu_up=mu_up_nodes(),
-                 eta_up=eta_up_nodes(), eta_down=eta_down_nodes())
+    table_cache.save_atomic(path, version=np.int64(TABLE_VERSION), signature=np.array(_grid_signature()),
+                            up=t["up"], down=t["down"], alpha=alpha_nodes(), mu_up=mu_up_nodes(),
+                            eta_up=eta_up_nodes(), eta_down=eta_down_nodes())
     _load_cached.cache_clear()
     return path
 
 
 def read_if_current(path: Path) -> dict[str, np.ndarray] | None:
     """The arrays of ``path`` if it holds tables of the current version and grid, else None."""
-    if not path.exists():
+    t = table_cache.read_current(path, TABLE_VERSION, _grid_signature(), ("up", "down"), np.float64)
+    if t is None:
         return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if int(z["version"]) != TABLE_VERSION or str(z["signature"]) != _grid_signature():
-                return None
-            up = np.array(z["up"], dtype=np.float64)
-            down = np.array(z["down"], dtype=np.float64)
-    except (OSError, KeyError, ValueError):
+    if t["up"].shape != (N_MU_UP, N_ALPHA, N_ETA_UP, 2) or t["down"].shape != (n_mu_down(), N_ALPHA, N_ETA_DOWN, 2):
         return None
-    if up.shape != (N_MU_UP, N_ALPHA, N_ETA_UP, 2) or down.shape != (n_mu_down(), N_ALPHA, N_ETA_DOWN, 2):
-        return None
-    return {"up": up, "down": down}
+    return t
 
 
 @lru_cache(maxsize=4)
 def _load_cached(cache_dir: str) -> Tables:
     path = table_path(cache_dir)
-    t = read_if_current(path)
-    if t is None:
-        build_tables(cache_dir)
-        t = read_if_current(path)
-        if t is None:  # pragma: no cover - disk trouble
-            raise OSError(f"could not write or read the multilayer tables at {path}")
+    t = table_cache.load_or_build(lambda: read_if_current(path), lambda: build_tables(cache_dir),
+                                  f"the multilayer tables at {path}")
     for a in t.values():
         a.setflags(write=False)
     return Tables(t["up"], t["down"], c_split())
@@ -552,5 +523,4 @@ def load_tables(cache_dir: str | os.PathLike | None = None) -> Tables:
 
     Memoised per cache directory in an ``lru_cache``.
     """
-    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    return _load_cached(str(d.resolve()))
+    return _load_cached(table_cache.memo_key(cache_dir))

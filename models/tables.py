@@ -82,10 +82,10 @@ Tables live in :func:`default_cache_dir` (``$GONIOMETER_CACHE`` if set, else
 ``~/.cache/goniometer``) as ``belcour-fgd-<masking>.npz`` (kernel + 4D table + grids, ~78 MB) and
 ``belcour-tir-<masking>.npz`` (~2 MB), written atomically (temporary file + rename) with
 :data:`TABLE_VERSION` and the grid signature inside. A file whose version or grid differs is
-rebuilt, never reused. :func:`load_tables` builds on first use (a few seconds on 2 cores, plus
-numba compilation) and memoises the loaded tables in an ``lru_cache``
-(cleared by :func:`build_tables`); the slice functions are ``lru_cache``'d too. These caches are
-the module's only state.
+rebuilt, never reused (the file handling is :mod:`models.table_cache`). :func:`load_tables`
+builds on first use (a few seconds on 2 cores, plus numba compilation) and memoises the loaded
+tables in an ``lru_cache`` (cleared by :func:`build_tables`); the slice functions are
+``lru_cache``'d too. These caches are the module's only state.
 """
 
 from __future__ import annotations
@@ -93,7 +93,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -103,7 +102,7 @@ import numba
 import numpy as np
 
 from goniometer import optics
-from goniometer._numba_cache import cache_root
+from models import table_cache
 
 #: bump whenever the definition, numerics or layout of a table changes
 TABLE_VERSION = 2
@@ -488,33 +487,15 @@ def _tir_many(tir, mu, alpha, eta_up, out):
         out[n] = tir_lookup(tir, mu[n], alpha[n], eta_up[n])
 
 
-def default_cache_dir() -> Path:
-    """The project's cache directory (:func:`goniometer._numba_cache.cache_root`):
-    ``$GONIOMETER_CACHE`` if set, else ``~/.cache/goniometer`` (under ``$XDG_CACHE_HOME`` if set)."""
-    return cache_root().expanduser()
+#: the project's cache directory (``$GONIOMETER_CACHE`` or ``~/.cache/goniometer``)
+default_cache_dir = table_cache.default_cache_dir
 
 
 def table_paths(cache_dir: str | os.PathLike | None = None, height_correlated: bool = False) -> dict[str, Path]:
     """Where the FGD and TIR tables of one masking model live."""
-    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+    d = table_cache.cache_directory(cache_dir)
     m = _masking(height_correlated)
     return {"fgd": d / f"belcour-fgd-{m}.npz", "tir": d / f"belcour-tir-{m}.npz"}
-
-
-def _save_atomic(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def compute_tables(height_correlated: bool = False, progress: Progress | None = None) -> dict[str, np.ndarray]:
@@ -546,36 +527,28 @@ def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress 
     t = compute_tables(height_correlated, progress)
     sig = _grid_signature(height_correlated)
     common = dict(version=np.int64(TABLE_VERSION), signature=np.array(sig), mu=mu_nodes(), alpha=alpha_nodes())
-    _save_atomic(paths["fgd"], kernel=t["kernel"], fgd=t["fgd"], eta=eta_nodes(), kappa=kappa_nodes(),
-                 x=x_nodes(), **common)
-    _save_atomic(paths["tir"], tir=t["tir"], eta_up=eta_up_nodes(), **common)
+    table_cache.save_atomic(paths["fgd"], kernel=t["kernel"], fgd=t["fgd"], eta=eta_nodes(), kappa=kappa_nodes(),
+                            x=x_nodes(), **common)
+    table_cache.save_atomic(paths["tir"], tir=t["tir"], eta_up=eta_up_nodes(), **common)
     _load_cached.cache_clear()
     return paths
 
 
 def _read_if_current(path: Path, height_correlated: bool, keys: tuple[str, ...]) -> dict[str, np.ndarray] | None:
-    if not path.exists():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if int(z["version"]) != TABLE_VERSION or str(z["signature"]) != _grid_signature(height_correlated):
-                return None
-            return {k: np.array(z[k]) for k in keys}
-    except (OSError, KeyError, ValueError):
-        return None
+    return table_cache.read_current(path, TABLE_VERSION, _grid_signature(height_correlated), keys)
 
 
 @lru_cache(maxsize=8)
 def _load_cached(cache_dir: str, height_correlated: bool) -> Tables:
     paths = table_paths(cache_dir, height_correlated)
-    a = _read_if_current(paths["fgd"], height_correlated, ("kernel", "fgd"))
-    b = _read_if_current(paths["tir"], height_correlated, ("tir",))
-    if a is None or b is None:
-        build_tables(cache_dir, None, height_correlated)
+
+    def read() -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
         a = _read_if_current(paths["fgd"], height_correlated, ("kernel", "fgd"))
         b = _read_if_current(paths["tir"], height_correlated, ("tir",))
-        if a is None or b is None:  # pragma: no cover - disk trouble
-            raise OSError(f"could not write or read the Belcour tables in {cache_dir}")
+        return None if a is None or b is None else (a, b)
+
+    a, b = table_cache.load_or_build(read, lambda: build_tables(cache_dir, None, height_correlated),
+                                     f"the Belcour tables in {cache_dir}")
     for arr in (a["kernel"], a["fgd"], b["tir"]):
         arr.setflags(write=False)
     return Tables(height_correlated, a["kernel"], a["fgd"], b["tir"])
@@ -587,8 +560,7 @@ def load_tables(cache_dir: str | os.PathLike | None = None, height_correlated: b
     A file with another version or grid is rebuilt. The result is memoised per
     (cache directory, masking) in an ``lru_cache``.
     """
-    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    return _load_cached(str(d.resolve()), bool(height_correlated))
+    return _load_cached(table_cache.memo_key(cache_dir), bool(height_correlated))
 
 
 # --------------------------------------------------------------------------- material slices

@@ -27,7 +27,8 @@ from goniometer.simulate import SimulationSettings, simulate
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import tables
 from models.base import ModelError
-from models.belcour import KIND_MEDIUM, BelcourForward, roughness_to_variance, variance_to_roughness
+from models.belcour import (KIND_MEDIUM, BelcourForward, pack_stack, roughness_to_variance, unsupported_reason,
+                            variance_to_roughness)
 from models.belcour_aniso import (BelcourAniso, aniso_statistics, interface_covariance, isotropic_proxy,
                                   pack_aniso)
 from models.errors import compare
@@ -383,6 +384,26 @@ def test_finite_and_non_negative_over_the_hemisphere(opts):
 
 def test_pack_keeps_isotropic_entries_on_the_diagonal():
     p = pack_aniso(anisotropic_stacks()[3])
-    for e in np.flatnonzero(p.iso & (p.base.kind != KIND_MEDIUM)):
-        assert p.cov_r[e, 1] == 0.0 and p.cov_r[e, 0] == p.cov_r[e, 2] == p.base.var_r[e]
+    iso = pack_stack(isotropic_proxy(anisotropic_stacks()[3]))
+    assert p.n_cov == 3 and iso.n_cov == 1
+    for e in np.flatnonzero(p.iso & (p.kind != KIND_MEDIUM)):
+        assert p.cov_r[e, 1] == 0.0 and p.cov_r[e, 0] == p.cov_r[e, 2] == iso.var_r[e]
+        assert p.cov_t_down[e, 0] == p.cov_t_down[e, 2] == iso.var_t_down[e]
     assert not p.isotropic and p.iso.sum() < len(p.iso)
+
+
+def test_anisotropic_stacks_need_the_explicit_packing_option():
+    st = anisotropic_stacks()[0]
+    assert "isotropic" in unsupported_reason(st)
+    assert unsupported_reason(st, anisotropic=True) is None
+    with pytest.raises(ValueError, match="anisotropic"):
+        pack_stack(st)
+    p = pack_stack(st, anisotropic=True)
+    assert p.n_cov == 3 and not p.isotropic
+    # isotropic stacks pack either way, with the same scalar variances on the diagonal
+    iso = database_stacks()[2]
+    a, b = pack_stack(iso), pack_stack(iso, anisotropic=True)
+    assert a.n_cov == 1 and b.isotropic
+    np.testing.assert_array_equal(b.cov_r[:, 0], a.var_r)
+    np.testing.assert_array_equal(b.cov_r[:, 2], a.var_r)
+    assert np.all(b.cov_r[:, 1] == 0.0)

@@ -2,8 +2,9 @@
 
 Reference values are computed here from first principles with textbook formulas in angle form
 (Snell's law on angles, Fresnel via sin/tan differences, the a/b form for conductors, GGX D and
-Lambda in tan(theta)), independently of goniometer.optics. The tables are built once per run into a
-temporary cache directory (a few seconds on 2 cores).
+Lambda in tan(theta); shared with other model tests in tests/models/helpers.py), independently of
+goniometer.optics. The tables are built once per run into a temporary cache directory (a few
+seconds on 2 cores).
 """
 
 from __future__ import annotations
@@ -18,75 +19,13 @@ from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import multilayer_tables as mt
 from models.base import ModelError
 from models.multilayer_lut import MultilayerLUT, MultilayerLUTArticle
+from tests.models.helpers import (direction, fresnel_conductor_tb, fresnel_dielectric_tb, g1_tb, ggx_brdf_tb,
+                                  ggx_d_tb, polar, snell_about_n)
 
 DEG = math.pi / 180.0
 
 
 # ---------------------------------------------------------------------- textbook optics
-
-def direction(theta: float, phi: float) -> np.ndarray:
-    return np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
-
-
-def fresnel_tb(theta_i, n):
-    """Unpolarised dielectric reflectance (angle form), relative index n, TIR -> 1; vectorised."""
-    theta_i = np.asarray(theta_i, dtype=float)
-    if n == 1.0:
-        return np.zeros_like(theta_i)  # no interface
-    s = np.sin(theta_i) / n
-    tir = s >= 1.0
-    tt = np.arcsin(np.minimum(s, 1.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rs = np.sin(theta_i - tt) ** 2 / np.sin(theta_i + tt) ** 2
-        rp = np.tan(theta_i - tt) ** 2 / np.tan(theta_i + tt) ** 2
-        r = 0.5 * (rs + rp)
-    r = np.where(theta_i < 1e-8, ((n - 1.0) / (n + 1.0)) ** 2, r)
-    return np.where(tir, 1.0, r)
-
-
-def fresnel_conductor_tb(theta_i: float, n: float, k: float) -> float:
-    """Unpolarised reflectance of a conductor n + i k (Born & Wolf a, b form)."""
-    c = math.cos(theta_i)
-    s2 = math.sin(theta_i) ** 2
-    t0 = n * n - k * k - s2
-    a2b2 = math.sqrt(t0 * t0 + 4.0 * n * n * k * k)
-    a = math.sqrt(0.5 * (a2b2 + t0))
-    rs = (a2b2 - 2.0 * a * c + c * c) / (a2b2 + 2.0 * a * c + c * c)
-    rp = rs * (a2b2 * c * c - 2.0 * a * c * s2 + s2 * s2) / (a2b2 * c * c + 2.0 * a * c * s2 + s2 * s2)
-    return 0.5 * (rs + rp)
-
-
-def ggx_d_tb(theta_m, alpha):
-    t2 = np.tan(theta_m) ** 2
-    return alpha * alpha / (np.pi * np.cos(theta_m) ** 4 * (alpha * alpha + t2) ** 2)
-
-
-def lambda_tb(theta, alpha):
-    return 0.5 * (np.sqrt(1.0 + alpha * alpha * np.tan(theta) ** 2) - 1.0)
-
-
-def g1_tb(theta, alpha):
-    return 1.0 / (1.0 + lambda_tb(theta, alpha))
-
-
-def polar(w: np.ndarray) -> float:
-    return math.acos(min(1.0, float(w[2])))
-
-
-def angle(a: np.ndarray, b: np.ndarray) -> float:
-    return math.acos(min(1.0, float(np.dot(a, b))))
-
-
-def ggx_brdf_tb(l: np.ndarray, v: np.ndarray, alpha: float, fresnel) -> float:
-    h = (l + v) / np.linalg.norm(l + v)
-    return float(fresnel(angle(l, h)) * ggx_d_tb(polar(h), alpha) * g1_tb(polar(l), alpha)
-                 * g1_tb(polar(v), alpha) / (4.0 * l[2] * v[2]))
-
-
-def snell_inner(w: np.ndarray, eta: float) -> np.ndarray:
-    """Inner direction (pointing up) of w refracted about z: same azimuth, sin t = sin i / eta."""
-    return direction(math.asin(math.sin(polar(w)) / eta), math.atan2(w[1], w[0]))
-
 
 def inner_of_cosine(w: np.ndarray, c: float) -> np.ndarray:
     """Unit direction of cosine c in the azimuth of w (the model's mean refracted direction)."""
@@ -115,7 +54,7 @@ def transmittance_vndf_tb(mu: float, alpha: float, eta: float, n_theta: int = 50
     v = np.array([math.sin(theta_v), 0.0, mu])
     vm = m @ v
     dv = g1_tb(theta_v, alpha) * np.maximum(vm, 0.0) * ggx_d_tb(TH, alpha) / mu
-    f = fresnel_tb(np.arccos(np.clip(vm, -1.0, 1.0)), eta)
+    f = fresnel_dielectric_tb(np.arccos(np.clip(vm, -1.0, 1.0)), eta)
     wt = W * dv * (1.0 - f)
     # article: refract(v, n, eta) = -v/eta + n (n.v/eta - sqrt(1 - (1 - (n.v)^2)/eta^2))
     k = 1.0 - (1.0 - vm * vm) / (eta * eta)
@@ -246,7 +185,7 @@ def test_smooth_limit_is_exact(tables):
     for eta in (0.5, 0.8, 1.0, 1.2, 1.5, 2.7):
         t, c = tables.at(mu, 0.0, eta)
         theta = np.arccos(mu)
-        np.testing.assert_allclose(t, 1.0 - fresnel_tb(theta, eta), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(t, 1.0 - fresnel_dielectric_tb(theta, eta), rtol=0, atol=1e-12)
         s = np.sin(theta) / eta
         snell = np.where(s < 1.0, np.sqrt(np.maximum(0.0, 1.0 - s * s)), 0.0)
         np.testing.assert_allclose(c, snell, rtol=0, atol=1e-12)
@@ -264,7 +203,7 @@ def test_small_roughness_tends_to_the_smooth_limit(tables):
             t, c = tables.at(mu, alpha, eta)
             ref = mt.direct(mu, alpha, eta)
             for tt, cc in ((t, c), (ref[..., 0], ref[..., 1])):
-                np.testing.assert_allclose(tt[ok], 1.0 - fresnel_tb(theta[ok], eta), atol=20 * alpha)
+                np.testing.assert_allclose(tt[ok], 1.0 - fresnel_dielectric_tb(theta[ok], eta), atol=20 * alpha)
                 np.testing.assert_allclose(cc[ok], snell[ok], atol=20 * alpha)
 
 
@@ -367,7 +306,7 @@ def test_top_lobe_is_the_dielectric_microfacet_brdf(model):
     for stack in (coat(0.2), coat(0.05, base=conductor())):
         for a, b in zip(l[:10], v[:10]):
             top = model.evaluate(stack, a, b).top
-            ref = ggx_brdf_tb(a, b, stack.layers[0].roughness, lambda t: fresnel_tb(t, 1.5))
+            ref = ggx_brdf_tb(a, b, stack.layers[0].roughness, lambda t: fresnel_dielectric_tb(t, 1.5))
             np.testing.assert_allclose(top, ref, rtol=1e-10)
 
 
@@ -390,8 +329,8 @@ def test_smooth_coat_is_the_first_order_adding_term(model, base):
     for a, w in zip(l, v):
         r = model.evaluate(stack, a, w)
         assert np.all(r.top == 0.0)  # a smooth coat's reflection is a Dirac: not evaluable pointwise
-        l1, v1 = snell_inner(a, 1.5), snell_inner(w, 1.5)
-        t = (1.0 - fresnel_tb(polar(a), 1.5)) * (1.0 - fresnel_tb(polar(w), 1.5))
+        l1, v1 = snell_about_n(a, 1.5), snell_about_n(w, 1.5)
+        t = (1.0 - fresnel_dielectric_tb(polar(a), 1.5)) * (1.0 - fresnel_dielectric_tb(polar(w), 1.5))
         att = np.exp(-tau * (1.0 / l1[2] + 1.0 / v1[2]))
         if base == "conductor":
             f1 = np.array([ggx_brdf_tb(l1, v1, 0.2, lambda x, k=k: fresnel_conductor_tb(x, 1.9 / 1.5, k / 1.5))
@@ -438,13 +377,13 @@ def test_three_interfaces_step_by_step(model, tables):
     rng = np.random.default_rng(10)
     l, v = random_pairs(rng, 25, max_deg=80.0)
     for a, w in zip(l, v):
-        top = ggx_brdf_tb(a, w, 0.3, lambda t: fresnel_tb(t, 1.5))
+        top = ggx_brdf_tb(a, w, 0.3, lambda t: fresnel_dielectric_tb(t, 1.5))
         internal = np.zeros(3)
         q = np.ones(3)
         lk, vk = a, w
         for k, (alpha, eta, tau) in enumerate(layers):
             if k > 0:
-                internal += q * ggx_brdf_tb(lk, vk, alpha, lambda t, e=eta: fresnel_tb(t, e))
+                internal += q * ggx_brdf_tb(lk, vk, alpha, lambda t, e=eta: fresnel_dielectric_tb(t, e))
             (tl, tv), (cl, cv) = tables.at(np.array([lk[2], vk[2]]), alpha, eta)
             lk, vk = inner_of_cosine(lk, cl), inner_of_cosine(vk, cv)
             g = g1_tb(polar(lk), alpha) * g1_tb(polar(vk), alpha)

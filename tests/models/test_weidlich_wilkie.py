@@ -2,7 +2,8 @@
 
 Reference values are computed here from first principles, with textbook formulas written in
 angle form (Snell's law on angles, Fresnel via sin/tan differences and the a/b form for
-conductors, GGX D and Lambda in tan(theta)), independently of goniometer.optics.
+conductors, GGX D and Lambda in tan(theta); shared with other model tests in
+tests/models/helpers.py), independently of goniometer.optics.
 """
 
 from __future__ import annotations
@@ -17,84 +18,14 @@ from scipy import integrate
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.base import ModelError, coated_base
 from models.weidlich_wilkie import WW09, WW09_VARIANT, Elek10, WWBati19, evaluate_variant
+from tests.models.helpers import (angle, direction, fresnel_conductor_tb, fresnel_dielectric_tb, g1_tb,
+                                  ggx_brdf_tb, half, polar, snell_about_n)
 
 DEG = math.pi / 180.0
 MODELS = {"ww09": WW09(), "elek10": Elek10(), "ww-bati19": WWBati19()}
 
 
 # ---------------------------------------------------------------------- textbook optics
-
-def direction(theta: float, phi: float) -> np.ndarray:
-    """Unit vector of polar angle theta and azimuth phi (radians) about z."""
-    return np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
-
-
-def fresnel_dielectric_tb(theta_i: float, n: float) -> float:
-    """Unpolarised Fresnel reflectance, incidence angle theta_i, relative index n (TIR -> 1).
-
-    Textbook form R = [sin^2(ti - tt)/sin^2(ti + tt) + tan^2(ti - tt)/tan^2(ti + tt)] / 2.
-    """
-    if theta_i == 0.0:
-        return ((n - 1.0) / (n + 1.0)) ** 2
-    s = math.sin(theta_i) / n
-    if s >= 1.0:
-        return 1.0
-    tt = math.asin(s)
-    rs = math.sin(theta_i - tt) ** 2 / math.sin(theta_i + tt) ** 2
-    rp = math.tan(theta_i - tt) ** 2 / math.tan(theta_i + tt) ** 2
-    return 0.5 * (rs + rp)
-
-
-def fresnel_conductor_tb(theta_i: float, n: float, k: float) -> float:
-    """Unpolarised reflectance of a conductor n + i k (Born & Wolf / Cook-Torrance a, b form)."""
-    c = math.cos(theta_i)
-    s2 = math.sin(theta_i) ** 2
-    t0 = n * n - k * k - s2
-    a2b2 = math.sqrt(t0 * t0 + 4.0 * n * n * k * k)
-    a = math.sqrt(0.5 * (a2b2 + t0))
-    rs = (a2b2 - 2.0 * a * c + c * c) / (a2b2 + 2.0 * a * c + c * c)
-    rp = rs * (a2b2 * c * c - 2.0 * a * c * s2 + s2 * s2) / (a2b2 * c * c + 2.0 * a * c * s2 + s2 * s2)
-    return 0.5 * (rs + rp)
-
-
-def ggx_d_tb(theta_m: float, alpha: float) -> float:
-    """GGX D = alpha^2 / (pi cos^4 (alpha^2 + tan^2)^2) (Walter 2007, eq. 33)."""
-    t2 = math.tan(theta_m) ** 2
-    return alpha * alpha / (math.pi * math.cos(theta_m) ** 4 * (alpha * alpha + t2) ** 2)
-
-
-def smith_g1_tb(theta: float, alpha: float) -> float:
-    """GGX Smith G1 = 1 / (1 + Lambda), Lambda = (sqrt(1 + alpha^2 tan^2) - 1) / 2."""
-    lam = 0.5 * (math.sqrt(1.0 + alpha * alpha * math.tan(theta) ** 2) - 1.0)
-    return 1.0 / (1.0 + lam)
-
-
-def polar(w: np.ndarray) -> float:
-    return math.acos(min(1.0, float(w[2])))
-
-
-def angle(a: np.ndarray, b: np.ndarray) -> float:
-    return math.acos(min(1.0, float(np.dot(a, b))))
-
-
-def half(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    h = a + b
-    return h / np.linalg.norm(h)
-
-
-def ggx_brdf_tb(l: np.ndarray, v: np.ndarray, alpha: float, fresnel) -> float:
-    """F D G1 G1 / (4 cos cos) with F = fresnel(angle between l and h)."""
-    h = half(l, v)
-    return (fresnel(angle(l, h)) * ggx_d_tb(polar(h), alpha) * smith_g1_tb(polar(l), alpha)
-            * smith_g1_tb(polar(v), alpha) / (4.0 * l[2] * v[2]))
-
-
-def snell_about_n(w: np.ndarray, eta: float) -> np.ndarray:
-    """Inner direction (pointing up) of w refracted about z: same azimuth, sin t = sin i / eta."""
-    theta = math.asin(math.sin(polar(w)) / eta)
-    phi = math.atan2(w[1], w[0])
-    return direction(theta, phi)
-
 
 def snell_about(w: np.ndarray, m: np.ndarray, eta: float) -> np.ndarray:
     """Inner direction (pointing up) of w refracted through a facet m, built from angles.
@@ -146,14 +77,14 @@ def expected_internal(name: str, stack: Stack, l: np.ndarray, v: np.ndarray) -> 
         t01 = 1.0 - fresnel_dielectric_tb(theta_d, eta)
         t10 = 1.0 - fresnel_dielectric_tb(angle(v, h0), eta)  # leaves through the facet h0
         l1, v1 = snell_about(l, h0, eta), snell_about(v, h0, eta)
-        g = smith_g1_tb(polar(l1), a0) * smith_g1_tb(polar(v1), a0)
+        g = g1_tb(polar(l1), a0) * g1_tb(polar(v1), a0)
         x = (1.0 - g) + t10 * g
         fr1 = base_tb(stack, l, v, cb.alpha1 if cb.alpha1 is not None else 0.0)  # the bug: (l0, v0)
     elif name == "elek10":
         t01 = 1.0 - fresnel_dielectric_tb(theta_d, eta)
         t10 = 1.0 - fresnel_dielectric_tb(angle(v, h0), eta)
         l1, v1 = snell_about_n(l, eta), snell_about_n(v, eta)
-        g = smith_g1_tb(polar(l), a0) * smith_g1_tb(polar(v), a0)
+        g = g1_tb(polar(l), a0) * g1_tb(polar(v), a0)
         x = (1.0 - g) + t10 * g
         fr1 = base_tb(stack, l1, v1, max(a0, cb.alpha1) if cb.alpha1 is not None else 0.0)
     else:  # ww-bati19, eq. 5
@@ -199,7 +130,7 @@ def test_top_lobe_at_mirror_for_nearly_smooth_coat():
     """alpha0 = 0.001 works normally: at the mirror direction D(h = n) = 1 / (pi alpha^2)."""
     alpha, tl = 0.001, 45.0 * DEG
     l, v = direction(tl, 0.0), direction(tl, math.pi)
-    g1 = smith_g1_tb(tl, alpha)
+    g1 = g1_tb(tl, alpha)
     want = fresnel_dielectric_tb(tl, 1.5) / (math.pi * alpha**2) * g1 * g1 / (4.0 * math.cos(tl) ** 2)
     for m in MODELS.values():
         got = m.evaluate(plastic_stack(alpha0=alpha), l, v[None])
