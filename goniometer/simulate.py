@@ -245,15 +245,25 @@ def n_tasks(settings: SimulationSettings) -> int:
     return -(-settings.rays // (settings.chunk_rays * settings.chunks_per_task))
 
 
+def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[np.ndarray, ...]:
+    """Per-chunk output arrays of the kernel for ``n`` chunks (reusable between calls)."""
+    nt, nph = settings.resolution
+    k2 = settings.max_order + 2
+    bt = (nt, nph) if stack.transmits else (1, 1)
+    return (np.empty((n, nt, nph, k2, 3)), np.empty((n,) + bt + (k2, 3)), np.empty((n, tracer.N_ENERGY, 3)),
+            np.empty((n, tracer.N_ENERGY_SQ, 3)), np.empty((n, tracer.N_COUNTS), dtype=np.int64))
+
+
 def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
-                parallel: bool = True) -> list[Sums]:
+                parallel: bool = True, buffers: tuple[np.ndarray, ...] | None = None) -> list[Sums]:
     """Trace tasks ``first_task .. first_task + count - 1`` of incident direction ``m``.
 
     All their chunks run in parallel (numba threads); each task's chunk histograms are then
     summed in chunk order starting from zero. A task's result depends only on (stack, settings,
     m, task index) -- not on threads or on which machine runs it -- which is what makes local and
     distributed runs bit-identical. ``parallel=False`` uses no numba threads (for callers that
-    run concurrently themselves, like Dask worker threads).
+    run concurrently themselves, like Dask worker threads). ``buffers`` (from
+    :func:`chunk_buffers`) saves allocating the per-chunk histograms on every call.
     """
     p = pack(stack)
     l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
@@ -263,10 +273,9 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
     n_chunks_total = -(-settings.rays // settings.chunk_rays)
     first_chunk = first_task * cpt
     nb = max(0, min(count * cpt, n_chunks_total - first_chunk))
-    bt = (nt, nph) if stack.transmits else (1, 1)
-    outs = (np.empty((nb, nt, nph, K + 2, 3)), np.empty((nb,) + bt + (K + 2, 3)),
-            np.empty((nb, tracer.N_ENERGY, 3)), np.empty((nb, tracer.N_ENERGY_SQ, 3)),
-            np.empty((nb, tracer.N_COUNTS), dtype=np.int64))
+    if buffers is None or buffers[0].shape[0] < nb:
+        buffers = chunk_buffers(stack, settings, nb)
+    outs = tuple(b[:nb] for b in buffers)
     if parallel:
         numba.set_num_threads(settings.n_threads)
     kernel = tracer.trace_batch if parallel else tracer.trace_batch_serial
@@ -277,8 +286,13 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
                nt, nph, *tables, K, settings.masking == "height-correlated", settings.event_cap, *outs)
     results = []
     for t in range(count):
-        total = Sums.zeros(stack, settings)
-        for b in range(t * cpt, min((t + 1) * cpt, nb)):  # fixed order: chunk index
+        first, last = t * cpt, min((t + 1) * cpt, nb)
+        if first >= last:
+            results.append(Sums.zeros(stack, settings))
+            continue
+        # the task's sum starts from its first chunk (0 + x == x) and adds the others in chunk order
+        total = Sums(*(o[first].copy() for o in outs))
+        for b in range(first + 1, last):
             total.add(Sums(*(o[b] for o in outs)))
         results.append(total)
     return results
@@ -296,10 +310,11 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     T = n_tasks(settings)
     per_call = max(1, -(-2 * settings.n_threads // settings.chunks_per_task))
     acc = Sums.zeros(stack, settings)
+    buffers = chunk_buffers(stack, settings, min(per_call, T) * settings.chunks_per_task)
     t0 = time.perf_counter()
     for first in range(0, T, per_call):
         count = min(per_call, T - first)
-        for t, sums in enumerate(trace_tasks(stack, settings, m, first, count)):
+        for t, sums in enumerate(trace_tasks(stack, settings, m, first, count, buffers=buffers)):
             acc.add(sums)
             if progress is not None:
                 progress(task_rays(settings, first + t))

@@ -130,3 +130,20 @@ def test_fast_cell_index_agrees_with_the_exact_one(param, side, res):
             a = cell_index(code, side == "transmission", *l, *d, nt, nph)
             b = cell_index_fast(code, side == "transmission", *l, *d, nt, nph, *tables)
             assert a == b, (d, a, b)
+
+
+def test_half_solid_angles_are_exact_where_the_cell_is_above_the_horizon():
+    """Gauss-Legendre with 6 and 9 points agree to rounding on cells entirely above the horizon,
+    and a 256 x 256 midpoint rule converges to them (its own error ~1e-7)."""
+    from goniometer.slices import _half_omega, _half_omega_exact
+    l = light_direction(45.0, 20.0)
+    g6 = np.polynomial.legendre.leggauss(6)
+    g9 = np.polynomial.legendre.leggauss(9)
+    a = _half_omega_exact(*l, 30, 72, *g6, 64)
+    b = _half_omega_exact(*l, 30, 72, *g9, 64)
+    fine = _half_omega_exact(*l, 30, 72, *g6, 128)
+    gl = a == fine  # cells that never went through the midpoint branch
+    assert gl.sum() > 0.5 * gl.size
+    np.testing.assert_allclose(a[gl], b[gl], rtol=1e-12)
+    mid = _half_omega(*l, 30, 72, 256)[0]
+    np.testing.assert_allclose(a[gl], mid[gl], rtol=2e-6)
