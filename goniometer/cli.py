@@ -437,6 +437,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     from models.inverse_cli import add_parsers as add_inverse_parsers
     add_inverse_parsers(sub)
+    from models.tables_cli import add_parsers as add_tables_parsers
+    add_tables_parsers(sub)
     return parser
 
 
