@@ -30,11 +30,11 @@ import shutil
 import time
 import tomllib
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterator
 
-from goniometer import store
+from goniometer import atomic, store
 from goniometer.simulate import (IncidentPart, SettingsError, SimulationSettings, Sums, assemble, n_tasks,
                                  task_rays, trace_incident, trace_tasks, warm_up)
 from goniometer.stack import Stack, StackError, stack_from_dict
@@ -303,9 +303,7 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     out.mkdir(parents=True, exist_ok=True)
     mf = out / MANIFEST
     if not mf.exists():
-        tmp = out / f".{MANIFEST}.tmp-{os.getpid()}"
-        tmp.write_text(json.dumps(_manifest(db, quality), indent=2))
-        os.replace(tmp, mf)
+        atomic.write_bytes(mf, json.dumps(_manifest(db, quality), indent=2).encode())
     summary = RunSummary()
     t0 = time.perf_counter()
     todo = []

@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 
 import numba
-import numpy as np
 
 _INV_PI = 1.0 / math.pi
 

@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping
 import numba
 import numpy as np
 
-from goniometer import tracer
+from goniometer import atomic, tracer
 from goniometer.slices import SliceGrid, boundary_tables, light_direction
 from goniometer.stack import Stack, pack
 
@@ -349,12 +349,8 @@ class IncidentPart:
 
     def save(self, path) -> None:
         """Checkpoint to an ``.npz`` file (atomically: temporary name, then rename)."""
-        import os
-        tmp = f"{path}.tmp-{os.getpid()}"
         arrays = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
-        with open(tmp, "wb") as fh:
-            np.savez(fh, index=self.index, elapsed_s=self.elapsed_s, **arrays)
-        os.replace(tmp, path)
+        atomic.write_npz(path, index=self.index, elapsed_s=self.elapsed_s, **arrays)
 
     @classmethod
     def load(cls, path) -> "IncidentPart":

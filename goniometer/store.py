@@ -9,17 +9,16 @@ can open them.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import json
 import os
 from pathlib import Path
-from typing import Iterator
 
 import h5py
 import numpy as np
 
 import goniometer
+from goniometer.atomic import atomic_path  # noqa: F401  (public here too: store.atomic_path)
 from goniometer.simulate import ENERGY_TERMS, SimulationResult, SimulationSettings, SliceData
 from goniometer.slices import SliceGrid
 from goniometer.stack import Stack, StackError
@@ -47,24 +46,6 @@ def check_writable(path: str | Path) -> Path:
     if p.exists() and not os.access(p, os.W_OK):
         raise StoreError(f"{p}: existing file is not writable")
     return p
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
-
-    On any exception (KeyboardInterrupt included) the temporary file is removed and the
-    final path is left untouched.
-    """
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}")
-    try:
-        yield tmp
-        os.replace(tmp, p)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
 
 
 def write(path: str | Path, result: SimulationResult) -> Path:

@@ -67,7 +67,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -77,6 +76,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import optimize
 
+from goniometer import atomic
 from goniometer.stack import Stack
 from models import belcour, inverse
 from models.belcour import roughness_to_variance, variance_to_roughness
@@ -691,20 +691,7 @@ def validation_json(results: Sequence[CaseResult], simulate: bool, meta: dict | 
 
 # ============================================================================ report
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+_atomic_bytes = atomic.write_bytes
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:

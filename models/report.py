@@ -55,7 +55,7 @@ import h5py
 import numba
 import numpy as np
 
-from goniometer import store
+from goniometer import atomic, store
 from goniometer.database import (MANIFEST, RESULTS_FORMAT, Database, DatabaseError, load_database,
                                  material_path)
 from goniometer.simulate import SimulationResult, SliceData
@@ -172,10 +172,7 @@ class ReportSummary:
 
 # ---------------------------------------------------------------------- small helpers
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with store.atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+_atomic_bytes = atomic.write_bytes
 
 
 def _atomic_text(path: Path, text: str) -> None:

@@ -13,12 +13,12 @@ module only handles the files.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Callable, TypeVar
 
 import numpy as np
 
+from goniometer import atomic
 from goniometer._numba_cache import cache_root
 
 T = TypeVar("T")
@@ -40,22 +40,9 @@ def memo_key(cache_dir: str | os.PathLike | None = None) -> str:
     return str(cache_directory(cache_dir).resolve())
 
 
-def save_atomic(path: Path, **arrays) -> None:
-    """``np.savez(path, **arrays)`` through a temporary file and a rename (readers never see a
-    partial file); the file is world-readable (0644); the temporary file is removed on failure."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+#: ``np.savez(path, **arrays)`` through a temporary file and a rename (readers never see a partial
+#: file; the temporary file is removed on failure): :func:`goniometer.atomic.write_npz`
+save_atomic = atomic.write_npz
 
 
 def read_current(path: Path, version: int, signature: str, keys: tuple[str, ...],

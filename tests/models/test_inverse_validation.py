@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from scipy import integrate
 
+from goniometer import atomic
 from goniometer import cli, optics
 from goniometer.stack import Interface, Stack, load_toml
 from models import belcour, inverse as I, inverse_cli, inverse_validation as V
@@ -196,7 +197,7 @@ def test_simulated_case_reports_every_lobe(tmp_path):
     assert paths["markdown"].read_text().count("fig19b") >= 1
     assert (tmp_path / "rep" / "figure25.png").stat().st_size > 1000
     assert json.loads(paths["json"].read_text())["cases"][0]["lobes"][1]["R_simulated"]
-    assert not list((tmp_path / "rep").glob("*.tmp"))
+    assert not list((tmp_path / "rep").glob(atomic.TEMP_GLOB))
 
 
 # ----------------------------------------------------------------------------- CLI

@@ -21,6 +21,7 @@ import numba
 import numpy as np
 import pytest
 
+from goniometer import atomic
 from goniometer import optics
 from models import tables
 
@@ -111,7 +112,7 @@ def test_build_writes_versioned_atomic_files(built, tabs):
             assert int(z["version"]) == tables.TABLE_VERSION
             np.testing.assert_array_equal(z["mu"], tables.mu_nodes())
             np.testing.assert_array_equal(z["alpha"], tables.alpha_nodes())
-    assert not list(d.glob("*.tmp"))
+    assert not list(d.glob(atomic.TEMP_GLOB))
     assert tabs.fgd.shape == (tables.N_MU, tables.N_ALPHA, tables.N_ETA, tables.N_KAPPA)
     assert tabs.tir.shape == (tables.N_MU, tables.N_ALPHA, tables.N_ETA_UP)
     assert tabs.kernel.shape == (tables.N_MU, tables.N_ALPHA, tables.N_X)

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from goniometer import atomic
 from goniometer.cli import main
 from models import multilayer_tables as mt
 from models import tables, tables_cli
@@ -77,7 +78,7 @@ def test_build_check_and_rebuild(tmp_path, capsys, tiny_multilayer):
     # --rebuild rebuilds current tables too
     code, out = _run(capsys, "--cache-dir", str(tmp_path), "--rebuild")
     assert code == 0 and all(t["built"] for t in out["tables"])
-    assert not list(tmp_path.glob("*.tmp"))
+    assert not list(tmp_path.glob(atomic.TEMP_GLOB))
 
 
 def test_text_output_names_each_table(tmp_path, capsys):
