@@ -7,8 +7,11 @@ an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output n
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -23,6 +26,55 @@ class UsageError(Exception):
 
 
 # ---------------------------------------------------------------------- helpers
+
+class _Interrupts:
+    """Ctrl-C handling of the long commands (:func:`_sigint_latch`)."""
+
+    def __init__(self) -> None:
+        self.hit = False
+        self.deferring = False
+
+    def handler(self, signum, frame) -> None:
+        self.hit = True
+        if not self.deferring:
+            raise KeyboardInterrupt
+        print("gonio: interrupt received; stopping once the kernel is compiled", file=sys.stderr)
+
+    def check(self) -> None:
+        """Raise KeyboardInterrupt if Ctrl-C was pressed since entry."""
+        if self.hit:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def deferred(self):
+        """Within the block Ctrl-C is only recorded; it is raised when the block ends."""
+        self.deferring = True
+        try:
+            yield
+        finally:
+            self.deferring = False
+        self.check()
+
+
+@contextlib.contextmanager
+def _sigint_latch():
+    """Yield an :class:`_Interrupts`: SIGINT raises KeyboardInterrupt at once and is also latched.
+
+    Python drops a KeyboardInterrupt raised while a finalizer runs, and one raised inside numba's
+    compiler can leave it broken (a RuntimeError instead of a clean exit), so long commands compile
+    inside ``deferred()`` and call ``check()`` at every progress report. Outside the main thread
+    (no signal handlers there) nothing is installed and ``check()`` never raises.
+    """
+    state = _Interrupts()
+    if threading.current_thread() is not threading.main_thread():
+        yield state
+        return
+    previous = signal.signal(signal.SIGINT, state.handler)
+    try:
+        yield state
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
 
 def _incident_list(text: str) -> tuple[list[float], list[float] | None]:
     thetas: list[float] = []
@@ -66,7 +118,7 @@ def _progress_bar(total: int, desc: str):
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer import store
-    from goniometer.simulate import SettingsError, SimulationSettings, simulate
+    from goniometer.simulate import SettingsError, SimulationSettings, simulate, warm_up
     from goniometer.stack import StackError, load_toml
 
     try:
@@ -98,8 +150,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     print(f"simulating {stack.name} ({stack.category}): {len(settings.incident_deg)} incident direction(s) x "
           f"{settings.rays:,} rays, {settings.parametrization} {settings.resolution[0]}x{settings.resolution[1]}, "
           f"{settings.n_threads} thread(s)", file=sys.stderr)
-    with _progress_bar(total, stack.name) as bar:
-        result = simulate(stack, settings, progress=bar.update)
+    with _sigint_latch() as interrupts, _progress_bar(total, stack.name) as bar:
+        def progress(n: int) -> None:
+            interrupts.check()
+            bar.update(n)
+
+        with interrupts.deferred():
+            warm_up()
+        result = simulate(stack, settings, progress=progress)
+        interrupts.check()
     store.write(out, result)
     print(f"wrote {out}")
     _print_summary(result)
@@ -292,7 +351,7 @@ def cmd_database_list(args: argparse.Namespace) -> int:
 
 def cmd_database_simulate(args: argparse.Namespace) -> int:
     from goniometer.database import DatabaseError, load_database, simulate_database
-    from goniometer.simulate import SettingsError
+    from goniometer.simulate import SettingsError, warm_up
     try:
         db = load_database(args.config)
         materials = db.select(args.only)
@@ -307,15 +366,22 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
     bar = tqdm(total=rays * len(materials), unit="ray", unit_scale=True, file=sys.stderr, dynamic_ncols=True,
                disable=None, smoothing=0.05, desc=db.name)
 
-    def on_material(m, status):
-        bar.set_postfix_str(f"{m.name} ({status})")
-
     try:
-        with bar:
+        with _sigint_latch() as interrupts, bar:
+            def on_material(m, status):
+                interrupts.check()
+                bar.set_postfix_str(f"{m.name} ({status})")
+
+            def progress(n: int) -> None:
+                interrupts.check()
+                bar.update(n)
+
+            if args.scheduler is None:
+                with interrupts.deferred():
+                    warm_up()
             summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
                                         scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
-                                        progress=bar.update, on_material=on_material,
-                                        )
+                                        progress=progress, on_material=on_material)
             bar.update(bar.total - bar.n) if bar.total else None
     except (DatabaseError, SettingsError) as e:
         raise UsageError(str(e)) from None

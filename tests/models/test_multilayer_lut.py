@@ -233,18 +233,7 @@ def test_mean_direction_points_forward_and_values_are_bounded(tables):
 
 # ---------------------------------------------------------------------- cache
 
-@pytest.fixture
-def tiny_grid(monkeypatch):
-    """A tiny grid, so that cache tests build in milliseconds."""
-    for name, value in (("N_ALPHA", 3), ("N_MU_UP", 3), ("N_ETA_UP", 2), ("N_ETA_DOWN", 2),
-                        ("N_MU_LOWER", 2), ("N_MU_UPPER", 2), ("QUAD_Z", 2), ("QUAD_PHI", 2)):
-        monkeypatch.setattr(mt, name, value)
-    mt._load_cached.cache_clear()
-    yield
-    mt._load_cached.cache_clear()
-
-
-def test_cache_file_is_versioned_and_written_atomically(tmp_path, tiny_grid):
+def test_cache_file_is_versioned_and_written_atomically(tmp_path, tiny_multilayer_grid):
     path = mt.build_tables(tmp_path)
     assert path == tmp_path / mt.FILE_NAME and path.exists()
     assert [p.name for p in tmp_path.iterdir()] == [mt.FILE_NAME]  # no temporary left behind
@@ -253,7 +242,7 @@ def test_cache_file_is_versioned_and_written_atomically(tmp_path, tiny_grid):
     assert mt.read_if_current(path) is not None
 
 
-def test_stale_version_is_rebuilt_not_reused(tmp_path, tiny_grid, monkeypatch):
+def test_stale_version_is_rebuilt_not_reused(tmp_path, tiny_multilayer_grid, monkeypatch):
     path = mt.build_tables(tmp_path)
     monkeypatch.setattr(mt, "TABLE_VERSION", mt.TABLE_VERSION + 1)
     assert mt.read_if_current(path) is None
@@ -262,7 +251,7 @@ def test_stale_version_is_rebuilt_not_reused(tmp_path, tiny_grid, monkeypatch):
         assert int(z["version"]) == mt.TABLE_VERSION
 
 
-def test_other_grid_or_corrupt_file_is_rebuilt(tmp_path, tiny_grid, monkeypatch):
+def test_other_grid_or_corrupt_file_is_rebuilt(tmp_path, tiny_multilayer_grid, monkeypatch):
     path = mt.build_tables(tmp_path)
     monkeypatch.setattr(mt, "N_ALPHA", 4)
     assert mt.read_if_current(path) is None

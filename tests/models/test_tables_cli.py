@@ -13,18 +13,6 @@ from models import multilayer_tables as mt
 from models import tables, tables_cli
 
 
-@pytest.fixture
-def tiny_multilayer(monkeypatch):
-    """A tiny multilayer grid (builds in milliseconds; its check is then far outside the bound)."""
-    for name, value in (("N_ALPHA", 3), ("N_MU_UP", 3), ("N_ETA_UP", 2), ("N_ETA_DOWN", 2),
-                        ("N_MU_LOWER", 2), ("N_MU_UPPER", 2), ("QUAD_Z", 2), ("QUAD_PHI", 2)):
-        monkeypatch.setattr(mt, name, value)
-    mt._load_cached.cache_clear()
-    yield
-    mt._load_cached.cache_clear()
-    tables._load_cached.cache_clear()
-
-
 def _run(capsys, *argv) -> tuple[int, dict]:
     code = main(["tables", *argv, "--json"])
     return code, json.loads(capsys.readouterr().out)
@@ -41,7 +29,7 @@ def test_status_builds_nothing(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_build_check_and_rebuild(tmp_path, capsys, tiny_multilayer):
+def test_build_check_and_rebuild(tmp_path, capsys, tiny_multilayer_grid):
     code, out = _run(capsys, "--cache-dir", str(tmp_path), "--check", "6")
     by_name = {t["name"]: t for t in out["tables"]}
     assert set(by_name) == {"belcour-fgd-separable", "belcour-tir-separable", "multilayer-lut"}
