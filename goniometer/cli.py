@@ -63,10 +63,12 @@ def _sigint_latch():
     Python drops a KeyboardInterrupt raised while a finalizer runs, and one raised inside numba's
     compiler can leave it broken (a RuntimeError instead of a clean exit), so long commands compile
     inside ``deferred()`` and call ``check()`` at every progress report. Outside the main thread
-    (no signal handlers there) nothing is installed and ``check()`` never raises.
+    (no signal handlers there), or where SIGINT is ignored (a background job of a script), nothing
+    is installed and ``check()`` never raises.
     """
     state = _Interrupts()
-    if threading.current_thread() is not threading.main_thread():
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is signal.SIG_IGN):
         yield state
         return
     previous = signal.signal(signal.SIGINT, state.handler)

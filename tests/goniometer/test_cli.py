@@ -128,6 +128,20 @@ def test_info_on_a_bad_file(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("gonio: error: ")
 
 
+def _sigint_default() -> None:
+    """In the child: SIGINT at its default even when the suite runs as a background job (where
+    the shell makes it ignored, and an ignored SIGINT is rightly left ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture
+def sigint_default():
+    """SIGINT handled by Python's default handler during the test (restored after)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("when", ["tracing", "compiling"])
 def test_ctrl_c_leaves_no_partial_file(tmp_path, tmp_path_factory, when):
     """Ctrl-C while tracing, or early in a cold numba compilation (where Python would drop the
@@ -142,7 +156,7 @@ def test_ctrl_c_leaves_no_partial_file(tmp_path, tmp_path_factory, when):
         env.pop("NUMBA_CACHE_DIR", None)
     proc = subprocess.Popen([sys.executable, "-m", "goniometer.cli", "simulate", str(cfg), "--out", str(out),
                              "--rays", "200000000", "--threads", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=env)
+                            env=env, preexec_fn=_sigint_default)
     try:
         # the banner is printed before the kernel is compiled or loaded
         deadline = time.time() + 120
@@ -164,7 +178,7 @@ def test_ctrl_c_leaves_no_partial_file(tmp_path, tmp_path_factory, when):
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the drop itself
-def test_sigint_latch_keeps_an_interrupt_python_dropped():
+def test_sigint_latch_keeps_an_interrupt_python_dropped(sigint_default):
     """A KeyboardInterrupt raised while a finalizer runs is dropped by Python ("Exception ignored
     in ..."); the latch raises it again at the next check."""
     from goniometer.cli import _sigint_latch
@@ -180,11 +194,24 @@ def test_sigint_latch_keeps_an_interrupt_python_dropped():
         assert interrupts.hit
         with pytest.raises(KeyboardInterrupt):
             interrupts.check()
-    previous = signal.getsignal(signal.SIGINT)
-    assert previous is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
 
 
-def test_sigint_latch_defers_inside_compilation():
+def test_sigint_latch_leaves_an_ignored_sigint_ignored():
+    from goniometer.cli import _sigint_latch
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with _sigint_latch() as interrupts:
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGINT)
+            interrupts.check()
+            assert not interrupts.hit
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_sigint_latch_defers_inside_compilation(sigint_default):
     from goniometer.cli import _sigint_latch
 
     with _sigint_latch() as interrupts:
