@@ -107,6 +107,31 @@ def test_single_interface_gives_one_lobe_equal_to_fgd(iface):
         np.testing.assert_allclose(alpha, iface.roughness, rtol=1e-12)
 
 
+def test_height_correlated_option_reaches_lobes_and_top_brdf():
+    """height_correlated=True: a single interface's lobe energy is the height-correlated FGD slice,
+    and belcour-bati19's exact top lobe is the microfacet BRDF with height-correlated G2 (both differ
+    from the separable values at grazing incidence, so an ignored option would fail)."""
+    iface = Interface(0.5, (1.5,) * 3)
+    st = Stack("one", (iface,))
+    c = math.cos(math.radians(80.0))
+    energy, _ = belcour.lobe_statistics(st, c, height_correlated=True)[0]
+    hc = float(tables.fgd_slice(1.5, 0.0, height_correlated=True)(c, 0.5))
+    sep = float(tables.fgd_slice(1.5, 0.0)(c, 0.5))
+    np.testing.assert_allclose(energy, [hc] * 3, rtol=1e-14)
+    assert abs(hc - sep) > 5e-3
+
+    l = light(70.0)
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(50, 3))
+    v[:, 2] = np.abs(v[:, 2])
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    r = BelcourBati19(height_correlated=True).evaluate(st, l, v)
+    exact = optics.np_microfacet_reflection(l[0], l[1], l[2], v[:, 0], v[:, 1], v[:, 2], 0.5, 0.5, 1.5, 0.0, True)
+    np.testing.assert_allclose(r.top, np.repeat(exact[:, None], 3, axis=1), rtol=1e-12, atol=1e-300)
+    sep_top = optics.np_microfacet_reflection(l[0], l[1], l[2], v[:, 0], v[:, 1], v[:, 2], 0.5, 0.5, 1.5, 0.0, False)
+    assert np.max(np.abs(exact - sep_top) / exact) > 1e-2
+
+
 # -------------------------------------------------------------------------- smooth limit
 
 
