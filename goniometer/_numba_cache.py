@@ -9,6 +9,11 @@ change to any of them starts a fresh cache.
 Location: ``$NUMBA_CACHE_DIR/<key>`` if the user set ``NUMBA_CACHE_DIR``, else
 ``$GONIOMETER_CACHE/numba/<key>`` (default ``~/.cache/goniometer/numba/<key>``).
 Called once from ``goniometer/__init__.py``, before any function is compiled.
+
+Old caches: every source change starts a new directory, so under the default location (not under
+a user's ``NUMBA_CACHE_DIR``) :func:`configure` marks the directory it uses (``.last-used``) and
+removes sibling directories beyond the :data:`KEEP` most recently used that have not been used for
+:data:`STALE_S` seconds.
 """
 
 from __future__ import annotations
@@ -46,10 +51,52 @@ def source_key() -> str:
     return h.hexdigest()[:16]
 
 
+#: cache directories (source versions) always kept
+KEEP = 8
+#: a directory beyond the KEEP most recent is removed once unused for this long (seconds)
+STALE_S = 86400.0
+
+
+def _last_used(d: Path) -> float:
+    try:
+        return (d / ".last-used").stat().st_mtime
+    except OSError:
+        try:
+            return d.stat().st_mtime
+        except OSError:
+            return 0.0
+
+
+def prune(base: Path, current: Path, keep: int = KEEP, stale_s: float = STALE_S) -> list[Path]:
+    """Mark ``current`` as used now and remove the sibling cache directories under ``base`` that are
+    neither among the ``keep`` most recently used nor used within ``stale_s`` seconds. Only
+    directories named like a source key (16 hex digits) are considered; errors are ignored (another
+    process may be pruning too). Returns the directories removed."""
+    import shutil
+    import time
+    try:
+        current.mkdir(parents=True, exist_ok=True)
+        (current / ".last-used").touch()
+        siblings = [d for d in base.iterdir() if d.is_dir() and d != current and len(d.name) == 16
+                    and all(ch in "0123456789abcdef" for ch in d.name)]
+    except OSError:
+        return []
+    siblings.sort(key=_last_used, reverse=True)
+    now = time.time()
+    removed = []
+    for d in siblings[max(keep - 1, 0):]:
+        if now - _last_used(d) > stale_s:
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+    return removed
+
+
 def configure() -> str:
     """Point ``numba.config.CACHE_DIR`` at the source-keyed directory; returns it."""
     user = os.environ.get("NUMBA_CACHE_DIR")
     base = Path(user) if user else cache_root() / "numba"
     path = str(base / source_key())
+    if not user:
+        prune(base, Path(path))
     numba.config.CACHE_DIR = path
     return path
