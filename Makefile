@@ -54,6 +54,7 @@ validate-inverse: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py
 	$(PY) benchmarks/bench_inverse.py
+	$(PY) benchmarks/bench_accuracy.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
