@@ -328,6 +328,27 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from models.base import ModelError
+    from models.report import ReportError, plot_file
+
+    incidents = None
+    if args.incident is not None:
+        thetas, _ = _incident_list(args.incident)
+        incidents = thetas
+    try:
+        r = plot_file(args.file, args.out, args.model, incidents, subcells=args.subcells, isotropize=args.isotropize)
+    except (ReportError, ModelError) as e:
+        raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    if args.json:
+        print(json.dumps(r, indent=2))
+        return 0
+    print(f"wrote {len(r['figures'])} figures into {args.out}:")
+    for p in r["figures"]:
+        print(f"  {p}")
+    return 0
+
+
 # ---------------------------------------------------------------------- database
 
 def cmd_database_list(args: argparse.Namespace) -> int:
@@ -502,6 +523,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--isotropize", choices=("mean",),
                    help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the output)")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
+                                    "optionally with models")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG figures")
+    p.add_argument("--model", action="append", metavar="NAME",
+                   help="draw this model too (repeatable; 'all': every model that supports the stack)")
+    p.add_argument("--incident", metavar="THETAS", help="only these incident angles of the file, e.g. 0,60")
+    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell side when integrating models")
+    p.add_argument("--isotropize", choices=("mean",), help="feed isotropic models the mean roughness")
+    p.add_argument("--json", action="store_true", help="print the figure paths (and the model errors) as JSON")
+    p.set_defaults(func=cmd_plot)
 
     from models.inverse_cli import add_parsers as add_inverse_parsers
     add_inverse_parsers(sub)

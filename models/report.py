@@ -762,7 +762,7 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
     entries = []
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
         plane = f"plane_m{inc.m}.png"
-        _save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name), fig_dir / plane)
+        _save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays), fig_dir / plane)
         tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir)
         orders = f"orders_m{inc.m}.png"
         _write_png(fig_dir / orders, _orders_image(inc, sd.grid))
@@ -773,7 +773,55 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
     return {"incidents": entries, "energy": f"{rel}/energy.png", "orders_k": int(sd.orders.shape[1])}
 
 
-def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, title: str):
+def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | None = None,
+              incidents: Sequence[float] | None = None, subcells: int = 5,
+              isotropize: str | None = None) -> dict:
+    """The per-material figures of the report for one simulated file, written into ``out_dir``.
+
+    ``models``: names to draw beside the reference (``["all"]``: every model that supports the
+    stack; None or empty: the reference alone), integrated onto the file's cells exactly as
+    ``gonio evaluate`` does (``subcells``, ``isotropize``). ``incidents``: polar angles (degrees)
+    of the file's incident directions to draw (None: all). Returns ``{"figures": [paths],
+    "evaluation": the gonio evaluate --json object or None}``. Raises ReportError for a bad file or
+    an incident angle the file does not hold, ModelError for an unknown or unsupported model.
+    """
+    ref = _read_reference(Path(path))
+    if incidents is not None:
+        have = [float(t) for t in ref.theta_deg]
+        missing = [w for w in incidents if not any(abs(t - float(w)) < 1e-6 for t in have)]
+        if missing:
+            raise ReportError(f"{path}: no incident direction at theta = {', '.join(f'{w:g}' for w in missing)} deg "
+                              f"(the file has {', '.join(f'{t:g}' for t in have)})")
+    side = comparison_side(ref.stack)
+    if (ref.brdf if side == "brdf" else ref.btdf) is None:
+        raise ReportError(f"{path}: the file has no {side.upper()} slices, which a {ref.stack.base}-base stack "
+                          f"is judged on")
+    slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    doc = None
+    if models:
+        names = None if list(models) == ["all"] else list(models)
+        ev = evaluate(ref, names, s=subcells, isotropize=isotropize)
+        slices = {n: (ms.top, ms.internal) for n, ms in ev.slices.items()}
+        doc = ev.to_json()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents)
+    paths = [out / "energy.png"]
+    for e in figs["incidents"]:
+        paths += [out / e["plane"], out / e["orders"]] + [out / t for t in e["top"].values()]
+    return {"figures": [str(p.resolve()) for p in paths], "evaluation": doc}
+
+
+#: upper bound drawn for a cell no path reached: 3 / (N Omega) is the 95 % upper limit of its value
+#: (no hit among N rays of weight <= 1: the expected count N f Omega is below 3 at 95 %)
+ZERO_HIT_BOUND = 3.0
+
+
+def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, title: str, rays: int):
+    """The plane-of-incidence figure. The grey band is the reference +- 2 standard errors; where no
+    path reached a cell (value 0, standard error 0: tiny cells near the pole of half slices at low
+    ray counts) it spans [0, 3 / (N Omega)] instead, the 95 % upper limit, so an empty cell does not
+    look like a confident zero."""
     from matplotlib.figure import Figure
     x, rows, cols = plane_cells(grid, inc.light, inc.phi, inc.mask)
     # (title, reference cells, their standard error, the model part drawn from (top, internal))
@@ -791,10 +839,13 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
     def along(cells: np.ndarray) -> np.ndarray:
         return 0.5 * (cells[rows, cols[:, 0]] + cells[rows, cols[:, 1]])
 
+    bound = along(ZERO_HIT_BOUND / (max(rays, 1) * np.where(inc.omega > 0, inc.omega, np.inf)))
     for ax, (label, ref_cells, se_cells, pick) in zip(axes, parts):
         lum = along(luminance(ref_cells))
         se = along(luminance(se_cells))
-        ax.fill_between(x, remap(lum - 2 * se), remap(lum + 2 * se), color="0.8", lw=0, label="reference ±2σ")
+        upper = np.where(lum > 0, lum + 2 * se, bound)
+        ax.fill_between(x, remap(lum - 2 * se), remap(upper), color="0.8", lw=0,
+                        label="reference ±2σ\n(no hit: 95% bound)")
         ax.plot(x, remap(lum), "k--", lw=1.3, label="reference")
         for name, (top, internal) in inc.models.items():
             st = styles.get(name, {"colour": "k"})

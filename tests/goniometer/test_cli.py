@@ -325,3 +325,31 @@ def test_incident_azimuth_out_of_range_and_fit_without_brdf(simulated, tmp_path,
     assert main(["fit", str(nobrdf), "--model", "ggx1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("gonio: error: ") and "brdf" in err.lower() and "\n" not in err
+
+
+# ----------------------------------------------------------------------------- plot
+
+def test_plot_writes_the_figures_of_one_file(simulated, tmp_path, capsys):
+    out = tmp_path / "fig"
+    assert main(["plot", str(simulated / "slab.h5"), "--out", str(out), "--model", "all", "--incident", "60",
+                 "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    names = sorted(Path(p).name for p in r["figures"])
+    assert names == ["energy.png", "orders_m1.png", "plane_m1.png", "top_m1_belcour-btdf.png", "top_m1_reference.png"]
+    for p in r["figures"]:
+        assert Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert r["evaluation"]["side"] == "btdf" and "belcour-btdf" in r["evaluation"]["models"]
+    # without models: the reference alone, every incident direction
+    assert main(["plot", str(simulated / "plastic.h5"), "--out", str(out / "p")]) == 0
+    text = capsys.readouterr().out
+    assert "wrote 7 figures" in text  # energy + (plane, orders, top) x 2 incident directions
+
+
+def test_plot_bad_input(simulated, tmp_path, capsys):
+    slab = str(simulated / "slab.h5")
+    assert main(["plot", slab, "--out", str(tmp_path / "a"), "--incident", "33"]) == 2
+    assert "no incident direction at theta = 33" in capsys.readouterr().err
+    assert main(["plot", slab, "--out", str(tmp_path / "b"), "--model", "ww09"]) == 2
+    assert "ww09" in capsys.readouterr().err
+    assert main(["plot", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
