@@ -120,7 +120,8 @@ def _progress_bar(total: int, desc: str):
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer import store
-    from goniometer.simulate import SettingsError, SimulationSettings, simulate, warm_up
+    from goniometer.checkpoint import Checkpoints, checkpoint_dir, run_description, simulate_resumable
+    from goniometer.simulate import SettingsError, SimulationSettings, warm_up
     from goniometer.stack import StackError, load_toml
 
     try:
@@ -158,10 +159,27 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             bar.update(n)
 
         with interrupts.deferred():
-            warm_up()
-        result = simulate(stack, settings, progress=progress)
-        interrupts.check()
+            compile_s = warm_up()
+        checkpoints = Checkpoints(checkpoint_dir(out), run_description(stack, settings))
+        if args.restart:
+            checkpoints.clear()
+
+        def on_resume(n: int) -> None:
+            bar.write(f"resuming: {n} of {len(settings.incident_deg)} incident direction(s) already traced "
+                      f"(checkpoints in {checkpoints.directory}; --restart to discard them)", file=sys.stderr)
+
+        try:
+            result = simulate_resumable(stack, settings, checkpoints, progress=progress, on_resume=on_resume)
+            interrupts.check()
+        except KeyboardInterrupt:
+            kept = len(list(checkpoints.directory.glob("m*.npz"))) if checkpoints.directory.is_dir() else 0
+            if kept:
+                print(f"gonio: {kept} finished incident direction(s) kept in {checkpoints.directory}; "
+                      f"rerun the same command to resume", file=sys.stderr)
+            raise
+    result.compile_s = compile_s
     store.write(out, result)
+    checkpoints.clear()
     print(f"wrote {out}")
     _print_summary(result)
     return 0
@@ -462,6 +480,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int)
     p.add_argument("--masking", choices=("separable", "height-correlated"))
     p.add_argument("--max-order", dest="max_order", type=int, help="bounce orders stored separately (K)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("info", help="describe a simulated file")

@@ -26,7 +26,6 @@ import hashlib
 import itertools
 import json
 import os
-import shutil
 import time
 import tomllib
 from collections import deque
@@ -35,8 +34,9 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from goniometer import atomic, store
+from goniometer.checkpoint import Checkpoints, run_description, simulate_resumable
 from goniometer.simulate import (IncidentPart, SettingsError, SimulationSettings, Sums, assemble, n_tasks,
-                                 task_rays, trace_incident, trace_tasks, warm_up)
+                                 task_rays, trace_tasks, warm_up)
 from goniometer.stack import Stack, StackError, stack_from_dict
 
 MANIFEST = "database.json"
@@ -340,41 +340,25 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
 def _simulate_material(db: Database, out: Path, material: Material, quality: str, threads: int | None,
                        progress: Callable[[int], None] | None, client: Any) -> Path:
     settings = db.settings_for(material, quality, threads)
-    pdir = _partial_dir(out, material)
-    pdir.mkdir(parents=True, exist_ok=True)
     meta = {"fingerprint": db.fingerprint(), "quality": quality, "material": material.name,
-            "settings": [settings.rays, settings.seed, settings.chunk_rays, settings.chunks_per_task]}
-    meta_path = pdir / "meta.json"
-    if not meta_path.exists() or json.loads(meta_path.read_text()) != meta:
-        for old in pdir.glob("m*.npz"):
-            old.unlink()
-        meta_path.write_text(json.dumps(meta))
-    parts: dict[int, IncidentPart] = {}
-    for k in range(len(settings.incident_deg)):
-        ck = pdir / f"m{k:02d}.npz"
-        if ck.exists():
-            try:
-                parts[k] = IncidentPart.load(ck)
-                if progress is not None:
-                    progress(settings.rays)
-                continue
-            except (OSError, ValueError, KeyError):
-                ck.unlink()
-    remaining = [k for k in range(len(settings.incident_deg)) if k not in parts]
+            "run": run_description(material.stack, settings)}
+    checkpoints = Checkpoints(_partial_dir(out, material), meta)
     if client is None:
-        for k in remaining:
-            part = trace_incident(material.stack, settings, k, progress)
-            part.save(pdir / f"m{k:02d}.npz")
-            parts[k] = part
+        result = simulate_resumable(material.stack, settings, checkpoints, progress)
     else:
+        parts = checkpoints.load(len(settings.incident_deg))
+        if progress is not None:
+            for _ in parts:
+                progress(settings.rays)
+        remaining = [k for k in range(len(settings.incident_deg)) if k not in parts]
         for k, part in _dask_incidents(client, material.stack, settings, remaining, progress):
-            part.save(pdir / f"m{k:02d}.npz")
+            checkpoints.save(k, part)
             parts[k] = part
-    result = assemble(material.stack, settings, [parts[k] for k in sorted(parts)])
+        result = assemble(material.stack, settings, [parts[k] for k in sorted(parts)])
     path = material_path(out, material)
     path.parent.mkdir(parents=True, exist_ok=True)
     store.write(path, result)
-    shutil.rmtree(pdir, ignore_errors=True)
+    checkpoints.clear()
     return path
 
 
