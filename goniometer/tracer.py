@@ -204,9 +204,9 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 u1 = next_float(state)
                 u2 = next_float(state)
                 r = math.sqrt(u1)
-                ph = 2.0 * math.pi * u2
-                dx = r * math.cos(ph)
-                dy = r * math.sin(ph)
+                cos_ph, sin_ph = optics.cos_sin_2pi(u2)
+                dx = r * cos_ph
+                dy = r * sin_ph
                 dz = math.sqrt(1.0 - u1)  # u1 < 1, so dz > 0
             # ---- interface event
             if at_interface:
