@@ -27,6 +27,10 @@ import math
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from goniometer import optics
 from goniometer.rng import next_float, stream_state
@@ -55,6 +59,56 @@ RR_THRESHOLD = 0.05
 EVENT_CAP = 10_000
 
 
+@intrinsic
+def _prefetch(typingctx, arr, i, j, k, c):
+    """Hint the CPU to fetch the cache line of ``arr[i, j, k, c]`` for writing (``llvm.prefetch``,
+    no effect on results; no bounds check)."""
+    sig = types.void(arr, i, j, k, c)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [context.cast(builder, a, t, types.intp) for a, t in zip(args[1:], signature.args[1:])]
+        ptr = cgutils.get_item_pointer2(context, builder, ary.data, cgutils.unpack_tuple(builder, ary.shape),
+                                        cgutils.unpack_tuple(builder, ary.strides), aryty.layout, idx)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        # rw = 1 (write), locality = 3 (keep in all cache levels), data cache
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@numba.njit(cache=True, inline='always')
+def _prefetch_exit(h, i, j, o, max_order):
+    """Prefetch the rows of histogram cell ``(i, j)`` that :func:`_deposit` will update."""
+    _prefetch(h, i, j, o, 0)
+    _prefetch(h, i, j, o, 2)
+    _prefetch(h, i, j, max_order, 0)
+    _prefetch(h, i, j, max_order + 1, 2)
+
+
+@numba.njit(cache=True, inline='always')
+def _deposit(h, i, j, o, max_order, w0, w1, w2):
+    """Add one exit of bounce-order row ``o`` with weight ``w`` to histogram cell ``(i, j)``."""
+    h[i, j, o, 0] += w0
+    h[i, j, o, 1] += w1
+    h[i, j, o, 2] += w2
+    q0 = w0 * w0
+    q1 = w1 * w1
+    q2 = w2 * w2
+    h[i, j, max_order, 0] += q0
+    h[i, j, max_order, 1] += q1
+    h[i, j, max_order, 2] += q2
+    if o > 0:
+        h[i, j, max_order + 1, 0] += q0
+        h[i, j, max_order + 1, 1] += q1
+        h[i, j, max_order + 1, 2] += q2
+
+
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
@@ -67,6 +121,10 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
     those of internal exits (order >= 2), for the standard errors. ``energy``: (N_ENERGY, 3) weight
     sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals; ``counts``:
     (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced).
+
+    A histogram exit is deposited when the next exit happens (or at the end of the chunk), its
+    cell being prefetched meanwhile: each cell still receives its additions in path order, so the
+    sums are the same, bit for bit, as with immediate deposits.
     """
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
@@ -88,6 +146,14 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
     cond_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
     cond_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
     n_events_total = 0
+    # the exit not yet deposited: none (0), in brdf (1) or in btdf (2); cell, order row, weight
+    pend = 0
+    pi = 0
+    pj = 0
+    po = 0
+    pw0 = 0.0
+    pw1 = 0.0
+    pw2 = 0.0
 
     for _ in range(n_rays):
         dx = -lx
@@ -137,19 +203,18 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
                                            row_cos, col_cos, col_sin)
                     o = min(order, max_order) - 1
-                    brdf[i, j, o, 0] += w0
-                    brdf[i, j, o, 1] += w1
-                    brdf[i, j, o, 2] += w2
-                    q0 = w0 * w0
-                    q1 = w1 * w1
-                    q2 = w2 * w2
-                    brdf[i, j, max_order, 0] += q0
-                    brdf[i, j, max_order, 1] += q1
-                    brdf[i, j, max_order, 2] += q2
-                    if o > 0:
-                        brdf[i, j, max_order + 1, 0] += q0
-                        brdf[i, j, max_order + 1, 1] += q1
-                        brdf[i, j, max_order + 1, 2] += q2
+                    _prefetch_exit(brdf, i, j, o, max_order)
+                    if pend == 1:
+                        _deposit(brdf, pi, pj, po, max_order, pw0, pw1, pw2)
+                    elif pend == 2:
+                        _deposit(btdf, pi, pj, po, max_order, pw0, pw1, pw2)
+                    pend = 1
+                    pi = i
+                    pj = j
+                    po = o
+                    pw0 = w0
+                    pw1 = w1
+                    pw2 = w2
                     energy[E_REFLECTED, 0] += w0
                     energy[E_REFLECTED, 1] += w1
                     energy[E_REFLECTED, 2] += w2
@@ -167,19 +232,18 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 i, j = cell_index_fast(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
                                        row_cos, col_cos, col_sin)
                 o = min(order, max_order) - 1
-                btdf[i, j, o, 0] += w0
-                btdf[i, j, o, 1] += w1
-                btdf[i, j, o, 2] += w2
-                q0 = w0 * w0
-                q1 = w1 * w1
-                q2 = w2 * w2
-                btdf[i, j, max_order, 0] += q0
-                btdf[i, j, max_order, 1] += q1
-                btdf[i, j, max_order, 2] += q2
-                if o > 0:
-                    btdf[i, j, max_order + 1, 0] += q0
-                    btdf[i, j, max_order + 1, 1] += q1
-                    btdf[i, j, max_order + 1, 2] += q2
+                _prefetch_exit(btdf, i, j, o, max_order)
+                if pend == 1:
+                    _deposit(brdf, pi, pj, po, max_order, pw0, pw1, pw2)
+                elif pend == 2:
+                    _deposit(btdf, pi, pj, po, max_order, pw0, pw1, pw2)
+                pend = 2
+                pi = i
+                pj = j
+                po = o
+                pw0 = w0
+                pw1 = w1
+                pw2 = w2
                 energy[E_TRANSMITTED, 0] += w0
                 energy[E_TRANSMITTED, 1] += w1
                 energy[E_TRANSMITTED, 2] += w2
@@ -320,6 +384,10 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
         energy_sq[E_MASKING, 0] += mk0 * mk0
         energy_sq[E_MASKING, 1] += mk1 * mk1
         energy_sq[E_MASKING, 2] += mk2 * mk2
+    if pend == 1:
+        _deposit(brdf, pi, pj, po, max_order, pw0, pw1, pw2)
+    elif pend == 2:
+        _deposit(btdf, pi, pj, po, max_order, pw0, pw1, pw2)
     counts[C_EVENTS] += n_events_total
 
 
