@@ -192,7 +192,7 @@ def smith_g2(lambda_i: float, lambda_o: float, transmission: bool, height_correl
     return 1.0 / ((1.0 + lambda_i) * (1.0 + lambda_o))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float, u2: float):
     """Sample a microfacet normal from the GGX visible-normal distribution.
 

@@ -127,7 +127,7 @@ def boundary_tables(param: str, n_theta: int, n_phi: int) -> tuple[np.ndarray, n
     return row_cos, col_cos, col_sin
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, _nrt=False)
 def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: float,
                     vx: float, vy: float, vz: float, n_theta: int, n_phi: int,
                     row_cos: np.ndarray, col_cos: np.ndarray, col_sin: np.ndarray):

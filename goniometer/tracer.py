@@ -82,7 +82,7 @@ def _prefetch(typingctx, arr, i, j, k, c):
     return sig, codegen
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, _nrt=False)
 def _prefetch_exit(h, i, j, o, max_order):
     """Prefetch the rows of histogram cell ``(i, j)`` that :func:`_deposit` will update."""
     _prefetch(h, i, j, o, 0)
@@ -91,7 +91,7 @@ def _prefetch_exit(h, i, j, o, max_order):
     _prefetch(h, i, j, max_order + 1, 2)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, _nrt=False)
 def _deposit(h, i, j, o, max_order, w0, w1, w2):
     """Add one exit of bounce-order row ``o`` with weight ``w`` to histogram cell ``(i, j)``."""
     h[i, j, o, 0] += w0
