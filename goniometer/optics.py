@@ -75,10 +75,17 @@ def fresnel_dielectric_cos_t(cos_i: float, eta: float):
     Returns ``(F, cos_t)``: total internal reflection gives ``(1, 0)``; ``eta == 1`` gives
     ``(0, cos_i)``; otherwise grazing incidence (``cos_i = 0``) gives ``(1, cos_t)``.
     """
+    return fresnel_dielectric_cos_t_inv(cos_i, eta, 1.0 / eta)
+
+
+@numba.njit(cache=True)
+def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
+    """:func:`fresnel_dielectric_cos_t` for callers that already hold ``inv_eta = 1 / eta``
+    (the tracer precomputes both per interface, which keeps divisions off its critical path)."""
     c = min(abs(cos_i), 1.0)
     if eta == 1.0:
         return 0.0, c
-    sin2_t = (1.0 - c * c) / (eta * eta)
+    sin2_t = (1.0 - c * c) * (inv_eta * inv_eta)
     if sin2_t >= 1.0:
         return 1.0, 0.0
     cos_t = math.sqrt(1.0 - sin2_t)

@@ -138,9 +138,11 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
     # per interface: relative indices going down / up, tangent-frame rotation needed
     n_k = max(n_if, 1)
     eta_dn = np.ones(n_k)
+    eta_up = np.ones(n_k)
     aniso = np.zeros(n_k, dtype=np.bool_)
     for k in range(n_if):
         eta_dn[k] = region_eta[k + 1] / region_eta[k]
+        eta_up[k] = 1.0 / eta_dn[k]
         aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
     # conductor channels that share their complex index share their Fresnel value
     cond_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
@@ -314,8 +316,9 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                         w2 *= f2
                         ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                     else:
-                        inv_eta = 1.0 / eta_dn[k] if from_above else eta_dn[k]
-                        f, cos_t = optics.fresnel_dielectric_cos_t(wm, 1.0 / inv_eta)
+                        eta = eta_dn[k] if from_above else eta_up[k]
+                        inv_eta = eta_up[k] if from_above else eta_dn[k]
+                        f, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
                         if next_float(state) < f:
                             ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                         else:
