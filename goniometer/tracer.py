@@ -73,8 +73,9 @@ def _prefetch(typingctx, arr, i, j, k, c):
                                         cgutils.unpack_tuple(builder, ary.strides), aryty.layout, idx)
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
+        # the name suffix follows llvmlite's pointer mangling (typed or opaque pointers)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = builder.module.declare_intrinsic("llvm.prefetch", [i8p], fnty)
         # rw = 1 (write), locality = 3 (keep in all cache levels), data cache
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
