@@ -22,7 +22,8 @@ from typing import Any, Callable
 
 from goniometer import atomic
 from goniometer._numba_cache import source_key
-from goniometer.simulate import IncidentPart, SimulationResult, SimulationSettings, assemble, trace_incident
+from goniometer.simulate import (IncidentPart, SimulationResult, SimulationSettings, assemble, incident_buffers,
+                                 trace_incident)
 from goniometer.stack import Stack
 
 META = "meta.json"
@@ -115,10 +116,11 @@ def simulate_resumable(stack: Stack, settings: SimulationSettings, checkpoints: 
     if progress is not None:
         for _ in parts:
             progress(settings.rays)
+    buffers = incident_buffers(stack, settings) if len(parts) < M else None
     for k in range(M):
         if k in parts:
             continue
-        part = trace_incident(stack, settings, k, progress)
+        part = trace_incident(stack, settings, k, progress, buffers)
         checkpoints.save(k, part)
         parts[k] = part
     return assemble(stack, settings, [parts[k] for k in range(M)])

@@ -204,7 +204,8 @@ def simulate(stack: Stack, settings: SimulationSettings,
     """
     settings.validate()
     compile_s = warm_up()
-    parts = [trace_incident(stack, settings, m, progress) for m in range(len(settings.incident_deg))]
+    buffers = incident_buffers(stack, settings)
+    parts = [trace_incident(stack, settings, m, progress, buffers) for m in range(len(settings.incident_deg))]
     return assemble(stack, settings, parts, compile_s=compile_s)
 
 
@@ -304,13 +305,29 @@ def task_rays(settings: SimulationSettings, task: int) -> int:
     return max(0, min(per, settings.rays - task * per))
 
 
+def _tasks_per_call(settings: SimulationSettings) -> int:
+    """Tasks traced by one parallel kernel call of :func:`trace_incident` (enough chunks for
+    two per thread)."""
+    return min(max(1, -(-2 * settings.n_threads // settings.chunks_per_task)), n_tasks(settings))
+
+
+def incident_buffers(stack: Stack, settings: SimulationSettings) -> tuple[np.ndarray, ...]:
+    """The per-chunk buffers :func:`trace_incident` needs, to reuse over a run's incident
+    directions (one run at a time: they are scratch space)."""
+    return chunk_buffers(stack, settings, _tasks_per_call(settings) * settings.chunks_per_task)
+
+
 def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
-                   progress: Callable[[int], None] | None = None) -> "IncidentPart":
-    """Trace every task of incident direction ``m`` locally and sum them in task order."""
+                   progress: Callable[[int], None] | None = None,
+                   buffers: tuple[np.ndarray, ...] | None = None) -> "IncidentPart":
+    """Trace every task of incident direction ``m`` locally and sum them in task order.
+    ``buffers`` (from :func:`incident_buffers`) saves allocating and faulting in the per-chunk
+    histograms for every direction."""
     T = n_tasks(settings)
-    per_call = max(1, -(-2 * settings.n_threads // settings.chunks_per_task))
+    per_call = _tasks_per_call(settings)
     acc = Sums.zeros(stack, settings)
-    buffers = chunk_buffers(stack, settings, min(per_call, T) * settings.chunks_per_task)
+    if buffers is None:
+        buffers = incident_buffers(stack, settings)
     t0 = time.perf_counter()
     for first in range(0, T, per_call):
         count = min(per_call, T - first)

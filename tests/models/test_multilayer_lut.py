@@ -185,10 +185,14 @@ def test_smooth_limit_is_exact(tables):
     for eta in (0.5, 0.8, 1.0, 1.2, 1.5, 2.7):
         t, c = tables.at(mu, 0.0, eta)
         theta = np.arccos(mu)
-        np.testing.assert_allclose(t, 1.0 - fresnel_dielectric_tb(theta, eta), rtol=0, atol=1e-12)
         s = np.sin(theta) / eta
         snell = np.where(s < 1.0, np.sqrt(np.maximum(0.0, 1.0 - s * s)), 0.0)
-        np.testing.assert_allclose(c, snell, rtol=0, atol=1e-12)
+        # at the critical angle T and C go like sqrt(1 - s^2): a rounding of a few ulp in s^2 moves
+        # them by ~sqrt(1e-16) -- those grid points (mu = 0.6 for eta = 0.8) get that tolerance
+        critical = np.abs(s - 1.0) < 1e-12
+        tol = np.where(critical, 1e-6, 1e-12)
+        assert np.all(np.abs(t - (1.0 - fresnel_dielectric_tb(theta, eta))) <= tol), eta
+        assert np.all(np.abs(c - snell) <= tol), eta
 
 
 def test_small_roughness_tends_to_the_smooth_limit(tables):
