@@ -110,6 +110,15 @@ def _deposit(h, i, j, o, max_order, w0, w1, w2):
         h[i, j, max_order + 1, 2] += q2
 
 
+@numba.njit(cache=True, _nrt=False)
+def _deposit_pending(brdf, btdf, pend, i, j, o, max_order, w0, w1, w2):
+    """Deposit the exit held back for prefetching: none (``pend`` 0), BRDF (1) or BTDF (2)."""
+    if pend == 1:
+        _deposit(brdf, i, j, o, max_order, w0, w1, w2)
+    elif pend == 2:
+        _deposit(btdf, i, j, o, max_order, w0, w1, w2)
+
+
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
@@ -207,10 +216,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                                            row_cos, col_cos, col_sin)
                     o = min(order, max_order) - 1
                     _prefetch_exit(brdf, i, j, o, max_order)
-                    if pend == 1:
-                        _deposit(brdf, pi, pj, po, max_order, pw0, pw1, pw2)
-                    elif pend == 2:
-                        _deposit(btdf, pi, pj, po, max_order, pw0, pw1, pw2)
+                    _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
                     pend = 1
                     pi = i
                     pj = j
@@ -236,10 +242,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                                        row_cos, col_cos, col_sin)
                 o = min(order, max_order) - 1
                 _prefetch_exit(btdf, i, j, o, max_order)
-                if pend == 1:
-                    _deposit(brdf, pi, pj, po, max_order, pw0, pw1, pw2)
-                elif pend == 2:
-                    _deposit(btdf, pi, pj, po, max_order, pw0, pw1, pw2)
+                _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
                 pend = 2
                 pi = i
                 pj = j
@@ -388,10 +391,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
         energy_sq[E_MASKING, 0] += mk0 * mk0
         energy_sq[E_MASKING, 1] += mk1 * mk1
         energy_sq[E_MASKING, 2] += mk2 * mk2
-    if pend == 1:
-        _deposit(brdf, pi, pj, po, max_order, pw0, pw1, pw2)
-    elif pend == 2:
-        _deposit(btdf, pi, pj, po, max_order, pw0, pw1, pw2)
+    _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
     counts[C_EVENTS] += n_events_total
 
 
