@@ -217,13 +217,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                     o = min(order, max_order) - 1
                     _prefetch_exit(brdf, i, j, o, max_order)
                     _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
-                    pend = 1
-                    pi = i
-                    pj = j
-                    po = o
-                    pw0 = w0
-                    pw1 = w1
-                    pw2 = w2
+                    pend, pi, pj, po, pw0, pw1, pw2 = 1, i, j, o, w0, w1, w2
                     energy[E_REFLECTED, 0] += w0
                     energy[E_REFLECTED, 1] += w1
                     energy[E_REFLECTED, 2] += w2
@@ -243,13 +237,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 o = min(order, max_order) - 1
                 _prefetch_exit(btdf, i, j, o, max_order)
                 _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
-                pend = 2
-                pi = i
-                pj = j
-                po = o
-                pw0 = w0
-                pw1 = w1
-                pw2 = w2
+                pend, pi, pj, po, pw0, pw1, pw2 = 2, i, j, o, w0, w1, w2
                 energy[E_TRANSMITTED, 0] += w0
                 energy[E_TRANSMITTED, 1] += w1
                 energy[E_TRANSMITTED, 2] += w2
