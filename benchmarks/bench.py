@@ -26,7 +26,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from goniometer.simulate import SimulationSettings, simulate, warm_up
+from goniometer.simulate import SimulationSettings, cell_geometry, simulate, warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 
 HERE = Path(__file__).resolve().parent
@@ -81,6 +81,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
             for m in range(len(INCIDENT)):
                 trace_incident(stack, s, m)
             tcpu, twall = time.process_time() - c0, time.perf_counter() - w0
+            cell_geometry.cache_clear()  # a single run computes its solid angles and masks
             c0, w0 = time.process_time(), time.perf_counter()
             r = simulate(stack, s)
             cpu, wall = time.process_time() - c0, time.perf_counter() - w0

@@ -31,7 +31,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from goniometer.simulate import SimulationSettings, simulate, warm_up
+from goniometer.simulate import SimulationSettings, cell_geometry, simulate, warm_up
 from models.errors import noise_floor, reference_parts
 
 from bench import INCIDENT, MATERIALS, cpu_model
@@ -58,6 +58,7 @@ def run(rays: list[int]) -> list[dict]:
         points = []
         for n in rays:
             s = SimulationSettings(incident_deg=INCIDENT, rays=n, parametrization="half", seed=1)
+            cell_geometry.cache_clear()
             c0 = time.process_time()
             r = simulate(stack, s)
             cpu = time.process_time() - c0

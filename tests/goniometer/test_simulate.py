@@ -106,3 +106,16 @@ def test_russian_roulette_is_unbiased_in_expectation(plastic):
     t_lim = stats.t.isf(P_FALSE_ALARM / 2, len(vals) - 1)  # Student t: the stderr is estimated
     assert np.all(np.abs(mean) < t_lim * se + 1e-12), (mean, se)
     assert np.any(vals != 0)  # roulette did happen
+
+
+def test_cell_geometry_is_the_grid_geometry_read_only():
+    from goniometer.simulate import cell_geometry
+    from goniometer.slices import SliceGrid, light_direction
+    for param in ("classic", "half"):
+        om, mk = cell_geometry(param, 18, 36, 40.0, 30.0)
+        grid = SliceGrid(param, 18, 36)
+        light = light_direction(40.0, 30.0)
+        np.testing.assert_array_equal(om, grid.proj_solid_angle(light))
+        np.testing.assert_array_equal(mk, grid.mask(light))
+        assert not om.flags.writeable and not mk.flags.writeable
+        assert cell_geometry(param, 18, 36, 40.0, 30.0)[0] is om  # memoised
