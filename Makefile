@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench database report validate-inverse clean
+.PHONY: setup test test-slow demo bench database report validate-inverse tables clean
 
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
@@ -55,6 +55,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench.py
 	$(PY) benchmarks/bench_inverse.py
 	$(PY) benchmarks/bench_accuracy.py
+
+tables: $(STAMP)
+	$(GONIO) tables --masking all --check 200
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -26,8 +26,10 @@ MASKINGS = ("separable", "height-correlated")
 
 #: stated bound of the Belcour 4D FGD table where Fresnel has no critical angle (mu >= 0.05)
 FGD_BOUND = 3e-3
-#: stated bound of the TIR table for alpha >= 0.1
-TIR_BOUND = 3e-3
+#: TIR lookups are compared with the table's own quadrature at the point, which errs by up to
+#: ``tables.TIR_ERROR`` as the table does (the indicator quadrature is not smooth between nodes):
+#: their difference is bounded by twice the stated error
+TIR_BOUND = 2 * tables.TIR_ERROR
 
 
 @dataclass

