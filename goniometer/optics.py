@@ -278,6 +278,16 @@ def refract_known(wx: float, wy: float, wz: float, mx: float, my: float, mz: flo
 
 # --------------------------------------------------------------------------- microfacet BSDFs (Walter 2007)
 
+@numba.njit(cache=True, inline="always")
+def half_vector(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float) -> tuple:
+    """The reflection half vector ``normalize(l + v)`` (``l``, ``v`` unit, not opposite)."""
+    hx = lx + vx
+    hy = ly + vy
+    hz = lz + vz
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    return hx * inv, hy * inv, hz * inv
+
+
 @numba.njit(cache=True)
 def microfacet_reflection(
     lx: float, ly: float, lz: float, vx: float, vy: float, vz: float,
@@ -290,13 +300,7 @@ def microfacet_reflection(
     """
     if lz <= 0.0 or vz <= 0.0:
         return 0.0
-    hx = lx + vx
-    hy = ly + vy
-    hz = lz + vz
-    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    hx *= inv
-    hy *= inv
-    hz *= inv
+    hx, hy, hz = half_vector(lx, ly, lz, vx, vy, vz)
     lh = lx * hx + ly * hy + lz * hz
     if kappa > 0.0:
         f = fresnel_conductor(lh, eta, kappa)

@@ -822,13 +822,7 @@ def _lobe(lz, vx, vy, vz, hx, hy, hz, a1, a2, ex, ey, lam_l, height_correlated) 
 @numba.njit(cache=True)
 def _sum_lobes(lx, ly, lz, vx, vy, vz, E, P, k0, height_correlated, out_top, out_int, n) -> None:
     """Set ``out_top[n]`` to lobe 0 and ``out_int[n]`` to the sum of the others, lobes ``k >= k0`` only."""
-    hx = lx + vx
-    hy = ly + vy
-    hz = lz + vz
-    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    hx *= inv
-    hy *= inv
-    hz *= inv
+    hx, hy, hz = optics.half_vector(lx, ly, lz, vx, vy, vz)
     for ch in range(3):
         out_top[n, ch] = 0.0
         out_int[n, ch] = 0.0

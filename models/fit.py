@@ -127,7 +127,7 @@ import numba
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
-from goniometer.optics import ggx_d, ggx_lambda, smith_g2
+from goniometer.optics import ggx_d, ggx_lambda, half_vector, smith_g2
 from goniometer.simulate import SimulationResult, SliceData
 from goniometer.slices import light_direction
 from goniometer.stack import Stack
@@ -352,9 +352,8 @@ def _ggx_lobe(l: np.ndarray, v: np.ndarray, schlick: np.ndarray, w: np.ndarray, 
             vx, vy, vz = v[k, 0], v[k, 1], v[k, 2]
             if w[k] == 0.0 or not (lz > 0.0 and vz > 0.0):
                 continue
-            hx, hy, hz = lx + vx, ly + vy, lz + vz
-            inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-            d = ggx_d(hx * inv, hy * inv, hz * inv, alpha, alpha)
+            hx, hy, hz = half_vector(lx, ly, lz, vx, vy, vz)
+            d = ggx_d(hx, hy, hz, alpha, alpha)
             g = smith_g2(ggx_lambda(lx, ly, lz, alpha, alpha), ggx_lambda(vx, vy, vz, alpha, alpha), False, True)
             q = w[k] * d * g / (4.0 * lz * vz)
             sa += q * (1.0 - schlick[k])

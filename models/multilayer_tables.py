@@ -141,6 +141,7 @@ import numpy as np
 
 from goniometer import optics
 from models import table_cache
+from models.tables import axis_cell
 
 #: bump whenever the definition, numerics or layout of the tables changes
 TABLE_VERSION = 1
@@ -306,14 +307,6 @@ def _fill(mus: np.ndarray, alphas: np.ndarray, etas: np.ndarray, u2: np.ndarray,
 
 # --------------------------------------------------------------------------- lookups (njit)
 
-@numba.njit(cache=True, inline="always")
-def _axis(t: float, n: int):
-    """Cell index and fraction of a coordinate t in [0, 1] over n uniform nodes (clamped)."""
-    s = min(max(t, 0.0), 1.0) * (n - 1)
-    k = min(int(s), n - 2)
-    return k, s - k
-
-
 @numba.njit(cache=True)
 def down_coordinate(mu: float, mu_c: float, split: float) -> float:
     """Mapped mu coordinate in the ``down`` table for a column whose critical cosine is ``mu_c``."""
@@ -337,11 +330,11 @@ def prepare(up: np.ndarray, down: np.ndarray, alpha: float, eta: float) -> tuple
     ta = math.sqrt(alpha)
     if eta >= 1.0:
         te = math.sqrt(min(eta - 1.0, ETA_MAX - 1.0) / (ETA_MAX - 1.0))
-        k, fk = _axis(te, up.shape[2])
+        k, fk = axis_cell(te, up.shape[2])
     else:
         te = 1.0 - (min(1.0 - eta, 1.0 - ETA_MIN) / (1.0 - ETA_MIN)) ** (2.0 / 3.0)
-        k, fk = _axis(te, down.shape[2])
-    j, fj = _axis(ta, up.shape[1])
+        k, fk = axis_cell(te, down.shape[2])
+    j, fj = axis_cell(ta, up.shape[1])
     w0 = (1.0 - fj) if j == 0 else 0.0
     return j, fj, k, fk, w0
 
@@ -359,7 +352,7 @@ def lookup_prepared(up: np.ndarray, down: np.ndarray, split: float, j: int, fj: 
     else:
         tab = down
         tm = down_coordinate(mu, math.sqrt(max(0.0, 1.0 - eta * eta)), split)
-    i, fi = _axis(tm, tab.shape[0])
+    i, fi = axis_cell(tm, tab.shape[0])
     t = 0.0
     dc = 0.0
     for di in range(2):

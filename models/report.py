@@ -418,6 +418,15 @@ def _read_json(path: Path) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
+def _judged_side(reference: SimulationResult, where: str) -> str:
+    """The side ``reference`` is judged on ("brdf" or "btdf"); ReportError if the file lacks it."""
+    side = comparison_side(reference.stack)
+    if (reference.brdf if side == "brdf" else reference.btdf) is None:
+        raise ReportError(f"{where}: the file has no {side.upper()} slices, which a {reference.stack.base}-base "
+                          f"stack is judged on")
+    return side
+
+
 def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int,
                    isotropize: str | None = None) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time so
@@ -425,10 +434,7 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
     object (with ``failed``: model -> message for models that raised) and model -> (top, internal).
     """
     stack = reference.stack
-    side = comparison_side(stack)
-    if (reference.brdf if side == "brdf" else reference.btdf) is None:
-        raise ReportError(f"{stack.name}: the file has no {side.upper()} slices, which a {stack.base}-base stack "
-                          f"is judged on")
+    side = _judged_side(reference, stack.name)
     names = list(registry.all_models()) if models is None else list(models)
     doc = {"material": stack.name, "category": stack.category, "side": side, "models": {}, "skipped": {},
            "failed": {}}
@@ -792,10 +798,7 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
         if missing:
             raise ReportError(f"{path}: no incident direction at theta = {', '.join(f'{w:g}' for w in missing)} deg "
                               f"(the file has {', '.join(f'{t:g}' for t in have)})")
-    side = comparison_side(ref.stack)
-    if (ref.brdf if side == "brdf" else ref.btdf) is None:
-        raise ReportError(f"{path}: the file has no {side.upper()} slices, which a {ref.stack.base}-base stack "
-                          f"is judged on")
+    _judged_side(ref, str(path))
     slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     doc = None
     if models:

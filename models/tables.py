@@ -350,7 +350,7 @@ def fresnel_on(x: np.ndarray, eta: float, kappa: float) -> np.ndarray:
 # --------------------------------------------------------------------------- lookups (njit)
 
 @numba.njit(cache=True, inline="always")
-def _axis(t: float, n: int):
+def axis_cell(t: float, n: int):
     """Cell index and fraction of a coordinate t in [0, 1] over n uniform nodes (clamped)."""
     s = min(max(t, 0.0), 1.0) * (n - 1)
     k = min(int(s), n - 2)
@@ -360,8 +360,8 @@ def _axis(t: float, n: int):
 @numba.njit(cache=True, inline="always")
 def _bilinear(tab: np.ndarray, tm: float, ta: float) -> float:
     """Bilinear interpolation of ``tab[mu, alpha]`` at mapped coordinates tm, ta in [0, 1]."""
-    i, fi = _axis(tm, tab.shape[0])
-    j, fj = _axis(ta, tab.shape[1])
+    i, fi = axis_cell(tm, tab.shape[0])
+    j, fj = axis_cell(ta, tab.shape[1])
     v0 = tab[i, j] * (1.0 - fj) + tab[i, j + 1] * fj
     v1 = tab[i + 1, j] * (1.0 - fj) + tab[i + 1, j + 1] * fj
     return v0 * (1.0 - fi) + v1 * fi
@@ -395,8 +395,8 @@ def slice_lookup(mu_split: float, lower: np.ndarray, upper: np.ndarray, mu: floa
 @numba.njit(cache=True, inline="always")
 def _bilinear_at(tab: np.ndarray, e: int, ch: int, tm: float, ta: float) -> float:
     """:func:`_bilinear` on ``tab[e, ch]`` of a 4D stack of 2D tables (no view is created)."""
-    i, fi = _axis(tm, tab.shape[2])
-    j, fj = _axis(ta, tab.shape[3])
+    i, fi = axis_cell(tm, tab.shape[2])
+    j, fj = axis_cell(ta, tab.shape[3])
     v0 = tab[e, ch, i, j] * (1.0 - fj) + tab[e, ch, i, j + 1] * fj
     v1 = tab[e, ch, i + 1, j] * (1.0 - fj) + tab[e, ch, i + 1, j + 1] * fj
     return v0 * (1.0 - fi) + v1 * fi
@@ -418,10 +418,10 @@ def stacked_slice_lookup(split: np.ndarray, lower: np.ndarray, upper: np.ndarray
 def fgd_lookup(fgd: np.ndarray, mu: float, alpha: float, eta: float, kappa: float,
                eta_max: float, kappa_max: float) -> float:
     """Quadrilinear lookup in the 4D table ``fgd[mu, alpha, eta, kappa]`` (clamped ranges)."""
-    i, fi = _axis(math.sqrt(min(max(mu, 0.0), 1.0)), fgd.shape[0])
-    j, fj = _axis(math.sqrt(min(max(alpha, 0.0), 1.0)), fgd.shape[1])
-    k, fk = _axis(eta / eta_max, fgd.shape[2])
-    m, fm = _axis(kappa / kappa_max, fgd.shape[3])
+    i, fi = axis_cell(math.sqrt(min(max(mu, 0.0), 1.0)), fgd.shape[0])
+    j, fj = axis_cell(math.sqrt(min(max(alpha, 0.0), 1.0)), fgd.shape[1])
+    k, fk = axis_cell(eta / eta_max, fgd.shape[2])
+    m, fm = axis_cell(kappa / kappa_max, fgd.shape[3])
     acc = 0.0
     for di in range(2):
         wi = fi if di else 1.0 - fi
@@ -440,9 +440,9 @@ def tir_lookup(tir: np.ndarray, mu: float, alpha: float, eta_up: float) -> float
     """Trilinear lookup in ``tir[mu, alpha, eta_up]``; 1 for ``eta_up >= 1``."""
     if eta_up >= 1.0:
         return 1.0
-    i, fi = _axis(math.sqrt(min(max(mu, 0.0), 1.0)), tir.shape[0])
-    j, fj = _axis(math.sqrt(min(max(alpha, 0.0), 1.0)), tir.shape[1])
-    k, fk = _axis(eta_up, tir.shape[2])
+    i, fi = axis_cell(math.sqrt(min(max(mu, 0.0), 1.0)), tir.shape[0])
+    j, fj = axis_cell(math.sqrt(min(max(alpha, 0.0), 1.0)), tir.shape[1])
+    k, fk = axis_cell(eta_up, tir.shape[2])
     acc = 0.0
     for di in range(2):
         wi = fi if di else 1.0 - fi

@@ -86,9 +86,8 @@ def _belcour_set(cache_dir: Path, masking: str) -> _TableSet:
     paths = tables.table_paths(cache_dir, hc)
 
     def current() -> bool:
-        sig = tables._grid_signature(hc)
-        return (table_cache.read_current(paths["fgd"], tables.TABLE_VERSION, sig, ("fgd",)) is not None
-                and table_cache.read_current(paths["tir"], tables.TABLE_VERSION, sig, ("tir",)) is not None)
+        return (tables._read_if_current(paths["fgd"], hc, ("fgd",)) is not None
+                and tables._read_if_current(paths["tir"], hc, ("tir",)) is not None)
 
     def check(n: int, rng: np.random.Generator) -> list[tuple[int, Check]]:
         t = tables.load_tables(cache_dir, hc)

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from goniometer.optics import fresnel_dielectric, ggx_lambda, microfacet_reflection, refract
+from goniometer.optics import fresnel_dielectric, ggx_lambda, half_vector, microfacet_reflection, refract
 from goniometer.stack import Stack
 from models.base import CoatedBase, Model, ModelError, ModelValue, coated_base
 
@@ -126,11 +126,7 @@ def _ww_kernel(l: np.ndarray, v: np.ndarray, transmit_normal: int, refract_norma
         # top lobe: the coat's own GGX reflection (a Dirac for a perfectly smooth coat)
         if alpha0 > 0.0:
             top[k] = microfacet_reflection(lx, ly, lz, vx, vy, vz, alpha0, alpha0, eta0, 0.0, False)
-        hx, hy, hz = lx + vx, ly + vy, lz + vz
-        inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-        hx *= inv
-        hy *= inv
-        hz *= inv
+        hx, hy, hz = half_vector(lx, ly, lz, vx, vy, vz)
         # Fresnel transmittances in and out
         if transmit_normal == NORMAL_H0:
             # the light leaves through the facet it entered by: v0.h0 = l0.h0, so T10 = T01
