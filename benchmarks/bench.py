@@ -26,7 +26,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from goniometer.simulate import SimulationSettings, cell_geometry, simulate, warm_up
+from goniometer.results import cell_geometry
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
+from goniometer.tasks import warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 
 HERE = Path(__file__).resolve().parent
@@ -55,7 +58,7 @@ def cpu_model() -> str:
 
 def compile_times() -> dict[str, float]:
     """Seconds to compile the kernel into an empty cache, and to load it from that cache."""
-    code = "import time; t=time.perf_counter(); from goniometer.simulate import warm_up; warm_up(); print(time.perf_counter()-t)"
+    code = "import time; t=time.perf_counter(); from goniometer.tasks import warm_up; warm_up(); print(time.perf_counter()-t)"
     with tempfile.TemporaryDirectory() as d:
         env = dict(os.environ, NUMBA_CACHE_DIR=d)
         cold = float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -69,7 +72,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     """Per material and thread count: the tracing alone (all tasks of the 7 incident directions,
     histogram merging included) and the whole ``simulate`` call (plus cell solid angles, masks
     and the conversion to cell values)."""
-    from goniometer.simulate import trace_incident
+    from goniometer.tasks import trace_incident
     warm_up()
     rows = []
     for name, stack in MATERIALS.items():

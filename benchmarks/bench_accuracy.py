@@ -31,7 +31,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from goniometer.simulate import SimulationSettings, cell_geometry, simulate, warm_up
+from goniometer.results import cell_geometry
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
+from goniometer.tasks import warm_up
 from models.errors import noise_floor, reference_parts
 
 from bench import INCIDENT, MATERIALS, cpu_model

@@ -1,15 +1,16 @@
 """Checkpoints of a simulation: its finished incident directions, kept until its file is written.
 
-A run (one stack, one :class:`~goniometer.simulate.SimulationSettings`) traces its incident
-directions one after the other. Each finished direction's raw sums (an
-:class:`~goniometer.simulate.IncidentPart`) are saved atomically as ``m<k>.npz`` in a checkpoint
+A run (one stack, one :class:`~goniometer.settings.SimulationSettings`) traces its incident
+directions one after the other (:func:`goniometer.simulate.run_incidents`). Each finished
+direction's raw sums (an :class:`~goniometer.results.IncidentPart`) are saved atomically as ``m<k>.npz`` in a checkpoint
 directory, beside ``meta.json`` describing the run; a rerun of the same run loads them instead of
 tracing again, and the directory is removed once the result is written. Because results are
 bit-identical whatever the thread count and however a run is split, a resumed run gives exactly
 the file an uninterrupted one would.
 
-``meta.json`` holds the caller's description of the run plus :func:`code_key` (a hash of the
-project's numba sources): checkpoints of another run, or written by other physics code, are
+``meta.json`` holds the caller's description of the run
+(:func:`goniometer.results.run_description`) plus :func:`code_key` (a hash of the simulator's
+numba sources): checkpoints of another run, or written by other physics code, are
 discarded, never mixed in. Unreadable checkpoint files are discarded too.
 """
 
@@ -18,28 +19,17 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from goniometer import atomic
-from goniometer._numba_cache import source_key
-from goniometer.simulate import (IncidentPart, SimulationResult, SimulationSettings, assemble, incident_buffers,
-                                 trace_incident)
-from goniometer.stack import Stack
+from goniometer import atomic, cache
+from goniometer.results import IncidentPart
 
 META = "meta.json"
 
 
 def code_key() -> str:
-    """Identifies the physics code that wrote a checkpoint (hash of the numba-bearing sources)."""
-    return source_key()
-
-
-def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
-    """What makes two runs the same: the stack and every setting but ``threads``."""
-    s = {k: getattr(settings, k) for k in ("incident_deg", "incident_phi_deg", "rays", "parametrization",
-                                           "resolution", "seed", "masking", "max_order", "chunk_rays",
-                                           "chunks_per_task", "event_cap")}
-    return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
+    """Identifies the physics code that wrote a checkpoint: :func:`goniometer.cache.simulator_key`."""
+    return cache.simulator_key()
 
 
 class Checkpoints:
@@ -96,31 +86,3 @@ def checkpoint_dir(out: str | Path) -> Path:
     """Where ``gonio simulate --out OUT`` keeps its checkpoints: ``.OUT.partial`` beside ``OUT``."""
     p = Path(out)
     return p.with_name(f".{p.name}.partial")
-
-
-def simulate_resumable(stack: Stack, settings: SimulationSettings, checkpoints: Checkpoints,
-                       progress: Callable[[int], None] | None = None,
-                       on_resume: Callable[[int], None] | None = None) -> SimulationResult:
-    """:func:`goniometer.simulate.simulate` that saves every finished incident direction in
-    ``checkpoints`` and starts from those a previous, interrupted run of the same run left.
-
-    ``on_resume(n)`` is called with the number of directions loaded (if any); ``progress`` also
-    counts their rays. The caller removes the checkpoints (:meth:`Checkpoints.clear`) once the
-    result is safely written. ``compile_s`` of the result is 0 (the caller compiles).
-    """
-    settings.validate()
-    M = len(settings.incident_deg)
-    parts = checkpoints.load(M)
-    if parts and on_resume is not None:
-        on_resume(len(parts))
-    if progress is not None:
-        for _ in parts:
-            progress(settings.rays)
-    buffers = incident_buffers(stack, settings) if len(parts) < M else None
-    for k in range(M):
-        if k in parts:
-            continue
-        part = trace_incident(stack, settings, k, progress, buffers)
-        checkpoints.save(k, part)
-        parts[k] = part
-    return assemble(stack, settings, [parts[k] for k in range(M)])

@@ -28,15 +28,15 @@ import json
 import os
 import time
 import tomllib
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from goniometer import atomic, store
-from goniometer.checkpoint import Checkpoints, run_description, simulate_resumable
-from goniometer.simulate import (IncidentPart, SettingsError, SimulationSettings, Sums, assemble, n_tasks,
-                                 task_rays, trace_tasks, warm_up)
+from goniometer.checkpoint import Checkpoints
+from goniometer.results import run_description, same_run
+from goniometer.settings import SettingsError, SimulationSettings
+from goniometer.simulate import run_incidents
 from goniometer.stack import Stack, StackError, stack_from_dict
 
 MANIFEST = "database.json"
@@ -255,18 +255,12 @@ def material_status(db: Database, out_dir: Path, material: Material, quality: st
         except store.StoreError:
             return "corrupt"
         expected = db.settings_for(material, quality)
-        if stack.to_json() != material.stack.to_json() or not _same_run(settings, expected):
+        if stack.to_json() != material.stack.to_json() or not same_run(settings, expected):
             return "corrupt"
         return "done"
     if any(_partial_dir(out_dir, material).glob("m*.npz")):
         return "partial"
     return "missing"
-
-
-def _same_run(a: SimulationSettings, b: SimulationSettings) -> bool:
-    keys = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
-            "max_order", "chunk_rays", "chunks_per_task", "event_cap")
-    return all(getattr(a, k) == getattr(b, k) for k in keys)
 
 
 @dataclass
@@ -290,6 +284,8 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     status)`` when a material starts (status as :func:`material_status`). ``scheduler`` (a Dask
     address such as ``tcp://host:8786``) or ``client`` (a ``distributed.Client``) runs the
     (material, incident, task) tasks on a Dask cluster; results are bit-identical to a local run.
+    The kernel is compiled on first use unless the caller has compiled it
+    (:func:`goniometer.tasks.warm_up`).
     """
     out = Path(out_dir)
     materials = db.select(only)
@@ -321,10 +317,12 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
         todo.append(m)
     own_client = None
     if scheduler is not None and client is None:
-        client = own_client = _dask_client(scheduler)
+        from goniometer.distributed import ClusterError, dask_client
+        try:
+            client = own_client = dask_client(scheduler)
+        except ClusterError as e:
+            raise DatabaseError(str(e)) from None
     try:
-        if client is None:
-            warm_up()
         for m in todo:
             if on_material is not None:
                 on_material(m, statuses[m.name])
@@ -343,84 +341,12 @@ def _simulate_material(db: Database, out: Path, material: Material, quality: str
     meta = {"fingerprint": db.fingerprint(), "quality": quality, "material": material.name,
             "run": run_description(material.stack, settings)}
     checkpoints = Checkpoints(_partial_dir(out, material), meta)
-    if client is None:
-        result = simulate_resumable(material.stack, settings, checkpoints, progress)
-    else:
-        parts = checkpoints.load(len(settings.incident_deg))
-        if progress is not None:
-            for _ in parts:
-                progress(settings.rays)
-        remaining = [k for k in range(len(settings.incident_deg)) if k not in parts]
-        for k, part in _dask_incidents(client, material.stack, settings, remaining, progress):
-            checkpoints.save(k, part)
-            parts[k] = part
-        result = assemble(material.stack, settings, [parts[k] for k in sorted(parts)])
+    result = run_incidents(material.stack, settings, checkpoints=checkpoints, client=client, progress=progress)
     path = material_path(out, material)
     path.parent.mkdir(parents=True, exist_ok=True)
     store.write(path, result)
     checkpoints.clear()
     return path
-
-
-# ---------------------------------------------------------------------- Dask
-
-def _dask_client(address: str):
-    try:
-        from distributed import Client
-    except ImportError:
-        raise DatabaseError("--scheduler needs the Dask distributed package: pip install 'goniometer[distributed]'") from None
-    try:
-        return Client(address, timeout="30s")
-    except (OSError, TimeoutError) as e:
-        raise DatabaseError(f"cannot reach the Dask scheduler at {address}: {e}") from None
-
-
-def run_task(stack_json: str, settings: SimulationSettings, m: int, task: int) -> Sums:
-    """One (material, incident, task) unit of work, as run on a Dask worker (no numba threads)."""
-    return trace_tasks(Stack.from_json(stack_json), settings, m, task, 1, parallel=False)[0]
-
-
-def _dask_incidents(client, stack: Stack, settings: SimulationSettings, incidents: list[int],
-                    progress: Callable[[int], None] | None, window: int | None = None
-                    ) -> Iterator[tuple[int, IncidentPart]]:
-    """Run the tasks of ``incidents`` on the cluster, keeping at most ``window`` in flight, and
-    sum each incident's task results in task order (as :func:`trace_incident` does)."""
-    if window is None:
-        workers = max(1, sum(client.nthreads().values()))
-        window = 4 * workers
-    stack_json = stack.to_json()
-    specs = [(k, t) for k in incidents for t in range(n_tasks(settings))]
-    inflight: deque = deque()
-    it = iter(specs)
-    acc: dict[int, Sums] = {}
-    started: dict[int, float] = {}
-    last_task = {k: n_tasks(settings) - 1 for k in incidents}
-
-    def submit_next() -> bool:
-        spec = next(it, None)
-        if spec is None:
-            return False
-        k, t = spec
-        started.setdefault(k, time.perf_counter())
-        inflight.append((k, t, client.submit(run_task, stack_json, settings, k, t, pure=False)))
-        return True
-
-    for _ in range(window):
-        if not submit_next():
-            break
-    while inflight:
-        k, t, fut = inflight.popleft()
-        sums = fut.result()
-        fut.release()
-        if k not in acc:
-            acc[k] = Sums.zeros(stack, settings)
-        acc[k].add(sums)  # tasks arrive here in (incident, task) order
-        if progress is not None:
-            progress(task_rays(settings, t))
-        submit_next()
-        if t == last_task[k]:
-            yield k, IncidentPart.from_sums(k, acc.pop(k), settings.max_order, stack.transmits,
-                                            time.perf_counter() - started[k])
 
 
 def list_rows(db: Database, out_dir: str | Path | None = None, quality: str = "quick") -> list[dict]:

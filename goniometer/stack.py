@@ -258,6 +258,11 @@ def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:
     return stack, dict(sim)
 
 
+def load_stack(path: str | Path) -> Stack:
+    """The stack of a material file (:func:`load_toml` without its ``[simulation]`` table)."""
+    return load_toml(path)[0]
+
+
 def stack_from_dict(data: dict[str, Any], source: str = "stack") -> Stack:
     """Build and validate a :class:`Stack` from the TOML/JSON structure."""
     if not isinstance(data, dict):

@@ -19,7 +19,8 @@ import numpy as np
 
 import goniometer
 from goniometer.atomic import atomic_path  # noqa: F401  (public here too: store.atomic_path)
-from goniometer.simulate import ENERGY_TERMS, SimulationResult, SimulationSettings, SliceData
+from goniometer.results import ENERGY_TERMS, SimulationResult, SliceData
+from goniometer.settings import SimulationSettings
 from goniometer.slices import SliceGrid
 from goniometer.stack import Stack, StackError
 

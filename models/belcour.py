@@ -101,6 +101,7 @@ import numpy as np
 
 from goniometer import optics
 from goniometer.stack import Interface, Lambertian, Medium, Stack
+from models._jit import njit
 from models import tables
 from models.base import Model, ModelValue
 
@@ -133,7 +134,7 @@ _P_A1, _P_A2, _P_EX, _P_EY, _P_LAM = range(5)
 
 # --------------------------------------------------------------------------- variance mapping
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def roughness_to_variance(alpha: float) -> float:
     """``f(a) = a^1.1 / (1 - a^1.1)`` with ``a`` clamped to [0, 0.9999] (§2)."""
     a = min(max(alpha, 0.0), ALPHA_MAX)
@@ -141,7 +142,7 @@ def roughness_to_variance(alpha: float) -> float:
     return p / (1.0 - p)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def variance_to_roughness(var: float) -> float:
     """``f^-1(s) = (s / (1 + s))^(1/1.1)``; ``s <= 0`` (or NaN) gives 0, ``s = inf`` gives 1."""
     if not var > 0.0:
@@ -151,7 +152,7 @@ def variance_to_roughness(var: float) -> float:
     return (1.0 / (1.0 + 1.0 / var)) ** (1.0 / 1.1)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _transmission_roughness(a: float, n: float, c: float, c2: float, angular: bool) -> tuple:
     """Roughnesses ``(s_down a, s_up a)`` of the transmission lobes down and up through an interface
     of mean relative index ``n`` (§3): normal-incidence scales ``s_down = |n - 1| / (2 n)``,
@@ -164,14 +165,14 @@ def _transmission_roughness(a: float, n: float, c: float, c2: float, angular: bo
 
 # --------------------------------------------------------------------------- 2 x 2 covariances
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def interface_covariance(sx: float, sy: float, c: float, s: float) -> tuple:
     """``[t_x t_y] diag(sx, sy) [t_x t_y]^T`` with ``t_x = (c, s)``, ``t_y = (-s, c)`` (Y19 section 3.1):
     ``(xx, xy, yy)``."""
     return sx * c * c + sy * s * s, (sx - sy) * c * s, sx * s * s + sy * c * c
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def principal(xx: float, xy: float, yy: float) -> tuple:
     """Eigen-decomposition of a symmetric 2 x 2 matrix: ``(l1, l2, ex, ey)`` with ``l1 >= l2`` and
     ``(ex, ey)`` the unit eigenvector of ``l1`` (``(1, 0)`` when the matrix is a multiple of I)."""
@@ -188,7 +189,7 @@ def principal(xx: float, xy: float, yy: float) -> tuple:
     return m + r, m - r, ex * inv, ey * inv
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def blended_alpha(a1: float, a2: float, ex: float, ey: float, c: float, dx: float, dy: float) -> float:
     """FGD lookup roughness of an anisotropic GGX ``(a1 along (ex, ey), a2 across)`` seen at mean
     cosine ``c`` from azimuth ``d = (dx, dy)``:
@@ -201,7 +202,7 @@ def blended_alpha(a1: float, a2: float, ex: float, ey: float, c: float, dx: floa
     return math.sqrt(c2 * 0.5 * (a1 * a1 + a2 * a2) + (1.0 - c2) * ad2)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def lookup_alpha(xx: float, xy: float, yy: float, c: float, dx: float, dy: float) -> float:
     """FGD/TIR lookup roughness of the covariance ``(xx, xy, yy)``: ``f^-1(xx)`` if isotropic, else
     :func:`blended_alpha` of its principal roughnesses ``f^-1(eigenvalue)``."""
@@ -211,7 +212,7 @@ def lookup_alpha(xx: float, xy: float, yy: float, c: float, dx: float, dy: float
     return blended_alpha(variance_to_roughness(l1), variance_to_roughness(l2), ex, ey, c, dx, dy)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lobe_covariance(ax: float, ay: float, c: float, s: float, iso: bool) -> tuple:
     """``(xx, xy, yy)`` of a GGX lobe of roughnesses ``(ax, ay)`` along the tangent axes ``t_x = (c, s)``,
     ``t_y = (-s, c)``: ``(f(ax), 0, f(ax))`` if ``iso`` (so that ``xx`` is the scalar variance), else
@@ -222,7 +223,7 @@ def _lobe_covariance(ax: float, ay: float, c: float, s: float, iso: bool) -> tup
     return interface_covariance(roughness_to_variance(ax), roughness_to_variance(ay), c, s)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _pick(q: int, x0: float, x1: float, x2: float) -> float:
     """Entry ``q`` of ``(x0, x1, x2)`` (a constant ``q`` folds away)."""
     if q == 0:
@@ -232,7 +233,7 @@ def _pick(q: int, x0: float, x1: float, x2: float) -> float:
     return x2
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def unit_azimuth(x: float, y: float) -> tuple:
     """Unit azimuth of (x, y); ``(1, 0)`` at the pole."""
     r = math.sqrt(x * x + y * y)
@@ -478,12 +479,12 @@ def pack_stack(stack: Stack, options: BelcourOptions = BelcourOptions(), anisotr
 
 # --------------------------------------------------------------------------- adding-doubling kernel
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _mean_row(a, row) -> float:
     return (a[row, 0] + a[row, 1] + a[row, 2]) / 3.0
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _same_as_previous_channel(a, i, ch, nq) -> bool:
     """``a[i, ch, :nq] == a[i, ch - 1, :nq]`` (``ch > 0``)."""
     for q in range(nq):
@@ -492,7 +493,7 @@ def _same_as_previous_channel(a, i, ch, nq) -> bool:
     return True
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lookup_roughness(nq, cs, ch, r0, r1, r2, a, ay, rc, rs, iso, c, dx, dy) -> float:
     """FGD/TIR lookup roughness of an interface (§4): ``a~ = f^-1(vT0i + f(alpha))`` -- for
     covariances :func:`lookup_alpha` of ``Sigma_T0i + Sigma_r`` -- and the interface's own roughness
@@ -508,7 +509,7 @@ def _lookup_roughness(nq, cs, ch, r0, r1, r2, a, ay, rc, rs, iso, c, dx, dy) -> 
     return blended_alpha(a, ay, rc, rs, c, dx, dy)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _workspace(n_lobes: int, nq: int) -> tuple:
     """The output and scratch arrays of :func:`adding_doubling` for ``n_lobes`` lobes and ``nq``
     entries per (co)variance: ``(E, C, st, cs, wk, wc)``."""
@@ -516,13 +517,13 @@ def _workspace(n_lobes: int, nq: int) -> tuple:
             np.zeros((8, 3)), np.zeros((3, nq)))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _n_cov(stack) -> int:
     """Entries per (co)variance of a :meth:`PackedStack.kernel_args` tuple (the columns of ``cov_r``)."""
     return stack[5].shape[1]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def adding_doubling(c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc):
     """The statistics of §6 for incidence cosine ``c_in`` (in the top medium) and unit incidence
     azimuth ``(dx, dy)`` (seen by anisotropic covariances only) through ``stack`` (the arrays of
@@ -543,7 +544,7 @@ def adding_doubling(c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, 
         _adding_doubling(3, c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc):
     """:func:`adding_doubling` for ``nq`` (a constant where inlined). Every update of a (co)variance is
     the scalar one of §6 applied to each entry, in the same floating-point order."""
@@ -753,7 +754,7 @@ def run_adding_doubling(packed: PackedStack, cos_theta: float, options: BelcourO
 
 # --------------------------------------------------------------------------- lobe evaluation
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _lobe_params(E, C, P, lx, ly, lz, k_lambda) -> None:
     """Evaluation GGX of every lobe with energy: ``P[k, ch, :4] = (a1, a2, ex, ey)`` from the
     (co)variance ``C[k, ch]``: ``a1 = a2 = max(f^-1(v), ALPHA_EVAL_MIN)`` for a scalar variance or an
@@ -787,7 +788,7 @@ def _lobe_params(E, C, P, lx, ly, lz, k_lambda) -> None:
                                                     P[k, ch, _P_EY])
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lambda_in_frame(wx, wy, wz, a1, a2, ex, ey) -> float:
     """Smith Lambda of ``w`` for the GGX ``(a1 along (ex, ey), a2 across)``."""
     if a1 == a2:
@@ -795,14 +796,14 @@ def _lambda_in_frame(wx, wy, wz, a1, a2, ex, ey) -> float:
     return optics.ggx_lambda(ex * wx + ey * wy, ex * wy - ey * wx, wz, a1, a2)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _same_params(P, k, ch) -> bool:
     """Lobe ``k`` has the same GGX in channels ``ch`` and ``ch - 1``."""
     return (P[k, ch, _P_A1] == P[k, ch - 1, _P_A1] and P[k, ch, _P_A2] == P[k, ch - 1, _P_A2]
             and P[k, ch, _P_EX] == P[k, ch - 1, _P_EX] and P[k, ch, _P_EY] == P[k, ch - 1, _P_EY])
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lobe(lz, vx, vy, vz, hx, hy, hz, a1, a2, ex, ey, lam_l, height_correlated) -> float:
     """GGX lobe without Fresnel: D(h'; a1, a2) G(l', v') / (4 l_z v_z), in 1/sr; primes in the lobe's
     principal frame (no rotation when ``a1 == a2``); ``lam_l`` = Lambda(l') precomputed."""
@@ -819,7 +820,7 @@ def _lobe(lz, vx, vy, vz, hx, hy, hz, a1, a2, ex, ey, lam_l, height_correlated) 
     return d * optics.smith_g2(lam_l, lo, False, height_correlated) / (4.0 * lz * vz)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _sum_lobes(lx, ly, lz, vx, vy, vz, E, P, k0, height_correlated, out_top, out_int, n) -> None:
     """Set ``out_top[n]`` to lobe 0 and ``out_int[n]`` to the sum of the others, lobes ``k >= k0`` only."""
     hx, hy, hz = optics.half_vector(lx, ly, lz, vx, vy, vz)
@@ -840,7 +841,7 @@ def _sum_lobes(lx, ly, lz, vx, vy, vz, E, P, k0, height_correlated, out_top, out
                 out_int[n, ch] += E[k, ch] * r
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _exact_top(lx, ly, lz, vx, vy, vz, E, top_alpha, top_eta, top_kappa, height_correlated, out_top, n) -> None:
     """``out_top[n]`` = the exact microfacet BRDF of the top interface (Bati 2019 eq. 6) in place of
     lobe 0 (if lobe 0 has energy). Kept out of :func:`_sum_lobes`, which it would slow down."""
@@ -854,13 +855,13 @@ def _exact_top(lx, ly, lz, vx, vy, vz, E, top_alpha, top_eta, top_kappa, height_
                                                           top_eta[ch], top_kappa[ch], height_correlated)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _chunks(n: int) -> int:
     """Number of parallel chunks for ``n`` directions."""
     return max(1, min(n // 2048, 512))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _below_horizon(lz, vz, out_top, out_int, n) -> bool:
     """If ``l`` or ``v`` is below the horizon, zero both outputs of direction ``n`` and say so."""
     if vz <= 0.0 or lz <= 0.0:
@@ -871,7 +872,7 @@ def _below_horizon(lz, vz, out_top, out_int, n) -> bool:
     return False
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _statistics_cosine(mode, lx, ly, lz, vx, vy, vz) -> float:
     """The cosine the statistics are computed for: ``v_z`` (MODE_VIEW) or ``|l.h|`` (MODE_HALF)."""
     if mode == MODE_VIEW:
@@ -882,7 +883,7 @@ def _statistics_cosine(mode, lx, ly, lz, vx, vy, vz) -> float:
     return abs(lx * hx + ly * hy + lz * hz) / math.sqrt(hx * hx + hy * hy + hz * hz)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _eval_fixed(l, v, z_sign, E, P, height_correlated, top_exact, top_alpha, top_eta, top_kappa, out_top, out_int):
     """Lobes fixed for all directions (forward model with omega_i = l; ``P`` from :func:`_lobe_params`)
     at the views ``(v_x, v_y, z_sign v_z)`` (``z_sign = -1``: the mirror
@@ -901,7 +902,7 @@ def _eval_fixed(l, v, z_sign, E, P, height_correlated, top_exact, top_alpha, top
                 _exact_top(lx, ly, lz, vx, vy, vz, E, top_alpha, top_eta, top_kappa, height_correlated, out_top, n)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _eval_dynamic(l, v, mode, n_lobes, stack, per_channel, use_tir, angular_s, height_correlated, top_exact, top_alpha,
                   top_eta, top_kappa, out_top, out_int):
     """Statistics recomputed per direction: ``mode`` MODE_VIEW (c = v_z) or MODE_HALF (c = |l.h|);
@@ -927,7 +928,7 @@ def _eval_dynamic(l, v, mode, n_lobes, stack, per_channel, use_tir, angular_s, h
                 _exact_top(lx, ly, lz, vx, vy, vz, E, top_alpha, top_eta, top_kappa, height_correlated, out_top, n)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _stats_grid(n_nodes, n_phi, n_lobes, stack, per_channel, use_tir, angular_s):
     """Statistics table ``G[i, j, k, ch, :]`` = (lobe energy, clamped roughness ``a`` (scalar
     variances) or roughness matrix ``a_1 e_1 e_1^T + a_2 e_2 e_2^T`` as ``(xx, xy, yy)`` (covariances))
@@ -970,13 +971,13 @@ def _stats_grid(n_nodes, n_phi, n_lobes, stack, per_channel, use_tir, angular_s)
     return G
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _lerp_nodes(G, i, j, k, ch, q, f) -> float:
     """``G[i, j, k, ch, q]`` interpolated linearly towards cosine node ``j + 1`` by ``f``."""
     return G[i, j, k, ch, q] * (1.0 - f) + G[i, j + 1, k, ch, q] * f
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _eval_grid(l, v, mode, G, height_correlated, top_exact, top_alpha, top_eta, top_kappa, out_top, out_int):
     """Direction-dependent statistics interpolated from :func:`_stats_grid`: linearly in ``sqrt(c)``
     and, with more than one azimuth node, periodically in the azimuth of ``v`` modulo pi; an

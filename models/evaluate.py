@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 
 from goniometer import store
-from goniometer.simulate import SimulationResult
+from goniometer.results import SimulationResult
 from goniometer.stack import Interface, Stack
 from models import errors, registry
 from models.base import ModelError

@@ -123,14 +123,14 @@ import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
-import numba
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
 from goniometer.optics import ggx_d, ggx_lambda, half_vector, smith_g2
-from goniometer.simulate import SimulationResult, SliceData
+from goniometer.results import SimulationResult, SliceData
 from goniometer.slices import light_direction
 from goniometer.stack import Stack
+from models._jit import njit
 from models.base import Model, ModelError, ModelValue
 from models.errors import compare
 from models.integrate import integrate
@@ -156,7 +156,7 @@ _QUAD_EXP_CUT = 45.0
 
 # =========================================================================== HP15 physics
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def hp_d(cos_h: float, sigma: float, p: float) -> float:
     """Holzschuch-Pacanowski micro-facet distribution D(theta_h) in 1/sr (eq. 26).
 
@@ -173,7 +173,7 @@ def hp_d(cos_h: float, sigma: float, p: float) -> float:
     return math.exp(log_d)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def hp_lambda(a: float, p: float, nodes: np.ndarray, weights: np.ndarray, panels: int) -> float:
     """Smith ``Lambda_1(a)`` of the HP15 distribution with ``sigma = 1`` (eq. 20-21).
 
@@ -212,7 +212,7 @@ def hp_lambda(a: float, p: float, nodes: np.ndarray, weights: np.ndarray, panels
     return total * 0.5 * h
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def hp_lambda_table(p: float, n: int, nodes: np.ndarray, weights: np.ndarray, panels: int):
     """Tabulate ``Lambda_1`` for one ``p`` on ``n`` points uniform in ``ln a``.
 
@@ -229,7 +229,7 @@ def hp_lambda_table(p: float, n: int, nodes: np.ndarray, weights: np.ndarray, pa
     return x0, dx, vals
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def hp_lambda_lookup(ln_a: float, x0: float, dx: float, vals: np.ndarray) -> float:
     """``Lambda_1(a)`` from a table of :func:`hp_lambda_table`, given ``ln a``.
 
@@ -256,7 +256,7 @@ def hp_lambda_lookup(ln_a: float, x0: float, dx: float, vals: np.ndarray) -> flo
     return p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0)))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _tan_from_cos(c: float) -> float:
     if c <= 0.0:
         return math.inf
@@ -279,7 +279,7 @@ def diffraction_norm(a: float, lam: float) -> float:
     return math.pi * x / (1.0 + x)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _hp_pieces(lz, vz, ln_tan_l, ln_tan_v, ln_tan2_h, ln_cos2_h, schlick, ft2, w, start,
                sigma, p, a, x0, dx, table, lam, A, B, R) -> None:
     """Cell averages of the HP15 pieces (eq. 24) over the samples of every cell.
@@ -333,7 +333,7 @@ def _hp_pieces(lz, vz, ln_tan_l, ln_tan_v, ln_tan2_h, ln_cos2_h, schlick, ft2, w
 
 # =========================================================================== GGX lobe
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _ggx_lobe(l: np.ndarray, v: np.ndarray, schlick: np.ndarray, w: np.ndarray, start: np.ndarray,
               alpha: float, A: np.ndarray, B: np.ndarray) -> None:
     """Cell averages of an isotropic GGX lobe ``q = D(h) G2(l, v) / (4 l_z v_z)``.
@@ -960,7 +960,7 @@ def fit_data(reference: SimulationResult, subcells: int | None = None, weighting
                    np.concatenate(parts["se"])[keep], np.concatenate(parts["W"])[keep], s, sp, n_peak, note)
 
 
-@numba.njit(cache=True, fastmath={"reassoc", "contract"})
+@njit(cache=True, fastmath={"reassoc", "contract"})
 def _gram(f: np.ndarray, V: np.ndarray, cols: np.ndarray, ref: np.ndarray, sw: np.ndarray, d: np.ndarray,
           big: float, n: int):
     """Normal equations of the weighted residuals (no (m x n) temporaries, no BLAS threads).

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.simulate import SimulationResult, SliceData
+from goniometer.results import SimulationResult, SliceData
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Stack
 from models.base import Model, ModelError

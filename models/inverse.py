@@ -139,12 +139,12 @@ from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any, Sequence
 
-import numba
 import numpy as np
 from scipy import optimize
 
 from goniometer import optics
 from goniometer.stack import Interface, Medium, Stack
+from models._jit import njit
 from models import tables
 from models.belcour import roughness_to_variance, variance_to_roughness
 
@@ -337,7 +337,7 @@ def kernel_for(options: InverseOptions) -> tuple[np.ndarray, np.ndarray]:
     return _kernel(options.cache_dir, bool(options.height_correlated))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _row_value(w1, xs, j, fx, f1) -> float:
     """Node value of the material slice at (mu = 1, alpha node j): exact Fresnel at j = 0, else
     the kernel moment clipped to [0, 1] (as models.tables._fgd_from_kernel)."""
@@ -349,7 +349,7 @@ def _row_value(w1, xs, j, fx, f1) -> float:
     return min(max(acc, 0.0), 1.0)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def fgd_normal(w1, xs, alpha, eta, kappa) -> float:
     """FGD at normal incidence for GGX roughness ``alpha`` and relative index ``eta + i kappa``,
     identical to the forward model's (unsplit) material slice looked up at ``mu = 1``."""
@@ -368,7 +368,7 @@ def fgd_normal(w1, xs, alpha, eta, kappa) -> float:
     return v0 * (1.0 - f) + v1 * f
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def albedo_normal(w1, alpha) -> float:
     """Directional albedo at normal incidence of a GGX interface with F = 1 (the most a rough
     conductor can reflect), interpolated as :func:`fgd_normal`."""
@@ -388,12 +388,12 @@ def albedo_normal(w1, alpha) -> float:
     return v[0] * (1.0 - f) + v[1] * f
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fgd_minus(w1, xs, alpha, target, eta_n, e) -> float:
     return fgd_normal(w1, xs, alpha, e / eta_n, 0.0) - target
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def fgd_root(w1, xs, alpha, target, eta_n, a, b, xtol) -> float:
     """Absolute index ``e`` in [a, b] with ``FGD(alpha, e / eta_n) = target`` (Brent's method; the
     caller guarantees a sign change). NaN if there is none."""
@@ -457,7 +457,7 @@ _R0, _T0, _RI, _TI, _VR0, _VT0, _VRI, _VTI = range(8)
 _J0, _JI, _ETA = range(3)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _add_interface(st, sc, w1, xs, alpha, eta_abs, kappa_abs, conductor, out_e, out_v) -> None:
     """Add one interface below the context (in place): belcour2018.md section 6 at c = 1 with
     per-channel statistics, no TIR, normal-incidence transmission scales (eq. 6). ``out_e`` and
@@ -530,7 +530,7 @@ def _add_interface(st, sc, w1, xs, alpha, eta_abs, kappa_abs, conductor, out_e, 
         sc[_ETA] = eta_abs[0]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _add_medium(st, tau) -> None:
     """Add an absorbing medium of optical depth ``tau`` (RGB) below the context (in place), as the
     forward model's medium entry at c = 1 (no lobe, variances unchanged)."""
@@ -545,7 +545,7 @@ def _add_medium(st, tau) -> None:
         st[_TI, ch] = t * st[_TI, ch]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _eq18(rk, t0, ti, ri) -> float:
     """Eq. 18: R'_{n,n+l} = 1 / (T_0n T_n0 / R_k + R_n0) (R'_{n,n+l} = R_k for an empty stack)."""
     if rk <= 0.0:
@@ -553,7 +553,7 @@ def _eq18(rk, t0, ti, ri) -> float:
     return 1.0 / (t0 * ti / rk + ri)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _eq19(sigma, rp, ri, vti, vt0, vri, j0) -> float:
     """Eq. 19: sigma^R_{n,n+l} = (1 - R_n0 R') ((sigma_k - sigma^T_n0) / J_0n - sigma^T_0n) - R_n0 R' sigma^R_n0,
     with J_0n = eta_n / eta_0 at normal incidence."""
@@ -561,7 +561,7 @@ def _eq19(sigma, rp, ri, vti, vt0, vri, j0) -> float:
     return (1.0 - q) * ((sigma - vti) / j0 - vt0) - q * vri
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _combine_sigma(per, q, j0, minimax, ch, use) -> float:
     """One achromatic sigma_R from the per-channel solutions ``per`` of eq. 19 (choice 3): the
     value of channel ``ch`` (paper, 5.2.3), or -- ``minimax`` -- the value minimising the largest
@@ -590,12 +590,12 @@ def _combine_sigma(per, q, j0, minimax, ch, use) -> float:
     return best
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _channel_sigma_r(st, sc, rp, sigma, ch) -> float:
     return _eq19(sigma, rp[ch], st[_RI, ch], st[_VTI, ch], st[_VT0, ch], st[_VRI, ch], sc[_J0])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _two_layer_eval(st, sc, w1, xs, rk, sigma, eta1, eta_max, conductor, exact, ch_top, vr_top_paper,
                     minimax, st1, sc1, sub, bot) -> int:
     """The 2-layer predicate at ``eta1`` (alg. 1 / alg. 5 up to N2).
@@ -681,7 +681,7 @@ def _two_layer_eval(st, sc, w1, xs, rk, sigma, eta1, eta_max, conductor, exact, 
     return FAIL_NO_ETA2
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _two_layer_scan(st, sc, w1, xs, rk, sigma, etas, eta_max, conductor, exact, ch_top, vr_top_paper, minimax,
                     status):
     """:func:`_two_layer_eval` at every ``etas[i]`` (statuses into ``status``)."""

@@ -101,11 +101,11 @@ from __future__ import annotations
 import math
 import os
 
-import numba
 import numpy as np
 
 from goniometer.optics import ggx_lambda, microfacet_reflection, smith_g2
 from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, Stack, pack
+from models._jit import njit
 from models import multilayer_tables as mt
 from models.base import Model, ModelError, ModelValue
 
@@ -114,7 +114,7 @@ _INV_PI = 1.0 / math.pi
 
 # ---------------------------------------------------------------------- kernel
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _inner(wx: float, wy: float, c: float):
     """The unit inner direction (pointing up) of cosine ``c`` in the azimuth of ``w``."""
     s = math.sqrt(max(0.0, 1.0 - c * c))
@@ -124,7 +124,7 @@ def _inner(wx: float, wy: float, c: float):
     return s, 0.0, c
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _transmit(wx: float, wy: float, wz: float, alpha: float, eta: float, up: np.ndarray,
               down: np.ndarray, split: float, coords: np.ndarray, k: int):
     """Cross dielectric interface ``k`` downwards from ``w`` (region above, pointing up).
@@ -145,7 +145,7 @@ def _transmit(wx: float, wy: float, wz: float, alpha: float, eta: float, up: np.
     return t, x, y, z, ggx_lambda(x, y, z, alpha, alpha)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _absorb(q: float, tau: float, a_l: float, z: float) -> float:
     """``q`` times the Beer-Lambert factors of the light (``a_l``) and of the view (``exp(-tau/z)``)."""
     if tau > 0.0:
@@ -153,7 +153,7 @@ def _absorb(q: float, tau: float, a_l: float, z: float) -> float:
     return q
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _kernel(l: np.ndarray, v: np.ndarray, up: np.ndarray, down: np.ndarray, split: float,
             d_alpha: np.ndarray, d_eta: np.ndarray, region_tau: np.ndarray, base_kind: int,
             rho: np.ndarray, c_alpha: float, c_eta: np.ndarray, c_kappa: np.ndarray, jacobian: bool,

@@ -117,7 +117,7 @@ over a width of order alpha, hence the kink band. The quadrature error adds to t
 Cache
 -----
 One file ``multilayer-lut.npz`` in ``$GONIOMETER_CACHE`` (default ``~/.cache/goniometer``, see
-:func:`goniometer._numba_cache.cache_root`), written atomically (temporary file + rename) with
+:func:`goniometer.cache.cache_root`), written atomically (temporary file + rename) with
 :data:`TABLE_VERSION` and the grid signature inside; a file whose version or grid differs is
 rebuilt, never reused (the file handling is :mod:`models.table_cache`). :func:`load_tables`
 builds on first use and memoises the loaded tables in an ``lru_cache`` (cleared by
@@ -140,6 +140,7 @@ import numba
 import numpy as np
 
 from goniometer import optics
+from models._jit import njit
 from models import table_cache
 from models.tables import axis_cell
 
@@ -237,7 +238,7 @@ def quadrature_rule(n_z: int = QUAD_Z, n_phi: int = QUAD_PHI) -> tuple[np.ndarra
 
 # --------------------------------------------------------------------------- physics (njit)
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def smooth_limit(mu: float, eta: float) -> tuple:
     """``(T0, C0)`` of a perfectly smooth interface: ``1 - F(mu, eta)`` and Snell's cosine of the
     refracted direction (0 under total internal reflection). ``mu`` is clamped to [0, 1]."""
@@ -248,7 +249,7 @@ def smooth_limit(mu: float, eta: float) -> tuple:
     return t0, c0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def quadrature(mu: float, alpha: float, eta: float, u2: np.ndarray, w2: np.ndarray,
                u1: np.ndarray, w1: np.ndarray) -> tuple:
     """``(T, C, S)`` at one point by the product rule (no tables): transmission, cosine of the
@@ -284,7 +285,7 @@ def quadrature(mu: float, alpha: float, eta: float, u2: np.ndarray, w2: np.ndarr
     return acc, -tz / norm, -tx / norm
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _fill(mus: np.ndarray, alphas: np.ndarray, etas: np.ndarray, u2: np.ndarray, w2: np.ndarray,
           u1: np.ndarray, w1: np.ndarray, out: np.ndarray, sines: np.ndarray) -> None:
     """Table ``out[i, j, k, :] = (T, C - C0)`` at ``(mus[i, k], alphas[j], etas[k])`` (``T`` is 0 at
@@ -307,7 +308,7 @@ def _fill(mus: np.ndarray, alphas: np.ndarray, etas: np.ndarray, u2: np.ndarray,
 
 # --------------------------------------------------------------------------- lookups (njit)
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def down_coordinate(mu: float, mu_c: float, split: float) -> float:
     """Mapped mu coordinate in the ``down`` table for a column whose critical cosine is ``mu_c``."""
     mu = min(max(mu, 0.0), 1.0)
@@ -318,7 +319,7 @@ def down_coordinate(mu: float, mu_c: float, split: float) -> float:
     return split + (1.0 - split) * math.sqrt((mu - mu_c) / (1.0 - mu_c))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def prepare(up: np.ndarray, down: np.ndarray, alpha: float, eta: float) -> tuple:
     """The part of a lookup that depends only on the interface: ``(j, fj, k, fk, w0)``.
 
@@ -339,7 +340,7 @@ def prepare(up: np.ndarray, down: np.ndarray, alpha: float, eta: float) -> tuple
     return j, fj, k, fk, w0
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def lookup_prepared(up: np.ndarray, down: np.ndarray, split: float, j: int, fj: float, k: int, fk: float,
                     w0: float, mu: float, eta: float) -> tuple:
     """``(T, C)`` at ``mu`` for an interface prepared by :func:`prepare` (same ``eta``)."""
@@ -369,7 +370,7 @@ def lookup_prepared(up: np.ndarray, down: np.ndarray, split: float, j: int, fj: 
     return min(max(t, 0.0), 1.0), min(max(c0 + dc, 0.0), 1.0)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def lookup(up: np.ndarray, down: np.ndarray, split: float, mu: float, alpha: float, eta: float) -> tuple:
     """``(T, C)`` at ``(mu, alpha, eta)`` (usable from numba kernels).
 
@@ -384,13 +385,13 @@ def lookup(up: np.ndarray, down: np.ndarray, split: float, mu: float, alpha: flo
     return lookup_prepared(up, down, split, j, fj, k, fk, w0, mu, eta)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _lookup_many(up, down, split, mu, alpha, eta, out_t, out_c):
     for n in range(mu.shape[0]):
         out_t[n], out_c[n] = lookup(up, down, split, mu[n], alpha[n], eta[n])
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _quadrature_many(mu, alpha, eta, u2, w2, u1, w1, out):
     for n in numba.prange(mu.shape[0]):
         t, c, s = quadrature(mu[n], alpha[n], eta[n], u2, w2, u1, w1)

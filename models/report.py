@@ -52,15 +52,16 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 import h5py
-import numba
 import numpy as np
 
 from goniometer import atomic, store
 from goniometer.database import (MANIFEST, RESULTS_FORMAT, Database, DatabaseError, load_database,
                                  material_path)
-from goniometer.simulate import SimulationResult, SliceData
+from goniometer.results import SimulationResult, SliceData
 from goniometer.slices import SliceGrid, cell_index, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
+from goniometer.cache import package_key
+from models._jit import APPLICATION, njit
 from models import registry
 from models.base import ModelError
 from models.evaluate import comparison_side, evaluate
@@ -202,28 +203,15 @@ def _sha256_file(path: Path) -> str:
 
 
 def model_code_key() -> str:
-    """Hash of the sources that determine model values and errors: every ``.py`` file of the
-    ``goniometer`` and ``models`` packages except the reporting module ``models/report.py``."""
-    import goniometer
-    import models
-    pkgs = [Path(goniometer.__file__).resolve().parent, Path(models.__file__).resolve().parent]
-    skip = {pkgs[1] / "report.py", Path(__file__).resolve()}
-    h = hashlib.sha256(numba.__version__.encode())
-    for pkg in pkgs:
-        for p in sorted(pkg.rglob("*.py")):
-            if p.resolve() in skip:
-                continue
-            h.update(p.relative_to(pkg.parent).as_posix().encode())
-            h.update(p.read_bytes())
-    return h.hexdigest()[:16]
+    """Hash of the sources that determine model values and errors: the ``goniometer`` and
+    ``models`` packages without the application (:data:`models._jit.APPLICATION`)."""
+    return package_key(("goniometer", "models"), exclude=APPLICATION)
 
 
 def report_code_key() -> str:
-    """Hash of the figures' code (this module; the HTML assets do not change figures, and the
-    page is rewritten on every run anyway)."""
-    h = hashlib.sha256(str(FIGURE_VERSION).encode())
-    h.update(Path(__file__).read_bytes())
-    return h.hexdigest()[:16]
+    """Hash of the figures' code (the report package; the HTML assets do not change figures, and
+    the page is rewritten on every run anyway)."""
+    return package_key(("models.report",)) + f"-{FIGURE_VERSION}"
 
 
 def model_style(names: Iterable[str]) -> dict[str, dict[str, str]]:
@@ -513,7 +501,7 @@ def _read_reference(path: Path) -> SimulationResult:
 
 # ---------------------------------------------------------------------- geometry of the figures
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _pixel_cells(param: int, transmission: bool, lx: float, ly: float, lz: float, size: int,
                  n_theta: int, n_phi: int):
     """Cell (i, j) of every pixel of an orthographic top view (row 0 at +y); -1 outside the disk."""

@@ -19,13 +19,13 @@ from typing import Callable, TypeVar
 import numpy as np
 
 from goniometer import atomic
-from goniometer._numba_cache import cache_root
+from goniometer.cache import cache_root
 
 T = TypeVar("T")
 
 
 def default_cache_dir() -> Path:
-    """The project's cache directory (:func:`goniometer._numba_cache.cache_root`):
+    """The project's cache directory (:func:`goniometer.cache.cache_root`):
     ``$GONIOMETER_CACHE`` if set, else ``~/.cache/goniometer`` (under ``$XDG_CACHE_HOME`` if set)."""
     return cache_root().expanduser()
 

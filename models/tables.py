@@ -105,6 +105,7 @@ import numba
 import numpy as np
 
 from goniometer import optics
+from models._jit import njit
 from models import table_cache
 
 #: bump whenever the definition, numerics or layout of a table changes
@@ -217,7 +218,7 @@ def _quadrature_rule() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 
 # --------------------------------------------------------------------------- quadrature kernels
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _hat_add(row: np.ndarray, x_split: float, n_lower: int, x: float, w: float) -> None:
     """Add weight ``w`` at ``x`` in [0, 1] to the hat functions of :func:`split_x_nodes`.
 
@@ -243,7 +244,7 @@ def _hat_add(row: np.ndarray, x_split: float, n_lower: int, x: float, w: float) 
     row[k + 1] += w * f
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _node_moments(mu: float, alpha: float, rr: np.ndarray, rw: np.ndarray, pp: np.ndarray,
                   pw: np.ndarray, height_correlated: bool, x_split: float, n_lower: int, w_row: np.ndarray,
                   eta_up: np.ndarray,
@@ -294,7 +295,7 @@ def _node_moments(mu: float, alpha: float, rr: np.ndarray, rw: np.ndarray, pp: n
             c_row[k] = min(acc / total, 1.0) if total > 0.0 and eta_up[k] < 1.0 else 1.0
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _angular_kernel(mus: np.ndarray, alphas: np.ndarray, x_split: float, eta_up: np.ndarray,
                     rr: np.ndarray, rw: np.ndarray, pp: np.ndarray, pw: np.ndarray,
                     height_correlated: bool):
@@ -314,7 +315,7 @@ def _angular_kernel(mus: np.ndarray, alphas: np.ndarray, x_split: float, eta_up:
     return W, C
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fresnel_column(x: np.ndarray, eta: float, kappa: float, out: np.ndarray) -> None:
     """``out[j] = F(x_j; eta + i kappa)``; the degenerate index 0 + 0i reflects everything."""
     for j in range(x.shape[0]):
@@ -324,7 +325,7 @@ def _fresnel_column(x: np.ndarray, eta: float, kappa: float, out: np.ndarray) ->
             out[j] = optics.fresnel_conductor(x[j], eta, kappa)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _fresnel_matrix(x: np.ndarray, etas: np.ndarray, kappas: np.ndarray) -> np.ndarray:
     """F[x, eta, kappa] on the given nodes."""
     ne = etas.shape[0]
@@ -349,7 +350,7 @@ def fresnel_on(x: np.ndarray, eta: float, kappa: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------- lookups (njit)
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def axis_cell(t: float, n: int):
     """Cell index and fraction of a coordinate t in [0, 1] over n uniform nodes (clamped)."""
     s = min(max(t, 0.0), 1.0) * (n - 1)
@@ -357,7 +358,7 @@ def axis_cell(t: float, n: int):
     return k, s - k
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _bilinear(tab: np.ndarray, tm: float, ta: float) -> float:
     """Bilinear interpolation of ``tab[mu, alpha]`` at mapped coordinates tm, ta in [0, 1]."""
     i, fi = axis_cell(tm, tab.shape[0])
@@ -367,7 +368,7 @@ def _bilinear(tab: np.ndarray, tm: float, ta: float) -> float:
     return v0 * (1.0 - fi) + v1 * fi
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def mu_coordinate(mu: float, mu_split: float) -> tuple:
     """Piece (0 lower, 1 upper) and mapped coordinate in [0, 1] of ``mu`` for a slice split at
     ``mu_split`` (0 = no split: the universal ``sqrt(mu)`` mapping)."""
@@ -382,7 +383,7 @@ def mu_coordinate(mu: float, mu_split: float) -> tuple:
     return 1, math.sqrt((mu - mu_split) / (1.0 - mu_split))
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def slice_lookup(mu_split: float, lower: np.ndarray, upper: np.ndarray, mu: float, alpha: float) -> float:
     """Value of a material slice (see :class:`TableSlice`) at (mu, alpha), bilinear."""
     piece, tm = mu_coordinate(mu, mu_split)
@@ -392,7 +393,7 @@ def slice_lookup(mu_split: float, lower: np.ndarray, upper: np.ndarray, mu: floa
     return _bilinear(upper, tm, ta)
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _bilinear_at(tab: np.ndarray, e: int, ch: int, tm: float, ta: float) -> float:
     """:func:`_bilinear` on ``tab[e, ch]`` of a 4D stack of 2D tables (no view is created)."""
     i, fi = axis_cell(tm, tab.shape[2])
@@ -402,7 +403,7 @@ def _bilinear_at(tab: np.ndarray, e: int, ch: int, tm: float, ta: float) -> floa
     return v0 * (1.0 - fi) + v1 * fi
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def stacked_slice_lookup(split: np.ndarray, lower: np.ndarray, upper: np.ndarray, e: int, ch: int,
                          mu: float, alpha: float) -> float:
     """:func:`slice_lookup` of slice ``(split[e, ch], lower[e, ch], upper[e, ch])`` of stacked
@@ -414,7 +415,7 @@ def stacked_slice_lookup(split: np.ndarray, lower: np.ndarray, upper: np.ndarray
     return _bilinear_at(upper, e, ch, tm, ta)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def fgd_lookup(fgd: np.ndarray, mu: float, alpha: float, eta: float, kappa: float,
                eta_max: float, kappa_max: float) -> float:
     """Quadrilinear lookup in the 4D table ``fgd[mu, alpha, eta, kappa]`` (clamped ranges)."""
@@ -435,7 +436,7 @@ def fgd_lookup(fgd: np.ndarray, mu: float, alpha: float, eta: float, kappa: floa
     return acc
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def tir_lookup(tir: np.ndarray, mu: float, alpha: float, eta_up: float) -> float:
     """Trilinear lookup in ``tir[mu, alpha, eta_up]``; 1 for ``eta_up >= 1``."""
     if eta_up >= 1.0:
@@ -480,13 +481,13 @@ class Tables:
         return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fgd_many(fgd, mu, alpha, eta, kappa, out):
     for n in range(mu.shape[0]):
         out[n] = fgd_lookup(fgd, mu[n], alpha[n], eta[n], kappa[n], ETA_MAX, KAPPA_MAX)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _tir_many(tir, mu, alpha, eta_up, out):
     for n in range(mu.shape[0]):
         out[n] = tir_lookup(tir, mu[n], alpha[n], eta_up[n])
@@ -590,7 +591,7 @@ class TableSlice:
         return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _slice_many(mu_split, lower, upper, mu, alpha, out):
     for n in range(mu.shape[0]):
         out[n] = slice_lookup(mu_split, lower, upper, mu[n], alpha[n])

@@ -37,11 +37,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from goniometer.optics import fresnel_dielectric, ggx_lambda, half_vector, microfacet_reflection, refract
 from goniometer.stack import Stack
+from models._jit import njit
 from models.base import CoatedBase, Model, ModelError, ModelValue, coated_base
 
 _INV_PI = 1.0 / math.pi
@@ -83,7 +83,7 @@ BATI19_VARIANT = Variant(NORMAL_N, NORMAL_N, True, TIR_NONE, True, True)
 
 # ---------------------------------------------------------------------- kernel
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _inner(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, eta: float):
     """The direction inside the coat paired with the outer direction ``w`` through normal ``m``.
 
@@ -95,7 +95,7 @@ def _inner(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, eta
     return -tx, -ty, -tz, ok
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _smith_g(ax: float, ay: float, az: float, bx: float, by: float, bz: float, alpha: float) -> float:
     """Separable Smith masking-shadowing G1(a) G1(b) of a GGX surface of roughness ``alpha``."""
     la = ggx_lambda(ax, ay, az, alpha, alpha)
@@ -103,7 +103,7 @@ def _smith_g(ax: float, ay: float, az: float, bx: float, by: float, bz: float, a
     return 1.0 / ((1.0 + la) * (1.0 + lb))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _ww_kernel(l: np.ndarray, v: np.ndarray, transmit_normal: int, refract_normal: int,
                base_at_refracted: bool, tir: int, jacobian: bool,
                alpha0: float, eta0: float, tau: np.ndarray, base_kind: int, rho: np.ndarray,

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.simulate import SimulationSettings, simulate
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
 from goniometer.slices import light_direction
 from goniometer.stack import Interface, Stack, StackError, load_toml
 from tests.conftest import assert_cells_match, chi2_limit

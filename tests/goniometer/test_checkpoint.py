@@ -9,9 +9,12 @@ import numpy as np
 import pytest
 
 from goniometer import checkpoint, store
-from goniometer.checkpoint import Checkpoints, checkpoint_dir, run_description, simulate_resumable
+from goniometer.checkpoint import Checkpoints, checkpoint_dir
+from goniometer.results import run_description
 from goniometer.cli import main
-from goniometer.simulate import SimulationSettings, simulate, trace_incident
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate, simulate_resumable
+from goniometer.tasks import trace_incident
 from goniometer.stack import Interface, Medium, Stack, load_toml
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"

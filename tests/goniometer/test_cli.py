@@ -181,7 +181,7 @@ def test_ctrl_c_leaves_no_partial_file(tmp_path, tmp_path_factory, when):
 def test_sigint_latch_keeps_an_interrupt_python_dropped(sigint_default):
     """A KeyboardInterrupt raised while a finalizer runs is dropped by Python ("Exception ignored
     in ..."); the latch raises it again at the next check."""
-    from goniometer.cli import _sigint_latch
+    from goniometer.cli.common import sigint_latch as _sigint_latch
 
     class Finalized:
         def __del__(self):
@@ -198,7 +198,7 @@ def test_sigint_latch_keeps_an_interrupt_python_dropped(sigint_default):
 
 
 def test_sigint_latch_leaves_an_ignored_sigint_ignored():
-    from goniometer.cli import _sigint_latch
+    from goniometer.cli.common import sigint_latch as _sigint_latch
 
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
@@ -212,7 +212,7 @@ def test_sigint_latch_leaves_an_ignored_sigint_ignored():
 
 
 def test_sigint_latch_defers_inside_compilation(sigint_default):
-    from goniometer.cli import _sigint_latch
+    from goniometer.cli.common import sigint_latch as _sigint_latch
 
     with _sigint_latch() as interrupts:
         with pytest.raises(KeyboardInterrupt):

@@ -85,7 +85,7 @@ def test_resume_gives_the_same_bits(tiny_run, tmp_path):
     simulate_database(db, fresh, "quick", only=m.name)
     # simulate an interruption after the first incident direction: keep only its checkpoint
     from goniometer.database import _partial_dir
-    from goniometer.simulate import trace_incident
+    from goniometer.tasks import trace_incident
     settings = db.settings_for(m, "quick")
     pdir = _partial_dir(fresh, m)
     pdir.mkdir(parents=True)

@@ -1,11 +1,11 @@
-"""goniometer._numba_cache: source-keyed cache directories and pruning of old ones."""
+"""goniometer.cache: source-keyed cache directories and pruning of old ones."""
 
 from __future__ import annotations
 
 import os
 import time
 
-from goniometer import _numba_cache
+from goniometer import cache as _numba_cache
 
 
 def _key_dir(base, i: int, age_s: float):
@@ -50,7 +50,7 @@ def test_configure_uses_a_source_keyed_directory(tmp_path, monkeypatch):
     before = numba.config.CACHE_DIR
     try:
         path = _numba_cache.configure()
-        assert path == str(tmp_path / "numba" / _numba_cache.source_key())
-        assert (tmp_path / "numba" / _numba_cache.source_key() / ".last-used").exists()
+        assert path == str(tmp_path / "numba" / _numba_cache.simulator_key())
+        assert (tmp_path / "numba" / _numba_cache.simulator_key() / ".last-used").exists()
     finally:
         numba.config.CACHE_DIR = before

@@ -6,7 +6,8 @@ import numba
 import numpy as np
 import pytest
 
-from goniometer.simulate import SettingsError, SimulationSettings, simulate
+from goniometer.settings import SettingsError, SimulationSettings
+from goniometer.simulate import simulate
 
 
 def _arrays(r):
@@ -80,7 +81,7 @@ def test_event_cap_is_reported_and_booked(plastic, tmp_path):
     total = sum(r.energy[k] for k in r.energy) + r.roulette + r.capped
     np.testing.assert_allclose(total, 1.0, atol=1e-12)
     from goniometer import store
-    from goniometer.cli import _print_summary
+    from goniometer.cli.simulate import _print_summary
     import io
     import contextlib
     buf = io.StringIO()
@@ -109,7 +110,7 @@ def test_russian_roulette_is_unbiased_in_expectation(plastic):
 
 
 def test_cell_geometry_is_the_grid_geometry_read_only():
-    from goniometer.simulate import cell_geometry
+    from goniometer.results import cell_geometry
     from goniometer.slices import SliceGrid, light_direction
     for param in ("classic", "half"):
         om, mk = cell_geometry(param, 18, 36, 40.0, 30.0)

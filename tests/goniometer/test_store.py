@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from goniometer import store
-from goniometer.simulate import SimulationSettings, simulate
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
 
 
 @pytest.fixture(scope="module")

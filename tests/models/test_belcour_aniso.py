@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.simulate import SimulationSettings, simulate
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import tables
 from models.base import ModelError

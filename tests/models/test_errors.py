@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from goniometer.simulate import SliceData
+from goniometer.results import SliceData
 from goniometer.slices import SliceGrid
 from models import errors
 from models.integrate import ModelSlices

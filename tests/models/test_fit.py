@@ -10,7 +10,9 @@ import pytest
 from scipy import integrate, special, stats
 
 from goniometer import optics
-from goniometer.simulate import SimulationResult, SimulationSettings, SliceData, simulate
+from goniometer.results import SimulationResult, SliceData
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import fit as F

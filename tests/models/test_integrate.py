@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.simulate import SimulationSettings, simulate
+from goniometer.settings import SimulationSettings
+from goniometer.simulate import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Stack
 from models.base import Model, ModelValue

@@ -1,4 +1,4 @@
-"""models.inverse_validation and models.inverse_cli: cases, forward check, the lobe estimator on
+"""models.inverse_validation and models.commands.inverse: cases, forward check, the lobe estimator on
 simulated slices, the report, and the ``gonio invert`` / ``gonio validate-inverse`` commands.
 
 Tolerances: the forward check uses the paper's 1 % (figure 25) widened to the inherent channel
@@ -21,7 +21,8 @@ from scipy import integrate
 from goniometer import atomic
 from goniometer import cli, optics
 from goniometer.stack import Interface, Stack, load_toml
-from models import belcour, inverse as I, inverse_cli, inverse_validation as V
+from models import belcour, inverse as I, inverse_validation as V
+from models.commands import inverse as inverse_cli
 from tests.conftest import Z_TOL
 
 CASES = Path(__file__).resolve().parents[2] / "configs" / "inverse" / "cases.toml"
@@ -32,14 +33,14 @@ FGD_TABLE_RTOL = 5e-4
 @pytest.fixture
 def gonio(monkeypatch):
     """Run ``gonio`` through goniometer.cli.main with the inverse sub-commands registered (the
-    lead adds ``inverse_cli.add_parsers(sub)`` to build_parser; until then this adds it)."""
+    lead adds ``inverse_cli.register(sub)`` to build_parser; until then this adds it)."""
     original = cli.build_parser
 
     def build():
         parser = original()
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         if "invert" not in sub.choices:
-            inverse_cli.add_parsers(sub)
+            inverse_cli.register(sub)
         return parser
 
     monkeypatch.setattr(cli, "build_parser", build)

@@ -10,7 +10,8 @@ import pytest
 from goniometer import atomic
 from goniometer.cli import main
 from models import multilayer_tables as mt
-from models import tables, tables_cli
+from models import table_check as tables_cli
+from models import tables
 
 
 def _run(capsys, *argv) -> tuple[int, dict]:

@@ -1,8 +1,8 @@
 """``gonio invert`` and ``gonio validate-inverse``: the command line of the inverse method
 (:mod:`models.inverse`, :mod:`models.inverse_validation`).
 
-Registered by :func:`add_parsers` (one line in ``goniometer.cli.build_parser``). User errors raise
-``goniometer.cli.UsageError`` (one line ``gonio: error: ...``, exit status 2). A well-formed
+Registered through :func:`register` (the ``models`` command plugin). User errors raise
+:class:`goniometer.cli.common.UsageError` (one line ``gonio: error: ...``, exit status 2). A well-formed
 request that has no physical solution is not a usage error: ``gonio invert`` prints
 ``not physically achievable: ...`` on stderr and exits with status 1 (:data:`EXIT_NOT_ACHIEVABLE`).
 """
@@ -18,11 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from goniometer.cli.common import UsageError
+
 EXIT_NOT_ACHIEVABLE = 1
 
 
-def _usage(msg: str):
-    from goniometer.cli import UsageError
+def _usage(msg: str) -> UsageError:
     return UsageError(msg)
 
 
@@ -86,7 +87,8 @@ def _val(v: Any) -> str:
 def cmd_invert(args: argparse.Namespace) -> int:
     from models import inverse
     from models.inverse import InverseError
-    from models.inverse_validation import _atomic_bytes, forward_check
+    from goniometer import atomic
+    from models.inverse_validation import forward_check
     if not args.lobe:
         raise _usage("invert: at least one --lobe is required (e.g. --lobe \"R=0.04 sigma=0 layers=1\")")
     try:
@@ -113,7 +115,7 @@ def cmd_invert(args: argparse.Namespace) -> int:
     stack = inv.stack()
     checks = forward_check(inv)
     if out is not None:
-        _atomic_bytes(out, _material_text(inv, stack, checks).encode())
+        atomic.write_bytes(out, _material_text(inv, stack, checks).encode())
     if classes_png is not None:
         from models.inverse_validation import classes_figure, save_png
         save_png(classes_figure(inv), classes_png)
@@ -220,7 +222,7 @@ def _print_table(results, simulate: bool) -> None:
 
 # ---------------------------------------------------------------------------- registration
 
-def add_parsers(subparsers) -> None:
+def register(subparsers) -> None:
     """Register ``invert`` and ``validate-inverse`` on the ``gonio`` sub-command parser."""
     p = subparsers.add_parser("invert", help="lobes at normal incidence -> a layered material (Bati 2021 inverse)")
     p.add_argument("--lobe", action="append", metavar="SPEC",

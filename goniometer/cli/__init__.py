@@ -1,0 +1,61 @@
+"""The ``gonio`` command line host: it parses, dispatches, and prints user errors as one line.
+
+The simulator's own commands (``simulate``, ``info``, ``database``) live beside this module.
+Every other command is a plugin: an entry point of the group ``goniometer.commands`` (declared
+in ``pyproject.toml``) names a function ``register(subparsers)`` that adds its sub-commands.
+The host never imports a plugin's package, so the simulator stands without the models
+(``docs/architecture.md``). Plugins keep ``register`` light (imports inside the commands), so
+``gonio --help`` imports no model.
+
+Every user error prints one line ``gonio: error: ...`` on stderr and exits with status 2;
+an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from importlib.metadata import entry_points
+from typing import Callable, Sequence
+
+from goniometer.cli import database, simulate
+from goniometer.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+
+__all__ = ["ENTRY_POINT_GROUP", "EXIT_INTERRUPTED", "EXIT_USAGE", "UsageError", "build_parser", "main"]
+
+#: the entry-point group through which packages contribute ``gonio`` sub-commands
+ENTRY_POINT_GROUP = "goniometer.commands"
+
+
+def plugins() -> list[Callable[[argparse._SubParsersAction], None]]:
+    """The ``register`` functions of the installed command plugins, in entry-point name order."""
+    found = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: ep.name)
+    return [ep.load() for ep in found]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``gonio`` parser: the simulator's commands, then every plugin's."""
+    parser = argparse.ArgumentParser(prog="gonio", description="Monte Carlo virtual goniometer for layered materials.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    simulate.register(sub)
+    database.register(sub)
+    for register in plugins():
+        register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``gonio`` with ``argv`` (default: the process's arguments); returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except UsageError as e:
+        print(f"gonio: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        out = getattr(args, "out", None)
+        note = f"; nothing written to {out}" if out else ""
+        print(f"gonio: interrupted{note}", file=sys.stderr)
+        return EXIT_INTERRUPTED

@@ -1,0 +1,97 @@
+"""``gonio database list|simulate``: expand a database definition, simulate all its materials."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from goniometer.cli.common import UsageError, sigint_latch
+
+
+def register(sub) -> None:
+    """Add ``database`` (``list``, ``simulate``) to the ``gonio`` sub-command parser."""
+    p = sub.add_parser("database", help="material databases: list, simulate")
+    dsub = p.add_subparsers(dest="database_command", required=True, metavar="ACTION")
+    q = dsub.add_parser("list", help="list the materials a database definition expands to")
+    q.add_argument("config", metavar="CONFIG.toml")
+    q.add_argument("--out", help="also show each material's status in this results directory")
+    q.add_argument("--quality", default="quick")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_database_list)
+    q = dsub.add_parser("simulate", help="simulate every material (resumable) into one HDF5 file each")
+    q.add_argument("config", metavar="CONFIG.toml")
+    q.add_argument("--out", required=True, metavar="DIR")
+    q.add_argument("--quality", default="quick", help="a quality of the definition's [quality] table (quick, paper)")
+    q.add_argument("--only", metavar="GLOB", help="materials whose name matches, e.g. 'metal/M2-*'")
+    q.add_argument("--threads", type=int)
+    q.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the tasks on a Dask distributed cluster")
+    q.add_argument("--resimulate-corrupted", action="store_true",
+                   help="move unreadable finished files aside and simulate them again")
+    q.set_defaults(func=cmd_database_simulate)
+
+
+
+def cmd_database_list(args: argparse.Namespace) -> int:
+    from goniometer.database import DatabaseError, list_rows, load_database
+    try:
+        db = load_database(args.config)
+        rows = list_rows(db, args.out, args.quality) if args.out else list_rows(db)
+    except DatabaseError as e:
+        raise UsageError(str(e)) from None
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for r in rows:
+        params = " ".join(f"{k}={r[k]}" for k in ("alpha0", "alpha1", "tau_name", "rho_name", "eta1") if k in r)
+        status = f"  [{r['status']}]" if "status" in r else ""
+        print(f"{r['name']:32s} {r['paper_name']:4s} {r['parametrization']:8s} {params}{status}")
+    counts = {}
+    for r in rows:
+        counts[r["category"]] = counts.get(r["category"], 0) + 1
+    print(f"{len(rows)} materials ({', '.join(f'{n} {c}' for c, n in counts.items())}) in {db.name}")
+    return 0
+
+
+def cmd_database_simulate(args: argparse.Namespace) -> int:
+    from goniometer.database import DatabaseError, load_database, simulate_database
+    from goniometer.settings import SettingsError
+    from goniometer.tasks import warm_up
+    try:
+        db = load_database(args.config)
+        materials = db.select(args.only)
+        if args.quality not in db.qualities:
+            raise DatabaseError(f"--quality: {args.quality!r} is not one of {', '.join(db.qualities)}")
+        rays = db.qualities[args.quality] * len(db.incident_deg)
+    except DatabaseError as e:
+        raise UsageError(str(e)) from None
+    print(f"{db.name}: {len(materials)} material(s), quality {args.quality} "
+          f"({db.qualities[args.quality]:,} rays per slice), into {args.out}", file=sys.stderr)
+    from tqdm import tqdm
+    bar = tqdm(total=rays * len(materials), unit="ray", unit_scale=True, file=sys.stderr, dynamic_ncols=True,
+               disable=None, smoothing=0.05, desc=db.name)
+
+    try:
+        with sigint_latch() as interrupts, bar:
+            def on_material(m, status):
+                interrupts.check()
+                bar.set_postfix_str(f"{m.name} ({status})")
+
+            def progress(n: int) -> None:
+                interrupts.check()
+                bar.update(n)
+
+            if args.scheduler is None:
+                with interrupts.deferred():
+                    warm_up()
+            summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
+                                        scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
+                                        progress=progress, on_material=on_material)
+            bar.update(bar.total - bar.n) if bar.total else None
+    except (DatabaseError, SettingsError) as e:
+        raise UsageError(str(e)) from None
+    print(f"{len(summary.simulated)} simulated ({len(summary.resumed)} resumed, {len(summary.resimulated)} "
+          f"re-simulated), {len(summary.skipped)} already done, in {summary.elapsed_s:.0f} s; files in {args.out}")
+    return 0
+
+

@@ -1,0 +1,182 @@
+"""``gonio simulate`` and ``gonio info``: one material file in, one slices file out, and its summary."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from goniometer.cli.common import UsageError, incident_list, progress_bar, resolution, sigint_latch
+
+
+def register(sub) -> None:
+    """Add ``simulate`` and ``info`` to the ``gonio`` sub-command parser."""
+    p = sub.add_parser("simulate", help="simulate a material file into an HDF5 slices file")
+    p.add_argument("config", metavar="CONFIG.toml")
+    p.add_argument("--out", required=True, metavar="FILE.h5")
+    p.add_argument("--rays", type=int, help="rays per incident direction")
+    p.add_argument("--incident", metavar="LIST", help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth)")
+    p.add_argument("--parametrization", choices=("classic", "half"))
+    p.add_argument("--resolution", metavar="N_THETAxN_PHI", help="e.g. 90x360")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--threads", type=int)
+    p.add_argument("--masking", choices=("separable", "height-correlated"))
+    p.add_argument("--max-order", dest="max_order", type=int, help="bounce orders stored separately (K)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("info", help="describe a simulated file")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_info)
+
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from goniometer import store
+    from goniometer.checkpoint import Checkpoints, checkpoint_dir
+    from goniometer.results import run_description
+    from goniometer.settings import SettingsError, SimulationSettings
+    from goniometer.simulate import run_incidents
+    from goniometer.stack import StackError, load_toml
+    from goniometer.tasks import warm_up
+
+    try:
+        stack, table = load_toml(args.config)
+        base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
+    except (StackError, SettingsError) as e:
+        raise UsageError(str(e)) from None
+    over: dict[str, Any] = {}
+    if args.incident is not None:
+        thetas, phis = incident_list(args.incident)
+        over["incident_deg"] = tuple(thetas)
+        over["incident_phi_deg"] = tuple(phis) if phis is not None else tuple(0.0 for _ in thetas)
+    if args.resolution is not None:
+        over["resolution"] = resolution(args.resolution)
+    for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order"):
+        value = getattr(args, key)
+        if value is not None:
+            over[key] = value
+    try:
+        settings = base.with_overrides(**over)
+    except SettingsError as e:
+        raise UsageError(str(e)) from None
+    try:
+        out = store.check_writable(args.out)
+    except store.StoreError as e:
+        raise UsageError(str(e)) from None
+
+    total = settings.rays * len(settings.incident_deg)
+    print(f"simulating {stack.name} ({stack.category}): {len(settings.incident_deg)} incident direction(s) x "
+          f"{settings.rays:,} rays, {settings.parametrization} {settings.resolution[0]}x{settings.resolution[1]}, "
+          f"{settings.n_threads} thread(s)", file=sys.stderr)
+    with sigint_latch() as interrupts, progress_bar(total, stack.name) as bar:
+        def progress(n: int) -> None:
+            interrupts.check()
+            bar.update(n)
+
+        with interrupts.deferred():
+            compile_s = warm_up()
+        checkpoints = Checkpoints(checkpoint_dir(out), run_description(stack, settings))
+        if args.restart:
+            checkpoints.clear()
+
+        def on_resume(n: int) -> None:
+            bar.write(f"resuming: {n} of {len(settings.incident_deg)} incident direction(s) already traced "
+                      f"(checkpoints in {checkpoints.directory}; --restart to discard them)", file=sys.stderr)
+
+        try:
+            result = run_incidents(stack, settings, checkpoints=checkpoints, progress=progress, on_resume=on_resume)
+            interrupts.check()
+        except KeyboardInterrupt:
+            kept = len(list(checkpoints.directory.glob("m*.npz"))) if checkpoints.directory.is_dir() else 0
+            if kept:
+                print(f"gonio: {kept} finished incident direction(s) kept in {checkpoints.directory}; "
+                      f"rerun the same command to resume", file=sys.stderr)
+            raise
+    result.compile_s = compile_s
+    store.write(out, result)
+    checkpoints.clear()
+    print(f"wrote {out}")
+    _print_summary(result)
+    return 0
+
+
+def _print_summary(r) -> None:
+    print(f"{r.rays_per_s:,.0f} rays/s with {r.threads} thread(s) ({r.rays_per_s / r.threads:,.0f} per thread); "
+          f"compile/load {r.compile_s:.1f} s")
+    print(f"{'theta_l':>8} {'phi_l':>6}  {'reflected (R G B)':>26}  {'transmitted':>26}  {'absorbed':>26}  {'masking_loss':>26}")
+    for m in range(len(r.theta_deg)):
+        row = [f"{r.theta_deg[m]:8.2f}", f"{r.phi_deg[m]:6.1f}"]
+        for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+            row.append(" ".join(f"{x:8.5f}" for x in r.energy[k][m]))
+        print("  ".join(row))
+    if np.any(r.capped_paths):
+        print(f"warning: {int(np.sum(r.capped_paths))} path(s) reached the event cap of {r.settings.event_cap}; "
+              f"their weight is in /energy/capped")
+
+
+# ---------------------------------------------------------------------- info
+
+def info_dict(path: Path) -> dict[str, Any]:
+    """The JSON summary printed by ``gonio info --json``."""
+    from goniometer import store
+    r = store.read(path)
+    s = r.settings
+    d: dict[str, Any] = {
+        "file": str(path),
+        "material": {"name": r.stack.name, "category": r.stack.category, "base": r.stack.base,
+                     "config": json.loads(r.stack.to_json())},
+        "settings": {
+            "incident_deg": list(s.incident_deg), "incident_phi_deg": list(s.incident_phi_deg),
+            "rays": s.rays, "parametrization": s.parametrization, "resolution": list(s.resolution),
+            "seed": s.seed, "masking": s.masking, "max_order": s.max_order, "chunk_rays": s.chunk_rays,
+        },
+        "sides": ["brdf"] + (["btdf"] if r.btdf is not None else []),
+        "energy": [],
+        "performance": {"threads": r.threads, "elapsed_s": float(np.sum(r.elapsed_s)),
+                        "rays_per_s": r.rays_per_s, "rays_per_s_per_thread": r.rays_per_s / r.threads,
+                        "compile_s": r.compile_s},
+        "capped_paths": int(np.sum(r.capped_paths)),
+    }
+    for m in range(len(r.theta_deg)):
+        e = {"theta_deg": float(r.theta_deg[m]), "phi_deg": float(r.phi_deg[m])}
+        for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+            e[k] = [float(x) for x in r.energy[k][m]]
+        e["mean_events"] = float(r.mean_events[m])
+        d["energy"].append(e)
+    return d
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from goniometer import store
+    try:
+        d = info_dict(Path(args.file))
+    except store.StoreError as e:
+        raise UsageError(str(e)) from None
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    m = d["material"]
+    s = d["settings"]
+    p = d["performance"]
+    print(f"{d['file']}: {m['name']} ({m['category']}, {m['base']} base)")
+    print(f"  stack: {json.dumps(m['config']['layers'])}")
+    print(f"  {len(s['incident_deg'])} incident direction(s), {s['rays']:,} rays each, {s['parametrization']} "
+          f"{s['resolution'][0]}x{s['resolution'][1]}, seed {s['seed']}, {s['masking']} masking, K = {s['max_order']}; "
+          f"slices: {', '.join(d['sides'])}")
+    print(f"  {p['rays_per_s']:,.0f} rays/s on {p['threads']} thread(s) ({p['elapsed_s']:.1f} s)")
+    print(f"  {'theta_l':>7} {'phi_l':>6}  {'reflected (R G B)':>24}  {'transmitted':>24}  {'absorbed':>24}  {'masking_loss':>24}")
+    for e in d["energy"]:
+        cols = [" ".join(f"{x:7.4f}" for x in e[k]) for k in ("reflected", "transmitted", "absorbed", "masking_loss")]
+        print(f"  {e['theta_deg']:7.2f} {e['phi_deg']:6.1f}  " + "  ".join(cols))
+    if d["capped_paths"]:
+        print(f"  warning: {d['capped_paths']} path(s) reached the event cap")
+    return 0
+
+

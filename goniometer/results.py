@@ -1,0 +1,236 @@
+"""What a run produces, what identifies a run, and how raw kernel sums become estimates.
+
+:class:`SliceData` and :class:`SimulationResult` are what :mod:`goniometer.store` writes and the
+models read; :class:`IncidentPart` holds one incident direction's raw sums (what checkpoints and
+Dask tasks return); :data:`RUN_KEYS` and :func:`run_description` say when two runs are the same.
+Cell values follow ``docs/slices-format.md``: ``fbar = (sum of exit weights in the cell) / (N
+Omega)``, with ``N`` the rays of the incident direction and ``Omega`` the cell's projected solid
+angle; standard errors come from the per-cell sums of squared weights.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from goniometer import atomic, tracer
+from goniometer.settings import SimulationSettings
+from goniometer.slices import SliceGrid, light_direction
+from goniometer.stack import Stack
+
+ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
+
+#: the settings that make two runs of one stack the same run (``threads`` is not one of them:
+#: results are bit-identical whatever the thread count)
+RUN_KEYS = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
+            "max_order", "chunk_rays", "chunks_per_task", "event_cap")
+
+
+def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
+    """What makes two runs the same, as JSON-ready data: the stack and the :data:`RUN_KEYS`."""
+    s = {k: getattr(settings, k) for k in RUN_KEYS}
+    return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
+
+
+def same_run(a: SimulationSettings, b: SimulationSettings) -> bool:
+    """True if the two settings describe the same run (they differ at most in ``threads``)."""
+    return all(getattr(a, k) == getattr(b, k) for k in RUN_KEYS)
+
+
+@dataclass
+class SliceData:
+    """Simulated slices of one side (reflection or transmission) for all M incident directions.
+
+    ``value``/``stderr``: (M, 3, n_theta, n_phi) in 1/sr, no cosine; ``orders``:
+    (M, K, 3, n_theta, n_phi), order K meaning "K or more"; ``mask`` and
+    ``proj_solid_angle``: (M, n_theta, n_phi); ``stderr_internal``: standard error of the
+    internal part (orders >= 2, i.e. ``value - orders[:, 0]``), or None if unknown.
+    """
+
+    grid: SliceGrid
+    value: np.ndarray
+    stderr: np.ndarray
+    orders: np.ndarray
+    mask: np.ndarray
+    proj_solid_angle: np.ndarray
+    stderr_internal: np.ndarray | None = None
+
+
+@dataclass
+class SimulationResult:
+    """Everything one simulation produced (what :mod:`goniometer.store` writes)."""
+
+    stack: Stack
+    settings: SimulationSettings
+    theta_deg: np.ndarray
+    phi_deg: np.ndarray
+    brdf: SliceData
+    btdf: SliceData | None
+    energy: dict[str, np.ndarray]          # (M, 3) per term, fractions of the incident flux
+    energy_stderr: dict[str, np.ndarray]   # (M, 3)
+    roulette: np.ndarray                   # (M, 3) net weight booked by Russian roulette / N
+    capped: np.ndarray                     # (M, 3) weight stopped by the event cap / N
+    capped_paths: np.ndarray               # (M,) int
+    mean_events: np.ndarray                # (M,) events per path
+    elapsed_s: np.ndarray                  # (M,) wall time of each incident direction
+    threads: int
+    compile_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rays_per_s(self) -> float:
+        total = float(np.sum(self.elapsed_s))
+        return self.settings.rays * len(self.theta_deg) / total if total > 0 else float("nan")
+
+
+@dataclass
+class Sums:
+    """Raw kernel sums in the kernel's layout: what a task returns and an incident accumulates.
+
+    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.tracer.trace_chunk`;
+    ``btdf`` is (1, 1, K + 2, 3) for opaque stacks); ``energy`` (N_ENERGY, 3); ``energy_sq``
+    (N_ENERGY_SQ, 3); ``counts`` (N_COUNTS,) int64.
+    """
+
+    brdf: np.ndarray
+    btdf: np.ndarray
+    energy: np.ndarray
+    energy_sq: np.ndarray
+    counts: np.ndarray
+
+    @classmethod
+    def zeros(cls, stack: Stack, settings: SimulationSettings) -> "Sums":
+        nt, nph = settings.resolution
+        k2 = settings.max_order + 2
+        bt = (nt, nph) if stack.transmits else (1, 1)
+        return cls(np.zeros((nt, nph, k2, 3)), np.zeros(bt + (k2, 3)), np.zeros((tracer.N_ENERGY, 3)),
+                   np.zeros((tracer.N_ENERGY_SQ, 3)), np.zeros(tracer.N_COUNTS, dtype=np.int64))
+
+    def add(self, other: "Sums") -> None:
+        """In-place ``self += other`` (field by field; the order of additions is the caller's)."""
+        self.brdf += other.brdf
+        self.btdf += other.btdf
+        self.energy += other.energy
+        self.energy_sq += other.energy_sq
+        self.counts += other.counts
+
+
+@dataclass
+class IncidentPart:
+    """Raw sums for one incident direction, split into orders and squares (what checkpoints hold)."""
+
+    index: int
+    brdf: np.ndarray           # (K, 3, n_theta, n_phi) weight sums per order
+    brdf_sq: np.ndarray        # (2, 3, n_theta, n_phi) squared weights: all exits, orders >= 2
+    btdf: np.ndarray | None
+    btdf_sq: np.ndarray | None
+    energy: np.ndarray         # (N_ENERGY, 3)
+    energy_sq: np.ndarray      # (N_ENERGY_SQ, 3)
+    counts: np.ndarray         # (N_COUNTS,)
+    elapsed_s: float
+
+    @classmethod
+    def from_sums(cls, m: int, acc: Sums, K: int, transmits: bool, elapsed_s: float) -> "IncidentPart":
+        def split(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            # (n_theta, n_phi, K + 2, 3) -> orders (K, 3, n_theta, n_phi) and squared weights
+            # (2, 3, n_theta, n_phi): [all exits, internal exits (order >= 2)]
+            return (np.ascontiguousarray(h[:, :, :K, :].transpose(2, 3, 0, 1)),
+                    np.ascontiguousarray(h[:, :, K:, :].transpose(2, 3, 0, 1)))
+
+        brdf, brdf_sq = split(acc.brdf)
+        btdf, btdf_sq = split(acc.btdf) if transmits else (None, None)
+        return cls(m, brdf, brdf_sq, btdf, btdf_sq, acc.energy, acc.energy_sq, acc.counts, elapsed_s)
+
+    def save(self, path) -> None:
+        """Checkpoint to an ``.npz`` file (atomically: temporary name, then rename)."""
+        arrays = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
+        atomic.write_npz(path, index=self.index, elapsed_s=self.elapsed_s, **arrays)
+
+    @classmethod
+    def load(cls, path) -> "IncidentPart":
+        with np.load(path) as z:
+            get = (lambda k: z[k] if k in z.files else None)
+            return cls(int(z["index"]), z["brdf"], z["brdf_sq"], get("btdf"), get("btdf_sq"), z["energy"],
+                       z["energy_sq"], z["counts"], float(z["elapsed_s"]))
+
+
+def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.ndarray],
+                     sums: list[np.ndarray], sqs: list[np.ndarray], n: int) -> SliceData:
+    M = len(omegas)
+    K = sums[0].shape[0]
+    nt, nph = grid.shape
+    value = np.zeros((M, 3, nt, nph))
+    stderr = np.zeros((M, 3, nt, nph))
+    stderr_internal = np.zeros((M, 3, nt, nph))
+    orders = np.zeros((M, K, 3, nt, nph))
+
+    def std_error(s1: np.ndarray, s2: np.ndarray, inv: np.ndarray) -> np.ndarray:
+        # standard error of the mean of N per-ray contributions, divided by N Omega
+        var = np.maximum(s2 - s1 * s1 / n, 0.0) / max(n - 1, 1)
+        return np.sqrt(var * n) * inv
+
+    for m, om in enumerate(omegas):
+        inv = np.divide(1.0, n * om, out=np.zeros_like(om), where=om > 0)
+        s1 = sums[m].sum(axis=0)
+        value[m] = s1 * inv
+        orders[m] = sums[m] * inv
+        stderr[m] = std_error(s1, sqs[m][0], inv)
+        stderr_internal[m] = std_error(sums[m][1:].sum(axis=0), sqs[m][1], inv)
+    return SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas), stderr_internal)
+
+
+@lru_cache(maxsize=64)
+def cell_geometry(parametrization: str, n_theta: int, n_phi: int, theta_deg: float,
+                  phi_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Projected solid angles and comparison mask of a slice grid for one incident direction
+    (:meth:`SliceGrid.proj_solid_angle`, :meth:`SliceGrid.mask`), read-only and memoised: the
+    materials of a database share their incident directions and grids, and the exact half-cell
+    solid angles cost ~50 ms per direction."""
+    grid = SliceGrid(parametrization, n_theta, n_phi, "reflection")
+    light = light_direction(theta_deg, phi_deg)
+    omega, mask = grid.proj_solid_angle(light), grid.mask(light)
+    omega.setflags(write=False)
+    mask.setflags(write=False)
+    return omega, mask
+
+
+def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPart],
+             compile_s: float = 0.0) -> SimulationResult:
+    """Turn the raw per-incident sums into cell values, errors and energies."""
+    parts = sorted(parts, key=lambda p: p.index)
+    n = settings.rays
+    nt, nph = settings.resolution
+    grid = SliceGrid(settings.parametrization, nt, nph, "reflection")
+    # |cos theta_v| and the validity of sub-cells are the same on both sides: computed once
+    geometry = [cell_geometry(settings.parametrization, nt, nph, t, p)
+                for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+    omegas = [g[0] for g in geometry]
+    masks = [g[1] for g in geometry]
+    brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n)
+    btdf = None
+    if stack.transmits:
+        btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), omegas, masks,
+                                [p.btdf for p in parts], [p.btdf_sq for p in parts], n)
+    energy: dict[str, np.ndarray] = {}
+    energy_se: dict[str, np.ndarray] = {}
+    for t, name in enumerate(ENERGY_TERMS):
+        s1 = np.array([p.energy[t] for p in parts])
+        s2 = np.array([p.energy_sq[t] for p in parts])
+        mean = s1 / n
+        energy[name] = mean
+        energy_se[name] = np.sqrt(np.maximum(s2 / n - mean * mean, 0.0) / max(n - 1, 1))
+    return SimulationResult(
+        stack=stack, settings=settings,
+        theta_deg=np.array(settings.incident_deg), phi_deg=np.array(settings.incident_phi_deg),
+        brdf=brdf, btdf=btdf, energy=energy, energy_stderr=energy_se,
+        roulette=np.array([p.energy[tracer.E_ROULETTE] for p in parts]) / n,
+        capped=np.array([p.energy[tracer.E_CAPPED] for p in parts]) / n,
+        capped_paths=np.array([p.counts[tracer.C_CAPPED] for p in parts]),
+        mean_events=np.array([p.counts[tracer.C_EVENTS] for p in parts]) / n,
+        elapsed_s=np.array([p.elapsed_s for p in parts]),
+        threads=settings.n_threads, compile_s=compile_s,
+    )

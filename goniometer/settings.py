@@ -1,0 +1,128 @@
+"""What to simulate: :class:`SimulationSettings` and its validation (``docs/material-format.md``,
+the ``[simulation]`` table).
+
+``chunk_rays`` and ``chunks_per_task`` belong to the determinism contract
+(``docs/architecture.md``): the same (seed, chunk_rays, chunks_per_task) gives the same bits
+whatever ``threads``, locally or distributed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Mapping
+
+import numba
+import numpy as np
+
+from goniometer.tracer import EVENT_CAP
+
+DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
+MASKING = ("separable", "height-correlated")
+class SettingsError(ValueError):
+    """Invalid simulation settings; the message names the field and the allowed range."""
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """What to simulate. ``rays`` is per incident direction.
+
+    ``incident_deg`` are elevations theta_l in [0, 90); ``incident_phi_deg`` azimuths in
+    [0, 360) (default 0 for all). ``chunk_rays`` (rays per random stream and histogram) and
+    ``chunks_per_task`` (chunks summed together before being added to the total) are part of the
+    determinism contract: the same (seed, chunk_rays, chunks_per_task) gives the same bits
+    whatever ``threads``, locally or distributed.
+    """
+
+    incident_deg: tuple[float, ...] = DEFAULT_INCIDENT
+    incident_phi_deg: tuple[float, ...] | None = None
+    rays: int = 1_000_000
+    parametrization: str = "classic"
+    resolution: tuple[int, int] = (90, 360)
+    seed: int = 1
+    masking: str = "separable"
+    max_order: int = 5
+    threads: int | None = None
+    chunk_rays: int = 1 << 17
+    chunks_per_task: int = 8
+    event_cap: int = EVENT_CAP
+
+    def __post_init__(self) -> None:
+        inc = tuple(float(x) for x in self.incident_deg)
+        object.__setattr__(self, "incident_deg", inc)
+        phi = self.incident_phi_deg
+        phi = tuple(0.0 for _ in inc) if phi is None else tuple(float(x) for x in phi)
+        object.__setattr__(self, "incident_phi_deg", phi)
+        object.__setattr__(self, "resolution", tuple(self.resolution))
+        self.validate()
+
+    def validate(self) -> None:
+        if not self.incident_deg:
+            raise SettingsError("incident_deg: at least one incident direction is required")
+        for t in self.incident_deg:
+            if not (math.isfinite(t) and 0.0 <= t < 90.0):
+                raise SettingsError(f"incident_deg: {t:g} is outside [0, 90)")
+        if len(self.incident_phi_deg) != len(self.incident_deg):
+            raise SettingsError("incident_phi_deg: needs one azimuth per incident elevation")
+        for p in self.incident_phi_deg:
+            if not (math.isfinite(p) and 0.0 <= p < 360.0):
+                raise SettingsError(f"incident_phi_deg: {p:g} is outside [0, 360)")
+        _int_in(self.rays, "rays", 1, 10**13)
+        if self.parametrization not in ("classic", "half"):
+            raise SettingsError(f"parametrization: {self.parametrization!r} is not one of classic, half")
+        if len(self.resolution) != 2:
+            raise SettingsError(f"resolution: {list(self.resolution)} must be [n_theta, n_phi]")
+        _int_in(self.resolution[0], "resolution (n_theta)", 1, 10_000)
+        _int_in(self.resolution[1], "resolution (n_phi)", 1, 40_000)
+        _int_in(self.seed, "seed", 0, 2**63 - 1)
+        if self.masking not in MASKING:
+            raise SettingsError(f"masking: {self.masking!r} is not one of {', '.join(MASKING)}")
+        _int_in(self.max_order, "max_order", 1, 64)
+        if self.threads is not None:
+            _int_in(self.threads, "threads", 1, numba.config.NUMBA_NUM_THREADS)
+        _int_in(self.chunk_rays, "chunk_rays", 1, 1 << 30)
+        _int_in(self.chunks_per_task, "chunks_per_task", 1, 1 << 20)
+        _int_in(self.event_cap, "event_cap", 1, 10**9)
+
+    @property
+    def n_threads(self) -> int:
+        return self.threads if self.threads is not None else numba.config.NUMBA_NUM_THREADS
+
+    def with_overrides(self, **kw: Any) -> "SimulationSettings":
+        """A copy with the given non-None fields replaced."""
+        return replace(self, **{k: v for k, v in kw.items() if v is not None})
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], source: str = "simulation") -> "SimulationSettings":
+        """Settings from a material file's ``[simulation]`` table (``docs/material-format.md``)."""
+        kw: dict[str, Any] = {}
+        for key, value in table.items():
+            if key == "incident_deg":
+                if not isinstance(value, list) or not all(_is_num(x) for x in value):
+                    raise SettingsError(f"{source}.incident_deg: must be a list of numbers")
+                kw[key] = tuple(value)
+            elif key == "resolution":
+                if not isinstance(value, list) or len(value) != 2:
+                    raise SettingsError(f"{source}.resolution: must be [n_theta, n_phi]")
+                kw[key] = tuple(value)
+            elif key in ("rays", "seed", "max_order", "threads"):
+                kw[key] = value
+            elif key in ("parametrization", "masking"):
+                kw[key] = value
+            else:
+                raise SettingsError(f"{source}.{key}: unknown key")
+        try:
+            return cls(**kw)
+        except SettingsError as e:
+            raise SettingsError(f"{source}.{e}") from None
+
+
+def _is_num(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _int_in(value: Any, name: str, lo: int, hi: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise SettingsError(f"{name}: {value!r} is not an integer")
+    if not lo <= value <= hi:
+        raise SettingsError(f"{name}: {value} is outside [{lo}, {hi}]")

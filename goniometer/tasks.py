@@ -1,0 +1,132 @@
+"""The units of work of a run: tasks of chunks traced by the kernel, summed into incident directions.
+
+Work for one incident direction is split into chunks of ``chunk_rays`` rays. Chunk ``c`` of
+incident index ``m`` draws from the random stream keyed by ``(seed, m, c)`` and fills its own
+histogram; a task sums ``chunks_per_task`` chunk histograms in chunk order, and an incident
+direction sums its tasks in task order. A result is therefore bit-identical whatever the number
+of threads or machines (``docs/architecture.md``). Memory is bounded by the histograms of one
+batch of chunks, whatever the number of rays.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numba
+import numpy as np
+
+from goniometer import tracer
+from goniometer.results import IncidentPart, Sums
+from goniometer.settings import SimulationSettings
+from goniometer.slices import boundary_tables, light_direction
+from goniometer.stack import Stack, pack
+
+
+def warm_up() -> float:
+    """Compile (or load from the on-disk cache) the tracing kernel; returns the seconds spent."""
+    from goniometer.stack import Interface, Lambertian, Medium
+    t0 = time.perf_counter()
+    tiny = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
+    trace_incident(tiny, SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4),
+                                            chunk_rays=8, threads=1), 0)
+    return time.perf_counter() - t0
+
+
+def n_tasks(settings: SimulationSettings) -> int:
+    """Number of tasks of one incident direction (task t covers chunks t*c .. t*c + c - 1)."""
+    return -(-settings.rays // (settings.chunk_rays * settings.chunks_per_task))
+
+
+def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[np.ndarray, ...]:
+    """Per-chunk output arrays of the kernel for ``n`` chunks (reusable between calls)."""
+    nt, nph = settings.resolution
+    k2 = settings.max_order + 2
+    bt = (nt, nph) if stack.transmits else (1, 1)
+    return (np.empty((n, nt, nph, k2, 3)), np.empty((n,) + bt + (k2, 3)), np.empty((n, tracer.N_ENERGY, 3)),
+            np.empty((n, tracer.N_ENERGY_SQ, 3)), np.empty((n, tracer.N_COUNTS), dtype=np.int64))
+
+
+def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
+                parallel: bool = True, buffers: tuple[np.ndarray, ...] | None = None) -> list[Sums]:
+    """Trace tasks ``first_task .. first_task + count - 1`` of incident direction ``m``.
+
+    All their chunks run in parallel (numba threads); each task's chunk histograms are then
+    summed in chunk order starting from zero. A task's result depends only on (stack, settings,
+    m, task index) -- not on threads or on which machine runs it -- which is what makes local and
+    distributed runs bit-identical. ``parallel=False`` uses no numba threads (for callers that
+    run concurrently themselves, like Dask worker threads). ``buffers`` (from
+    :func:`chunk_buffers`) saves allocating the per-chunk histograms on every call.
+    """
+    p = pack(stack)
+    l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
+    nt, nph = settings.resolution
+    K = settings.max_order
+    cpt = settings.chunks_per_task
+    n_chunks_total = -(-settings.rays // settings.chunk_rays)
+    first_chunk = first_task * cpt
+    nb = max(0, min(count * cpt, n_chunks_total - first_chunk))
+    if buffers is None or buffers[0].shape[0] < nb:
+        buffers = chunk_buffers(stack, settings, nb)
+    outs = tuple(b[:nb] for b in buffers)
+    if parallel:
+        numba.set_num_threads(settings.n_threads)
+    kernel = tracer.trace_batch if parallel else tracer.trace_batch_serial
+    if nb > 0:
+        tables = boundary_tables(settings.parametrization, nt, nph)
+        kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
+               first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
+               nt, nph, *tables, K, settings.masking == "height-correlated", settings.event_cap, *outs)
+    results = []
+    for t in range(count):
+        first, last = t * cpt, min((t + 1) * cpt, nb)
+        if first >= last:
+            results.append(Sums.zeros(stack, settings))
+            continue
+        # the task's sum starts from its first chunk (0 + x == x) and adds the others in chunk order
+        total = Sums(*(o[first].copy() for o in outs))
+        for b in range(first + 1, last):
+            total.add(Sums(*(o[b] for o in outs)))
+        results.append(total)
+    return results
+
+
+def task_rays(settings: SimulationSettings, task: int) -> int:
+    """Number of rays of task ``task``."""
+    per = settings.chunk_rays * settings.chunks_per_task
+    return max(0, min(per, settings.rays - task * per))
+
+
+def _tasks_per_call(settings: SimulationSettings) -> int:
+    """Tasks traced by one parallel kernel call of :func:`trace_incident` (enough chunks for
+    two per thread)."""
+    return min(max(1, -(-2 * settings.n_threads // settings.chunks_per_task)), n_tasks(settings))
+
+
+def incident_buffers(stack: Stack, settings: SimulationSettings) -> tuple[np.ndarray, ...]:
+    """The per-chunk buffers :func:`trace_incident` needs, to reuse over a run's incident
+    directions (one run at a time: they are scratch space)."""
+    return chunk_buffers(stack, settings, _tasks_per_call(settings) * settings.chunks_per_task)
+
+
+def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
+                   progress: Callable[[int], None] | None = None,
+                   buffers: tuple[np.ndarray, ...] | None = None) -> "IncidentPart":
+    """Trace every task of incident direction ``m`` locally and sum them in task order.
+    ``buffers`` (from :func:`incident_buffers`) saves allocating and faulting in the per-chunk
+    histograms for every direction."""
+    T = n_tasks(settings)
+    per_call = _tasks_per_call(settings)
+    acc = Sums.zeros(stack, settings)
+    if buffers is None:
+        buffers = incident_buffers(stack, settings)
+    t0 = time.perf_counter()
+    for first in range(0, T, per_call):
+        count = min(per_call, T - first)
+        for t, sums in enumerate(trace_tasks(stack, settings, m, first, count, buffers=buffers)):
+            acc.add(sums)
+            if progress is not None:
+                progress(task_rays(settings, first + t))
+    return IncidentPart.from_sums(m, acc, settings.max_order, stack.transmits, time.perf_counter() - t0)
+
+

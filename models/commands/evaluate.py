@@ -1,0 +1,159 @@
+"""``gonio models``, ``gonio evaluate``, ``gonio fit`` and ``gonio plot``: the models against one
+simulated file (the comparison harness, :mod:`models.compare`, and fitted models, :mod:`models.fitted`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from goniometer.cli.common import UsageError, incident_list
+
+
+def register(sub) -> None:
+    """Add ``fit``, ``models``, ``evaluate`` and ``plot`` to the ``gonio`` sub-command parser."""
+    p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"))
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--starts", type=int, default=4, help="optimiser starts (default 4)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--weighting", choices=("paper", "eq4"), default="paper",
+                   help="the paper's eq. 29 weighting (default) or eq. 4 directly")
+    p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("models", help="list the analytic models and what they support")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_models)
+
+    p = sub.add_parser("evaluate", help="integrate models onto a simulated file and print their errors")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--model", action="append", metavar="NAME", help="a model to evaluate (repeatable; default: all that apply)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5", help="write the integrated model slices")
+    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell axis (default 5)")
+    p.add_argument("--isotropize", choices=("mean",),
+                   help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the output)")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
+                                    "optionally with models")
+    p.add_argument("file", metavar="FILE.h5")
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG figures")
+    p.add_argument("--model", action="append", metavar="NAME",
+                   help="draw this model too (repeatable; 'all': every model that supports the stack)")
+    p.add_argument("--incident", metavar="THETAS", help="only these incident angles of the file, e.g. 0,60")
+    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell side when integrating models")
+    p.add_argument("--isotropize", choices=("mean",), help="feed isotropic models the mean roughness")
+    p.add_argument("--json", action="store_true", help="print the figure paths (and the model errors) as JSON")
+    p.set_defaults(func=cmd_plot)
+
+
+
+def cmd_models(args: argparse.Namespace) -> int:
+    from models.registry import FITTED, catalogue
+    models = catalogue()
+    if args.json:
+        print(json.dumps({n: {"description": m.description, "sides": list(m.sides), "fitted": n in FITTED,
+                              "anisotropic": bool(m.anisotropic)} for n, m in models.items()}, indent=2))
+        return 0
+    width = max(len(n) for n in models)
+    for name, m in models.items():
+        kind = "fitted" if name in FITTED else "analytic"
+        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {m.description}")
+    print("(fitted models are fitted to a file on request: gonio fit FILE.h5 --model hp15|ggx1|ggx2, "
+          "or gonio evaluate FILE.h5 --model hp15-fit)")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from goniometer import store
+    from models.base import ModelError
+    from models.fit import fit
+    try:
+        reference = store.read(args.file)
+        if reference.brdf is None:
+            raise ModelError(f"{args.model}: the file has no BRDF slices to fit")
+
+        def progress(start: int, cost: float) -> None:
+            if not args.json:
+                print(f"start {start}: cost {cost:.6g}", file=sys.stderr)
+
+        result = fit(reference, args.model, starts=args.starts, seed=args.seed, weighting=args.weighting,
+                     progress=progress)
+    except (store.StoreError, ModelError) as e:
+        raise UsageError(f"{args.file}: {e}") from None
+    d = result.to_json()
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    print(f"{reference.stack.name}: {result.model.name} fitted to the BRDF of {len(reference.theta_deg)} incident "
+          f"direction(s) ({result.weighting} weighting, {result.starts} start(s), {result.elapsed_s:.1f} s)")
+    print(("converged: " if result.converged else "NOT converged: ") + result.message)
+    for k, v in result.params.items():
+        print(f"  {k:8s} = {v}")
+    if result.errors:
+        e = result.errors["total"]
+        print(f"RMSE (eq. 4) mean {e['rmse_mean']:.4e}  (R G B) {' '.join(f'{x:.3e}' for x in e['rmse'])}  "
+              f"luminance {e['rmse_luminance']:.3e}  noise floor {e['noise_floor_mean']:.2e}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from goniometer import store
+    from models.base import ModelError
+    from models.evaluate import evaluate, save_slices
+
+    try:
+        if args.save_slices:
+            store.check_writable(args.save_slices)
+        reference = store.read(args.file)
+        ev = evaluate(reference, args.model or None, s=args.subcells, isotropize=args.isotropize,
+                      progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
+    except (store.StoreError, ModelError) as e:
+        raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    if args.save_slices:
+        save_slices(args.save_slices, reference, ev)
+    if args.json:
+        print(json.dumps(ev.to_json(), indent=2))
+        return 0
+    what = "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF"
+    print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
+          f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
+    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'total mean':>11s}  noise floor")
+    for name, e in ev.errors.items():
+        i, t = e["internal"], e["total"]
+        rgb = " ".join(f"{x:9.3e}" for x in i["rmse"])
+        print(f"{name:16s} {i['rmse_mean']:13.4e} {rgb:>30s} {i['rmse_luminance']:10.3e} {t['rmse_mean']:11.4e}"
+              f"  {i['noise_floor_mean']:.2e}")
+    print(f"('internal' = {what}; noise floor = the error a perfect model would show against this reference)")
+    for name, note in ev.approximations.items():
+        print(f"note {name}: {note}")
+    for name, reason in ev.skipped.items():
+        print(f"skipped {name}: {reason}")
+    if args.save_slices:
+        print(f"wrote {args.save_slices}")
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from models.base import ModelError
+    from models.report import ReportError, plot_file
+
+    incidents = None
+    if args.incident is not None:
+        thetas, _ = incident_list(args.incident)
+        incidents = thetas
+    try:
+        r = plot_file(args.file, args.out, args.model, incidents, subcells=args.subcells, isotropize=args.isotropize)
+    except (ReportError, ModelError) as e:
+        raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    if args.json:
+        print(json.dumps(r, indent=2))
+        return 0
+    print(f"wrote {len(r['figures'])} figures into {args.out}:")
+    for p in r["figures"]:
+        print(f"  {p}")
+    return 0
+
+

@@ -1,0 +1,56 @@
+"""``gonio report``: error tables, figures and an HTML browser for a simulated database."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from goniometer.cli.common import UsageError, incident_list
+
+
+def register(sub) -> None:
+    """Add ``report`` to the ``gonio`` sub-command parser."""
+    p = sub.add_parser("report", help="error tables, figures and an HTML browser for a simulated database")
+    p.add_argument("results", metavar="RESULTS_DIR")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--model", action="append", metavar="NAME", help="models to evaluate (default: all that apply)")
+    p.add_argument("--subcells", type=int, default=5)
+    p.add_argument("--incidents", metavar="LIST", help="incident elevations to draw figures for (default: all)")
+    p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved")
+    p.add_argument("--fits", action="store_true", help="also fit hp15, ggx1 and ggx2 to every BRDF (slow)")
+    p.add_argument("--isotropize", choices=("mean",),
+                   help="let isotropic models evaluate anisotropic stacks with the mean roughness")
+    p.set_defaults(func=cmd_report)
+
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from models.report import ReportError, build_report
+    from tqdm import tqdm
+    incidents = None
+    if args.incidents:
+        incidents, _ = incident_list(args.incidents)
+    bar = tqdm(total=None, unit="material", file=sys.stderr, dynamic_ncols=True, disable=None, desc="report")
+
+    def progress(done: int, total: int, message: str) -> None:
+        bar.total = total
+        bar.n = done
+        bar.set_postfix_str(message[:80])
+        bar.refresh()
+
+    try:
+        with bar:
+            summary = build_report(args.results, args.out, models=args.model or None, subcells=args.subcells,
+                                   progress=progress, incidents_for_figures=incidents, definition=args.definition,
+                                   fits=args.fits, isotropize=args.isotropize)
+    except ReportError as e:
+        raise UsageError(str(e)) from None
+    for w in summary.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"{len(summary.materials)} material(s), {summary.records} (material, model) record(s); "
+          f"{len(summary.evaluated)} evaluated, {len(summary.reused)} reused from the cache")
+    print(f"errors: {summary.errors_json}")
+    print(f"open: {summary.index_html}")
+    return 0
+
+

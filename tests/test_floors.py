@@ -1,0 +1,170 @@
+"""The house's floors (docs/architecture.md): the simulator imports nothing above it, nothing
+below the application imports the application, no import circles, and ``gonio --help`` stays light.
+
+Imports are read from the sources (every ``import`` statement, function-level ones included), so
+a lazy import cannot hide an upward dependency; the simulator is also imported for real in a fresh
+interpreter to catch what the sources do not show.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("goniometer", "models")
+#: the application floor: CLI commands, reports, HTML, figures
+APPLICATION = ("goniometer.cli", "models.commands", "models.report")
+
+
+def _modules() -> dict[str, Path]:
+    found = {}
+    for pkg in PACKAGES:
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(p.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            found[".".join(parts)] = p
+    return found
+
+
+MODULES = _modules()
+
+
+def _resolve(name: str) -> str | None:
+    """The project module an imported dotted name refers to (longest known prefix)."""
+    parts = name.split(".")
+    while parts:
+        cand = ".".join(parts)
+        if cand in MODULES:
+            return cand
+        parts.pop()
+    return None
+
+
+def _imports(module: str) -> set[str]:
+    """Project modules imported anywhere in ``module`` (TYPE_CHECKING blocks included)."""
+    tree = ast.parse(MODULES[module].read_text(encoding="utf-8"))
+    is_pkg = MODULES[module].name == "__init__.py"
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = module.split(".")
+                anchor = anchor if is_pkg else anchor[:-1]
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join(anchor + ([base] if base else []))
+            names = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
+        else:
+            continue
+        for n in names:
+            target = _resolve(n)
+            if target is not None and target != module:
+                out.add(target)
+    return out
+
+
+GRAPH = {m: _imports(m) for m in MODULES}
+
+
+def _in(module: str, prefixes: tuple[str, ...]) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def test_the_module_list_is_read():
+    # guards the tests below against an empty or mis-rooted scan
+    assert "goniometer.tracer" in MODULES and "models.base" in MODULES
+    assert "goniometer.optics" in GRAPH["goniometer.tracer"]
+
+
+def test_simulator_imports_nothing_from_models():
+    upward = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if _in(m, ("goniometer",))
+                    for t in ts if _in(t, ("models",)))
+    assert not upward, "the simulator imports the models: " + ", ".join(upward)
+
+
+def test_nothing_below_the_application_imports_it():
+    upward = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if not _in(m, APPLICATION)
+                    for t in ts if _in(t, APPLICATION))
+    assert not upward, "lower floors import the application: " + ", ".join(upward)
+
+
+def _cycles() -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in GRAPH[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(GRAPH):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_circles():
+    cycles = _cycles()
+    assert not cycles, f"import circles: {cycles}"
+
+
+def _fresh(code: str) -> str:
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.strip()
+
+
+def test_importing_every_simulator_module_loads_no_model():
+    sim = sorted(m for m in MODULES if _in(m, ("goniometer",)) and not m.endswith("__main__"))
+    code = ("import importlib, sys\n"
+            f"for m in {sim!r}: importlib.import_module(m)\n"
+            "print(sorted(m for m in sys.modules if m == 'models' or m.startswith('models.')))")
+    assert _fresh(code) == "[]"
+
+
+@pytest.mark.parametrize("package", ["goniometer", "models"])
+def test_the_public_face_is_light(package):
+    # importing a package loads no submodule beyond what its face needs (names load on use)
+    code = (f"import sys; import {package}\n"
+            f"print(sorted(m for m in sys.modules if m.startswith('{package}.')))")
+    loaded = eval(_fresh(code))
+    assert set(loaded) <= {"goniometer.cache"}, loaded
+
+
+def test_gonio_help_imports_no_model():
+    code = ("import sys, contextlib, io\n"
+            "from goniometer.cli import build_parser\n"
+            "p = build_parser()\n"
+            "with contextlib.redirect_stdout(io.StringIO()): p.format_help()\n"
+            "print(sorted(m for m in sys.modules if m.startswith('models.') and not m.startswith('models.commands')))")
+    assert _fresh(code) == "[]"
