@@ -4,7 +4,7 @@ For the plastic, metal and slab of ``bench.py`` (half slices 90 x 360, 7 inciden
 simulates with several ray counts per direction and records the CPU time and the **noise floor**
 of the comparison a model would be judged on (eq. 4 with the squared difference replaced by the
 squared standard error, channel mean: internal paths for the plastic and the metal, the BTDF for
-the slab; see ``models.errors``). From these it reports
+the slab; see ``models.compare.errors``). From these it reports
 
 * the exponent of noise floor ~ rays^-b (Monte Carlo: b = 1/2; a clear departure would mean the
   standard errors are wrong or the cost per ray is not constant),
@@ -35,7 +35,7 @@ from goniometer.results import cell_geometry
 from goniometer.settings import SimulationSettings
 from goniometer.simulate import simulate
 from goniometer.tasks import warm_up
-from models.errors import noise_floor, reference_parts
+from models.compare.errors import noise_floor, reference_parts
 
 from bench import INCIDENT, MATERIALS, cpu_model
 

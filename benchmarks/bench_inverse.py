@@ -1,4 +1,4 @@
-"""Benchmark of the inverse method (`make bench`): seconds per `models.inverse.solve` on one core.
+"""Benchmark of the inverse method (`make bench`): seconds per `models.inverse.solver.solve` on one core.
 
 The issue's target: inverting the 2-lobe configuration of Bati 2021 figure 17 takes at most 50 ms
 on one core after warm-up (the paper's prototype: "each configuration in Figure 17 takes less
@@ -22,7 +22,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from models import inverse as I
+from models.inverse import solver as I
 
 TARGET_S = 0.050
 L = I.Lobe

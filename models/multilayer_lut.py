@@ -4,7 +4,7 @@ Source: "Light Transport in a Multi-Layered Microfacet Model" (``../papers/multi
 realtime-blog.txt``, S. Steinberg 2016), sections "Light transport through a microfacet layer" and
 "Evaluating a multi-layered BRDF". Its two look-up tables -- the visible-microfacet-averaged Fresnel
 transmission ``t(v, alpha, eta)`` and the mean refracted direction -- are computed by our own
-quadrature (:mod:`models.multilayer_tables`, no curve fits).
+quadrature (:mod:`models.tables.multilayer`, no curve fits).
 
 Conventions (as :mod:`models.base` and :mod:`goniometer.optics`)
 -----------------------------------------------------------------
@@ -75,7 +75,7 @@ Choices where the article is vague or wrong (each tested in ``tests/models/test_
 * **Perfectly smooth interfaces** (``alpha = 0``): their reflection lobe is a Dirac that cannot be
   evaluated pointwise, so it contributes 0 (``top`` = 0 for a smooth top interface; an internal
   smooth conductor gives 0). Their transmission is exact: ``T = 1 - F``, Snell's direction, ``G = 1``.
-* **Tables** (:mod:`models.multilayer_tables`): ``T`` and ``C`` are averaged over the visible
+* **Tables** (:mod:`models.tables.multilayer`): ``T`` and ``C`` are averaged over the visible
   normal distribution ``D_v`` (the article: ``D cos theta_m`` over front-facing facets), the mean
   direction weighted by the transmitted energy ``D_v (1 - F)``.
 * Where everything is totally reflected (``T = 0``) or a mean direction is grazing (``C = 0``) the
@@ -106,7 +106,7 @@ import numpy as np
 from goniometer.optics import ggx_lambda, microfacet_reflection, smith_g2
 from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, Stack, pack
 from models._jit import njit
-from models import multilayer_tables as mt
+from models.tables import multilayer as mt
 from models.base import Model, ModelError, ModelValue
 
 _INV_PI = 1.0 / math.pi
@@ -129,7 +129,7 @@ def _transmit(wx: float, wy: float, wz: float, alpha: float, eta: float, up: np.
               down: np.ndarray, split: float, coords: np.ndarray, k: int):
     """Cross dielectric interface ``k`` downwards from ``w`` (region above, pointing up).
 
-    ``coords[k]`` holds the interface's :func:`models.multilayer_tables.prepare` result
+    ``coords[k]`` holds the interface's :func:`models.tables.multilayer.prepare` result
     ``(j, fj, k, fk, w0)``. Returns ``(T, x, y, z, lam)``: the mean transmission, the mean refracted
     direction (pointing up, in the region below) and its Smith Lambda for the interface's
     roughness. ``eta == 1``: ``(1, w, 0)`` (the interface is absent). ``T = 0`` when nothing gets

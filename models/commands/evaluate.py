@@ -69,7 +69,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
-    from models.fit import fit
+    from models.fitted.fit import fit
     try:
         reference = store.read(args.file)
         if reference.brdf is None:
@@ -102,7 +102,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
-    from models.evaluate import evaluate, save_slices
+    from models.compare.evaluate import evaluate, save_slices
 
     try:
         if args.save_slices:
@@ -138,7 +138,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
-    from models.report import ReportError, plot_file
+    from models.report.build import ReportError, plot_file
 
     incidents = None
     if args.incident is not None:

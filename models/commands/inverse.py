@@ -1,5 +1,5 @@
 """``gonio invert`` and ``gonio validate-inverse``: the command line of the inverse method
-(:mod:`models.inverse`, :mod:`models.inverse_validation`).
+(:mod:`models.inverse.solver`, :mod:`models.inverse.validation`).
 
 Registered through :func:`register` (the ``models`` command plugin). User errors raise
 :class:`goniometer.cli.common.UsageError` (one line ``gonio: error: ...``, exit status 2). A well-formed
@@ -49,7 +49,7 @@ def _check_out(path: str | None, suffix: str, option: str, create_parent: bool =
 # ---------------------------------------------------------------------------- invert
 
 def _options(args: argparse.Namespace):
-    from models.inverse import InverseError, InverseOptions
+    from models.inverse.solver import InverseError, InverseOptions
     try:
         return InverseOptions(eta_max=args.eta_max, variance_channel=args.variance_channel,
                               top_variance=args.top_variance)
@@ -85,10 +85,10 @@ def _val(v: Any) -> str:
 
 
 def cmd_invert(args: argparse.Namespace) -> int:
-    from models import inverse
-    from models.inverse import InverseError
+    from models.inverse import solver as inverse
+    from models.inverse.solver import InverseError
     from goniometer import atomic
-    from models.inverse_validation import forward_check
+    from models.inverse.validation import forward_check
     if not args.lobe:
         raise _usage("invert: at least one --lobe is required (e.g. --lobe \"R=0.04 sigma=0 layers=1\")")
     try:
@@ -106,7 +106,7 @@ def cmd_invert(args: argparse.Namespace) -> int:
     if not inv.achievable:
         print(f"not physically achievable: {inv.reason}", file=sys.stderr)
         if classes_png is not None and inv.classes:
-            from models.inverse_validation import classes_figure, save_png
+            from models.inverse.validation import classes_figure, save_png
             save_png(classes_figure(inv), classes_png)
             print(f"wrote {classes_png} (classes down to the failing lobe)", file=sys.stderr)
         if args.json:
@@ -117,7 +117,7 @@ def cmd_invert(args: argparse.Namespace) -> int:
     if out is not None:
         atomic.write_bytes(out, _material_text(inv, stack, checks).encode())
     if classes_png is not None:
-        from models.inverse_validation import classes_figure, save_png
+        from models.inverse.validation import classes_figure, save_png
         save_png(classes_figure(inv), classes_png)
     if args.json:
         d = inverse._jsonable(inv.to_json())
@@ -145,8 +145,8 @@ def cmd_invert(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------- validate-inverse
 
 def cmd_validate_inverse(args: argparse.Namespace) -> int:
-    from models.inverse import InverseError
-    from models import inverse_validation as V
+    from models.inverse.solver import InverseError
+    from models.inverse import validation as V
     try:
         cases = V.load_cases(args.cases)
     except InverseError as e:

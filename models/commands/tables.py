@@ -1,4 +1,4 @@
-"""``gonio tables``: show, build and check the models' precomputed tables (:mod:`models.table_check`).
+"""``gonio tables``: show, build and check the models' precomputed tables (:mod:`models.tables.check`).
 
 Exit status: 0, or 1 if a check exceeds its stated bound.
 """
@@ -27,8 +27,8 @@ def _bar(name: str):
 
 
 def cmd_tables(args: argparse.Namespace) -> int:
-    from models import table_cache
-    from models.table_check import MASKINGS, run
+    from models.tables import cache as table_cache
+    from models.tables.check import MASKINGS, run
     if args.check < 0:
         raise UsageError(f"--check: must be >= 0 random points, got {args.check}")
     maskings = MASKINGS if args.masking == "all" else (args.masking,)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from models import multilayer_tables as mt
-from models import tables
+from models.tables import multilayer as mt
+from models.tables import belcour as tables
 
 
 @pytest.fixture

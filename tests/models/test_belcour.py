@@ -23,9 +23,10 @@ import pytest
 
 from goniometer import optics, smooth
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from models import belcour, tables
+from models.belcour import model as belcour
+from models.tables import belcour as tables
 from models.base import ModelError
-from models.belcour import (BelcourBati19, BelcourBTDF, BelcourForward, BelcourOptions, BelcourSymmetric,
+from models.belcour.model import (BelcourBati19, BelcourBTDF, BelcourForward, BelcourOptions, BelcourSymmetric,
                             roughness_to_variance, variance_to_roughness)
 
 ALL_MODELS = (BelcourForward, BelcourSymmetric, BelcourBati19, BelcourBTDF)

@@ -1,4 +1,4 @@
-"""models.errors: eq. 4, noise floors, masks."""
+"""models.compare.errors: eq. 4, noise floors, masks."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 
 from goniometer.results import SliceData
 from goniometer.slices import SliceGrid
-from models import errors
-from models.integrate import ModelSlices
+from models.compare import errors
+from models.compare.integrate import ModelSlices
 
 
 def _slices(rng, M=2, nt=6, nph=8):

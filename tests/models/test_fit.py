@@ -1,4 +1,4 @@
-"""models.fit: the HP15 distribution and shadowing, the fitted families, and the fits themselves."""
+"""models.fitted.fit: the HP15 distribution and shadowing, the fitted families, and the fits themselves."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ from goniometer.settings import SimulationSettings
 from goniometer.simulate import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from models import fit as F
+from models.fitted import fit as F
 from models.base import ModelError
-from models.errors import rmse
-from models.integrate import integrate_slice
+from models.compare.errors import rmse
+from models.compare.integrate import integrate_slice
 from tests.conftest import P_FALSE_ALARM, Z_TOL
 
 STACK = Stack("synthetic", (Interface(0.1, (1.5,) * 3), Lambertian((0.5,) * 3)), "plastic")

@@ -1,4 +1,4 @@
-"""models.integrate: cell averages of analytic BSDFs on the reference grids."""
+"""models.compare.integrate: cell averages of analytic BSDFs on the reference grids."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from goniometer.simulate import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Stack
 from models.base import Model, ModelValue
-from models.integrate import integrate, integrate_slice
+from models.compare.integrate import integrate, integrate_slice
 from tests.conftest import assert_cells_match
 
 

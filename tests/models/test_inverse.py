@@ -3,7 +3,7 @@
 Tolerances
 ----------
 * The inverse evaluates FGD at normal incidence with the forward model's own quadrature and alpha
-  interpolation (:func:`models.inverse.fgd_normal`), so on stacks whose FGD slices are unsplit the
+  interpolation (:func:`models.inverse.solver.fgd_normal`), so on stacks whose FGD slices are unsplit the
   round trip is exact up to root-finding tolerances: ``ROUND_TRIP_EXACT = 1e-9`` relative.
 * Where the forward model uses a *split* slice (an interface into a lower index whose critical
   angle is reachable) its quadrature and alpha interpolation differ from the unsplit ones the
@@ -13,7 +13,7 @@ Tolerances
 * The paper's figure 25 tolerance is 1 % (``FIGURE25_RTOL``). Coloured lobes below an interface
   carry an inherent per-channel variance spread (the roughness is achromatic, the inter-reflection
   factor m of eq. 19 is not): no achromatic roughness brings every channel closer than half the
-  spread of the channel variances (:func:`models.inverse.inherent_variance_spread`). The round
+  spread of the channel variances (:func:`models.inverse.solver.inherent_variance_spread`). The round
   trips therefore require ``max(FIGURE25_RTOL, 1.05 x that bound)`` for sigma (the 5 % covers the
   O(m) slope differences), and below 1 % for every case whose bound is below 0.95 %; the cases
   where it is not are listed (strongly coloured conductors under a coat).
@@ -27,8 +27,10 @@ import numpy as np
 import pytest
 
 from goniometer.stack import Interface, Medium, Stack, load_toml
-from models import belcour, inverse as I, tables
-from models.inverse_validation import forward_check, forward_lobes
+from models.belcour import model as belcour
+from models.inverse import solver as I
+from models.tables import belcour as tables
+from models.inverse.validation import forward_check, forward_lobes
 
 ROUND_TRIP_EXACT = 1e-9
 SPLIT_RTOL = 0.015

@@ -1,4 +1,4 @@
-"""models.inverse_validation and models.commands.inverse: cases, forward check, the lobe estimator on
+"""models.inverse.validation and models.commands.inverse: cases, forward check, the lobe estimator on
 simulated slices, the report, and the ``gonio invert`` / ``gonio validate-inverse`` commands.
 
 Tolerances: the forward check uses the paper's 1 % (figure 25) widened to the inherent channel
@@ -21,7 +21,9 @@ from scipy import integrate
 from goniometer import atomic
 from goniometer import cli, optics
 from goniometer.stack import Interface, Stack, load_toml
-from models import belcour, inverse as I, inverse_validation as V
+from models.belcour import model as belcour
+from models.inverse import solver as I
+from models.inverse import validation as V
 from models.commands import inverse as inverse_cli
 from tests.conftest import Z_TOL
 

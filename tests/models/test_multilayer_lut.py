@@ -1,4 +1,4 @@
-"""Tests of the multilayer-lut model (models.multilayer_lut) and its tables (models.multilayer_tables).
+"""Tests of the multilayer-lut model (models.multilayer_lut) and its tables (models.tables.multilayer).
 
 Reference values are computed here from first principles with textbook formulas in angle form
 (Snell's law on angles, Fresnel via sin/tan differences, the a/b form for conductors, GGX D and
@@ -16,7 +16,7 @@ import pytest
 
 from goniometer import optics
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from models import multilayer_tables as mt
+from models.tables import multilayer as mt
 from models.base import ModelError
 from models.multilayer_lut import MultilayerLUT, MultilayerLUTArticle
 from tests.models.helpers import (direction, fresnel_conductor_tb, fresnel_dielectric_tb, g1_tb, ggx_brdf_tb,

@@ -20,9 +20,9 @@ import pytest
 from goniometer import store
 from goniometer.database import load_database, simulate_database
 from goniometer.slices import SliceGrid, light_direction
-import models.report as report_module
-from models.evaluate import evaluate
-from models.report import (PAPER_COLOURS, ReportError, build_report, model_style, open_results, plane_cells,
+import models.report.build as report_module
+from models.compare.evaluate import evaluate
+from models.report.build import (PAPER_COLOURS, ReportError, build_report, model_style, open_results, plane_cells,
                            round_mantissa)
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_database.toml"

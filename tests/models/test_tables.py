@@ -24,7 +24,7 @@ import pytest
 
 from goniometer import atomic
 from goniometer import optics
-from models import tables
+from models.tables import belcour as tables
 
 # -------------------------------------------------------------------------- references
 

@@ -9,9 +9,9 @@ import pytest
 
 from goniometer import atomic
 from goniometer.cli import main
-from models import multilayer_tables as mt
-from models import table_check as tables_cli
-from models import tables
+from models.tables import multilayer as mt
+from models.tables import check as tables_cli
+from models.tables import belcour as tables
 
 
 def _run(capsys, *argv) -> tuple[int, dict]:

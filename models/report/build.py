@@ -3,7 +3,7 @@ figures, a static HTML browser and the reproduction checks of Bati et al. 2019, 
 
 ``build_report(results_dir, out_dir)`` evaluates every finished material of a results directory
 of ``gonio database simulate`` with the models of :mod:`models.registry` (whatever
-:func:`models.evaluate.evaluate` applies to it) and writes::
+:func:`models.compare.evaluate.evaluate` applies to it) and writes::
 
     <out>/index.html                  static browser: works from file://, no server, no network;
                                       its data is embedded, images are referenced relatively
@@ -64,7 +64,7 @@ from goniometer.cache import package_key
 from models._jit import APPLICATION, njit
 from models import registry
 from models.base import ModelError
-from models.evaluate import comparison_side, evaluate
+from models.compare.evaluate import comparison_side, evaluate
 
 REPORT_FORMAT = "goniometer.report"
 REPORT_VERSION = 1
@@ -72,7 +72,7 @@ CACHE_FORMAT = "goniometer.report-cache"
 CACHE_VERSION = 1
 #: bump when the figures change in a way the module source hash would not capture
 FIGURE_VERSION = 1
-ASSETS = Path(__file__).resolve().parent / "report_assets"
+ASSETS = Path(__file__).resolve().parent / "assets"
 
 #: the paper's colours (figures 5-10) for its models; others get FALLBACK_COLOURS in name order
 PAPER_COLOURS = {

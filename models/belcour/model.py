@@ -54,7 +54,7 @@ Choices where the spec is UNCERTAIN or offers a switch (constructor parameters):
 * Variance bookkeeping for >= 3 interfaces follows §6 literally (vT0i scaled by j_down, the new
   vt_up by Ji0) although it is not obviously consistent (§6 UNCERTAIN).
 * ``fgd_source="material"`` (default): FGD/TIR from material slices exact in (eta, kappa) (as
-  Bati 2019 precomputed per material, :func:`models.tables.fgd_slice`); ``"table"`` interpolates
+  Bati 2019 precomputed per material, :func:`models.tables.belcour.fgd_slice`); ``"table"`` interpolates
   the 4D FGD / 3D TIR tables (Belcour's approach). FGD is single scattering (the FGD-infinity
   multiple-scattering table is not implemented; Bati 2019 disabled it too).
 * Stacks ending in a dielectric (slabs) are accepted by the BRDF models: their lobes are the
@@ -74,7 +74,7 @@ exactly since the interpolation sees the same cosine). ``direction_grid=0`` runs
 ``incident="light"`` runs it once per call (and computes each lobe's ``Lambda(l)`` once).
 
 Covariances: the one adding-doubling kernel (:func:`adding_doubling`) and the lobe evaluation
-also serve the anisotropic model ``belcour-aniso`` (:mod:`models.belcour_aniso`, Yamaguchi et al.
+also serve the anisotropic model ``belcour-aniso`` (:mod:`models.belcour.aniso`, Yamaguchi et al.
 2019; its docstring has the equations and choices). Every (co)variance is stored as ``nq``
 entries: ``nq = 1`` (a scalar variance; the isotropic models, :func:`pack_stack` by default) or
 ``nq = 3``, the entries ``(xx, xy, yy)`` of a 2 x 2 covariance in the macro tangent plane
@@ -102,7 +102,7 @@ import numpy as np
 from goniometer import optics
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models._jit import njit
-from models import tables
+from models.tables import belcour as tables
 from models.base import Model, ModelValue
 
 ALPHA_EVAL_MIN = 1e-4
@@ -194,7 +194,7 @@ def blended_alpha(a1: float, a2: float, ex: float, ey: float, c: float, dx: floa
     """FGD lookup roughness of an anisotropic GGX ``(a1 along (ex, ey), a2 across)`` seen at mean
     cosine ``c`` from azimuth ``d = (dx, dy)``:
     ``sqrt(c^2 (a1^2 + a2^2) / 2 + (1 - c^2) a_d^2)``, ``a_d^2 = a1^2 (d.e1)^2 + a2^2 (d.e2)^2``
-    (rationale in :mod:`models.belcour_aniso`)."""
+    (rationale in :mod:`models.belcour.aniso`)."""
     p = dx * ex + dy * ey
     q = dy * ex - dx * ey
     ad2 = a1 * a1 * p * p + a2 * a2 * q * q
@@ -292,7 +292,7 @@ class PackedStack:
       the entry's upper medium (1 = none);
     * ``achromatic``: the three channels share one FGD slice;
     * FGD slices per entry and channel (``fgd_split``, ``fgd_lower``, ``fgd_upper``: stacked
-      :class:`models.tables.TableSlice`), TIR slices per entry (channel axis of length 1);
+      :class:`models.tables.belcour.TableSlice`), TIR slices per entry (channel axis of length 1);
     * ``n_lobes`` (number of interfaces), ``eta_exit`` (absolute index of the last medium reached:
       below a transmitting stack, above a conductor), ``top_eta``/``top_kappa`` (relative index of
       the top interface, RGB).
@@ -1119,7 +1119,7 @@ def lobe_statistics(stack: Stack, cos_theta: float, options: BelcourOptions | No
 # --------------------------------------------------------------------------- models
 
 class BelcourModel(Model):
-    """Machinery shared by the Belcour models (here and :class:`models.belcour_aniso.BelcourAniso`):
+    """Machinery shared by the Belcour models (here and :class:`models.belcour.aniso.BelcourAniso`):
     options (``options_type(**options)``), support, per-instance memos of packed stacks and
     statistics grids, and the reflection evaluation. ``anisotropic`` (class attribute) selects the
     covariance form of :func:`pack_stack`; :meth:`_evaluate` is the forward model (statistics at

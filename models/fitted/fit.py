@@ -89,7 +89,7 @@ Fitting
   ``alpha = 0.016`` on 1-degree cells) that lowered its objective and raised the error of the
   properly integrated model. Half grids already have small cells around the mirror direction.
   The reported errors always integrate the fitted model with ``s = 5``
-  (:func:`models.integrate.integrate`).
+  (:func:`models.compare.integrate.integrate`).
 * **Optimiser.** ``scipy.optimize.least_squares`` (trf, bounded) in internal coordinates
   (``ln`` for ``alpha, F0`` (GGX), ``sigma, a``; ``kw / lambda^4`` for ``kw``), with an exact
   Jacobian for the colour parameters (the model is affine in them) and central differences
@@ -112,7 +112,7 @@ Fitting
 
 Results put the whole fitted BRDF in ``ModelValue.internal`` (``top`` is 0): a fit has no
 top-lobe/internal split, and :func:`fit` reports the errors of the total
-(``models.errors.compare(..., drop_first_order=False)``, so ``"internal"`` and ``"total"`` are
+(``models.compare.errors.compare(..., drop_first_order=False)``, so ``"internal"`` and ``"total"`` are
 the same comparison). Fitted models accept any stack (``support_reason`` is None).
 """
 
@@ -132,8 +132,8 @@ from goniometer.slices import light_direction
 from goniometer.stack import Stack
 from models._jit import njit
 from models.base import Model, ModelError, ModelValue
-from models.errors import compare
-from models.integrate import integrate
+from models.compare.errors import compare
+from models.compare.integrate import integrate
 
 #: wavelengths of the R, G, B channels in micrometres (Holzschuch & Pacanowski 2015, sec. 5.5)
 WAVELENGTHS_UM = np.array([0.645, 0.526, 0.444])

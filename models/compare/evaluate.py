@@ -17,9 +17,10 @@ import numpy as np
 from goniometer import store
 from goniometer.results import SimulationResult
 from goniometer.stack import Interface, Stack
-from models import errors, registry
+from models import registry
+from models.compare import errors
 from models.base import ModelError
-from models.integrate import ModelSlices, integrate
+from models.compare.integrate import ModelSlices, integrate
 
 MODEL_SLICES_FORMAT = "goniometer.model-slices"
 
@@ -127,7 +128,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             raise ModelError(f"{name}: fitted models are BRDF models; this stack is judged on its {side.upper()}")
         if progress is not None:
             progress(name)
-        from models.fit import fit
+        from models.fitted.fit import fit
         fr = fit(reference, name, errors=False)
         ms = integrate(fr.model, reference, side, s)
         result.slices[name] = ms

@@ -2,7 +2,7 @@
 covariance per statistic instead of a scalar variance, after Yamaguchi et al. 2019
 (``shared/papers/anisotropic-belcour-extension.txt``, cited as Y19) -- Belcour's adding-doubling
 otherwise unchanged (``shared/spec/belcour2018.md``, cited as §n; isotropic code in
-:mod:`models.belcour`).
+:mod:`models.belcour.model`).
 
 Conventions
 -----------
@@ -20,7 +20,7 @@ Equations
   ``Sigma = [t_x t_y] diag(sigma_x, sigma_y) [t_x t_y]^T``, i.e.
   ``xx = sigma_x c^2 + sigma_y s^2``, ``xy = (sigma_x - sigma_y) c s``, ``yy = sigma_x s^2 + sigma_y c^2``,
   with ``sigma_{x,y} = h(alpha_{x,y})`` for reflection and ``h(s alpha_{x,y})`` for refraction (down and
-  up), ``h(a) = a^1.1 / (1 - a^1.1)`` (:func:`models.belcour.roughness_to_variance`, §2) and the
+  up), ``h(a) = a^1.1 / (1 - a^1.1)`` (:func:`models.belcour.model.roughness_to_variance`, §2) and the
   transmission scales ``s`` of the isotropic model (normal-incidence form by default, angular form
   with ``transmission_scale="angular"``, §3). An isotropic interface gives ``h(alpha) I`` exactly.
 * **Jacobians** (Y19 eqs. 4-5): the maps from half-vector slopes to projected reflected
@@ -85,11 +85,11 @@ Choices where Y19 is vague (each tested in ``tests/models/test_belcour_aniso.py`
   per direction instead.
 
 Reduction: for a stack whose interfaces are all isotropic every covariance is ``sigma I`` with the
-very floating-point operations of :func:`models.belcour.adding_doubling` on its diagonal, so
+very floating-point operations of :func:`models.belcour.model.adding_doubling` on its diagonal, so
 ``belcour-aniso`` equals ``belcour-fwd`` (same options) to the last bit.
 
-Reuse: everything but the anisotropic API lives in :mod:`models.belcour`, whose adding-doubling
-(:func:`models.belcour.adding_doubling`), lobe evaluation and statistics grids work on
+Reuse: everything but the anisotropic API lives in :mod:`models.belcour.model`, whose adding-doubling
+(:func:`models.belcour.model.adding_doubling`), lobe evaluation and statistics grids work on
 (co)variances with one entry (scalar variances) or three (the covariances here): this module packs
 stacks with ``pack_stack(..., anisotropic=True)`` and adds the anisotropic statistics, options and
 model. The 2 x 2 algebra (:func:`interface_covariance`, :func:`principal`, :func:`blended_alpha`,
@@ -104,7 +104,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniometer.stack import Interface, Stack
-from models.belcour import (DIRECTION_GRID, BelcourModel, BelcourOptions, PackedStack, blended_alpha,
+from models.belcour.model import (DIRECTION_GRID, BelcourModel, BelcourOptions, PackedStack, blended_alpha,
                             interface_covariance, lookup_alpha, pack_stack, principal, resolve_options,
                             run_adding_doubling, unit_azimuth, variance_to_roughness)
 
@@ -129,7 +129,7 @@ def isotropic_proxy(stack: Stack, roughness: str = "x") -> Stack:
 
 def pack_aniso(stack: Stack, options: BelcourOptions = BelcourOptions()) -> PackedStack:
     """Flatten a supported (possibly anisotropic) stack with covariances ``(xx, xy, yy)``:
-    :func:`models.belcour.pack_stack` with ``anisotropic=True``."""
+    :func:`models.belcour.model.pack_stack` with ``anisotropic=True``."""
     return pack_stack(stack, options, anisotropic=True)
 
 
@@ -137,7 +137,7 @@ def pack_aniso(stack: Stack, options: BelcourOptions = BelcourOptions()) -> Pack
 
 @dataclass(frozen=True)
 class AnisoOptions(BelcourOptions):
-    """:class:`models.belcour.BelcourOptions` plus the azimuth nodes of the ``incident="view"`` table."""
+    """:class:`models.belcour.model.BelcourOptions` plus the azimuth nodes of the ``incident="view"`` table."""
 
     azimuth_grid: int = AZIMUTH_GRID
 
@@ -164,7 +164,7 @@ class AnisoStatistics:
     """Result of the adding-doubling for one incident direction: lobes (one per interface, top
     first), the stack's energies ``R0N``, ``T0N``, ``RN0``, ``TN0`` (RGB) and covariances ``SR0N``,
     ``ST0N``, ``SRN0``, ``STN0`` (3, 2, 2) (Bati 2021 notation), the Jacobian products and the mean
-    cosine in the last medium reached (as :class:`models.belcour.StackStatistics`)."""
+    cosine in the last medium reached (as :class:`models.belcour.model.StackStatistics`)."""
 
     lobes: list[AnisoLobe]
     R0N: np.ndarray
@@ -220,8 +220,8 @@ def aniso_statistics(stack: Stack, omega_i, options: BelcourOptions | None = Non
 
 class BelcourAniso(BelcourModel):
     """Belcour 2018 forward model with 2 x 2 covariances and anisotropic GGX lobes (Yamaguchi et al.
-    2019). Options as :class:`models.belcour.BelcourForward` plus ``azimuth_grid``; evaluation by
-    :class:`models.belcour.BelcourModel`."""
+    2019). Options as :class:`models.belcour.model.BelcourForward` plus ``azimuth_grid``; evaluation by
+    :class:`models.belcour.model.BelcourModel`."""
 
     name = "belcour-aniso"
     description = ("Anisotropic Belcour (Yamaguchi 2019): forward adding-doubling of 2x2 lobe covariances, "

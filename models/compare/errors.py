@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from goniometer.results import SliceData
-from models.integrate import ModelSlices
+from models.compare.integrate import ModelSlices
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 

@@ -119,7 +119,7 @@ Cache
 One file ``multilayer-lut.npz`` in ``$GONIOMETER_CACHE`` (default ``~/.cache/goniometer``, see
 :func:`goniometer.cache.cache_root`), written atomically (temporary file + rename) with
 :data:`TABLE_VERSION` and the grid signature inside; a file whose version or grid differs is
-rebuilt, never reused (the file handling is :mod:`models.table_cache`). :func:`load_tables`
+rebuilt, never reused (the file handling is :mod:`models.tables.cache`). :func:`load_tables`
 builds on first use and memoises the loaded tables in an ``lru_cache`` (cleared by
 :func:`build_tables`), the module's only state. Build: 166 000 nodes x 2 048 quadrature points,
 about 10 s of CPU time (5 s on 2 idle cores with numba ``parallel=True``), plus 2-4 s of
@@ -141,8 +141,8 @@ import numpy as np
 
 from goniometer import optics
 from models._jit import njit
-from models import table_cache
-from models.tables import axis_cell
+from models.tables import cache as table_cache
+from models.tables.belcour import axis_cell
 
 #: bump whenever the definition, numerics or layout of the tables changes
 TABLE_VERSION = 1

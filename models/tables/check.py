@@ -1,7 +1,7 @@
 """Show, build and check the models' precomputed tables (what ``gonio tables`` runs).
 
-The tables are the Belcour FGD/TIR tables (:mod:`models.tables`, one pair per masking model) and
-the multilayer-lut mean-transmission tables (:mod:`models.multilayer_tables`). Each lives in the
+The tables are the Belcour FGD/TIR tables (:mod:`models.tables.belcour`, one pair per masking model) and
+the multilayer-lut mean-transmission tables (:mod:`models.tables.multilayer`). Each lives in the
 cache directory (``$GONIOMETER_CACHE``, default ``~/.cache/goniometer``, or ``--cache-dir``) with a
 version stamp; the models build a missing or stale one on first use, this command does it ahead of
 time (``--rebuild`` rebuilds current ones too) and, with ``--check N``, compares N random off-grid
@@ -17,7 +17,11 @@ from typing import Callable
 
 import numpy as np
 
-from models import multilayer_tables, table_cache, tables
+from models.tables import belcour as tables
+
+from models.tables import cache as table_cache
+
+from models.tables import multilayer as multilayer_tables
 
 MASKINGS = ("separable", "height-correlated")
 

@@ -1,11 +1,11 @@
-"""Validation of the inverse method (Bati 2021, :mod:`models.inverse`) on target lobe configurations.
+"""Validation of the inverse method (Bati 2021, :mod:`models.inverse.solver`) on target lobe configurations.
 
 For every case of a cases file (``configs/inverse/cases.toml``: ``[[case]]`` tables with ``name``,
 ``base`` and ``[[case.lobe]]`` tables ``R``, ``sigma``, ``layers``; optional ``pick`` -- the
 ``--pick`` syntax of ``gonio invert`` -- ``expect_achievable`` and ``note``):
 
 (a) **Forward check** (the paper's figure 25): the retrieved stack goes through Belcour's forward
-    model (:func:`models.belcour.stack_statistics` at ``cos theta = 1``, per-channel statistics,
+    model (:func:`models.belcour.model.stack_statistics` at ``cos theta = 1``, per-channel statistics,
     material FGD slices). Lobe ``k``'s energy is the sum of the energies of its interfaces' lobes,
     its variance their energy-weighted mean (eq. 4). Requested vs obtained ``R_k`` and ``sigma_k``
     per channel.
@@ -78,9 +78,10 @@ from scipy import optimize
 
 from goniometer import atomic
 from goniometer.stack import Stack
-from models import belcour, inverse
-from models.belcour import roughness_to_variance, variance_to_roughness
-from models.inverse import InverseError, Inversion, Lobe
+from models.belcour import model as belcour
+from models.inverse import solver as inverse
+from models.belcour.model import roughness_to_variance, variance_to_roughness
+from models.inverse.solver import InverseError, Inversion, Lobe
 
 #: requested variances closer than this ratio are fitted as one lobe
 SEPARABLE_RATIO = 1.8

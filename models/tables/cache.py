@@ -1,4 +1,4 @@
-"""Cached table files of the analytic models (:mod:`models.tables`, :mod:`models.multilayer_tables`).
+"""Cached table files of the analytic models (:mod:`models.tables.belcour`, :mod:`models.tables.multilayer`).
 
 A table file is an ``.npz`` in the project's cache directory (:func:`default_cache_dir`:
 ``$GONIOMETER_CACHE`` if set, else ``~/.cache/goniometer``) holding the arrays of one build plus

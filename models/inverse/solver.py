@@ -2,7 +2,7 @@
 
 Users describe the BRDF lobes they want at normal incidence -- energy ``R_k`` (RGB) and variance
 ``sigma_k`` of each lobe, top lobe first -- and get physical layer stacks that produce them under
-Belcour's forward model (:mod:`models.belcour`), together with the equivalence classes (sets of
+Belcour's forward model (:mod:`models.belcour.model`), together with the equivalence classes (sets of
 stacks with the same lobes at normal incidence) to explore.
 
 Paper: ``shared/papers/bati2021-inverse-layered-appearance.txt`` (sections and equations cited
@@ -25,7 +25,7 @@ API
 Conventions
 -----------
 * Lobe variance ``sigma = f(alpha) = alpha^1.1 / (1 - alpha^1.1)`` (Belcour's mapping,
-  :func:`models.belcour.roughness_to_variance`); ``alpha = f^-1(sigma)``.
+  :func:`models.belcour.model.roughness_to_variance`); ``alpha = f^-1(sigma)``.
 * Everything is at normal incidence (``theta_0 = 0``), per colour channel ("Contrary to
   Belcour's optimized implementation, we do not average lobe statistics over color channels",
   footnote 1): the inverse mirrors the forward model with ``per_channel=True``.
@@ -48,9 +48,9 @@ TIR, normal-incidence transmission scales, eq. 6), and FGD at normal incidence f
 angular quadrature and the same interpolation in ``alpha`` as the forward model's material
 slices (:func:`fgd_normal`: ``FGD(1, alpha, eta, kappa) = sum_j W[mu=1, alpha, j] F(x_j)``,
 exact Fresnel in the ``alpha = 0`` column, linear in ``sqrt(alpha)`` between the 64 alpha nodes).
-So the round trip through :mod:`models.belcour` is limited only by root-finding tolerances
+So the round trip through :mod:`models.belcour.model` is limited only by root-finding tolerances
 (~1e-12), except where the forward model uses a *split* FGD slice (``eta < 1`` relative index
-with a reachable critical angle, :func:`models.tables.fgd_slice`): there the two quadratures
+with a reachable critical angle, :func:`models.tables.belcour.fgd_slice`): there the two quadratures
 differ by up to 1.4 % relative at normal incidence (measured over eta_rel in (0.25, 1), alpha <=
 0.7; the tests). Table resolution: against an exact 1-D quadrature of the microfacet albedo at
 normal incidence, this FGD is within 5e-4 relative where Fresnel is smooth and within about
@@ -145,8 +145,8 @@ from scipy import optimize
 from goniometer import optics
 from goniometer.stack import Interface, Medium, Stack
 from models._jit import njit
-from models import tables
-from models.belcour import roughness_to_variance, variance_to_roughness
+from models.tables import belcour as tables
+from models.belcour.model import roughness_to_variance, variance_to_roughness
 
 RGB = tuple[float, float, float]
 
@@ -340,7 +340,7 @@ def kernel_for(options: InverseOptions) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True)
 def _row_value(w1, xs, j, fx, f1) -> float:
     """Node value of the material slice at (mu = 1, alpha node j): exact Fresnel at j = 0, else
-    the kernel moment clipped to [0, 1] (as models.tables._fgd_from_kernel)."""
+    the kernel moment clipped to [0, 1] (as models.tables.belcour._fgd_from_kernel)."""
     if j == 0:
         return f1
     acc = 0.0
@@ -2050,7 +2050,7 @@ def _check_lobes(lobes: Sequence[Lobe], base: str) -> list[Lobe]:
     out = []
     for k, lobe in enumerate(lobes):
         if not isinstance(lobe, Lobe):
-            raise InverseError(f"lobe {k + 1}: expected a models.inverse.Lobe, got {type(lobe).__name__}")
+            raise InverseError(f"lobe {k + 1}: expected a models.inverse.solver.Lobe, got {type(lobe).__name__}")
         out.append(lobe)
     if not out:
         raise InverseError("at least one lobe is required")

@@ -85,7 +85,7 @@ Tables live in :func:`default_cache_dir` (``$GONIOMETER_CACHE`` if set, else
 ``~/.cache/goniometer``) as ``belcour-fgd-<masking>.npz`` (kernel + 4D table + grids, ~78 MB) and
 ``belcour-tir-<masking>.npz`` (~2 MB), written atomically (temporary file + rename) with
 :data:`TABLE_VERSION` and the grid signature inside. A file whose version or grid differs is
-rebuilt, never reused (the file handling is :mod:`models.table_cache`). :func:`load_tables`
+rebuilt, never reused (the file handling is :mod:`models.tables.cache`). :func:`load_tables`
 builds on first use (a few seconds on 2 cores, plus numba compilation) and memoises the loaded
 tables in an ``lru_cache`` (cleared by :func:`build_tables`); the slice functions are
 ``lru_cache``'d too. These caches are the module's only state.
@@ -106,7 +106,7 @@ import numpy as np
 
 from goniometer import optics
 from models._jit import njit
-from models import table_cache
+from models.tables import cache as table_cache
 
 #: bump whenever the definition, numerics or layout of a table changes
 TABLE_VERSION = 2
