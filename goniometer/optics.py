@@ -19,7 +19,7 @@ Conventions (shared by the whole project)
 * Transmission values are **flux based** ("importance" transport with wi = l): the
   fraction of incident power per unit projected solid angle. The radiance BTDF is
   this value times ``eta**2`` with ``eta = n_v / n_l`` (radiance is higher in the
-  denser medium; see SLICES.md, transmission convention).
+  denser medium; see ``docs/slices-format.md``, transmission convention).
 """
 
 from __future__ import annotations

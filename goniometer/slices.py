@@ -1,6 +1,6 @@
 """Slice parametrizations: direction -> cell, cells -> sub-cell directions, solid angles, masks.
 
-See SLICES.md for the contract. Conventions:
+See ``docs/slices-format.md`` for the contract. Conventions:
 
 * ``l`` (light) and ``v`` (viewer) point away from the surface; z is the macro normal.
 * Reflection cells cover ``v_z > 0``, transmission cells ``v_z < 0``.

@@ -1,4 +1,4 @@
-"""Layer stacks: the TOML material contract of SIMULATION.md, validation, canonical JSON.
+"""Layer stacks: the TOML material contract of ``docs/material-format.md``, validation, canonical JSON.
 
 A stack is listed top first and starts in air (index 1). Layer kinds:
 
@@ -143,7 +143,7 @@ class Stack:
         return stack_from_dict(json.loads(text), source="json")
 
     def to_toml(self) -> str:
-        """The material as a TOML file of the SIMULATION.md contract."""
+        """The material as a TOML file (``docs/material-format.md``)."""
         out = [f"name = {json.dumps(self.name)}", f"category = {json.dumps(self.category)}", ""]
         for d in self.to_dict()["layers"]:
             out.append("[[layers]]")

@@ -1,4 +1,4 @@
-"""HDF5 files of simulated materials (format "goniometer.slices", version 1; SLICES.md).
+"""HDF5 files of simulated materials (format "goniometer.slices", version 1; ``docs/slices-format.md``).
 
 Writes are atomic: the file is written under a temporary name in the destination directory
 and renamed over the final name only once complete, so an interrupted run never leaves a

@@ -1,6 +1,6 @@
 """The numba-parallel path-tracing kernel of the virtual goniometer.
 
-Transport (SIMULATION.md): a path starts above the top interface travelling along ``-l``
+Transport (``docs/material-format.md``, transport): a path starts above the top interface travelling along ``-l``
 with weight (1, 1, 1). At an interface a microfacet normal is sampled from the visible
 normals of the side the path comes from; a dielectric reflects with probability F (exact
 Fresnel) and refracts otherwise, a conductor always reflects with weight *= F (RGB).
