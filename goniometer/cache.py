@@ -5,7 +5,8 @@ in ``tracer.py`` that inlines ``optics.fresnel_conductor`` would keep the old, c
 after ``optics.py`` changes. So the cache directory is keyed by a hash of whole packages
 (:func:`package_key`): the simulator's kernels by ``goniometer`` (:func:`simulator_key`), the
 models' by ``goniometer`` + ``models`` (``models`` decorates its functions inside
-:func:`numba_cache_dir`). Any change to a package's numba sources starts a fresh cache.
+:func:`numba_cache_dir`), the command-line and report code excluded. Any other source change
+starts a fresh cache.
 
 Location: ``$NUMBA_CACHE_DIR/<key>`` if the user set ``NUMBA_CACHE_DIR``, else
 ``$GONIOMETER_CACHE/numba/<key>`` (default ``~/.cache/goniometer/numba/<key>``).
@@ -39,11 +40,10 @@ def cache_root() -> Path:
     return (Path(xdg) if xdg else Path.home() / ".cache") / "goniometer"
 
 
-def package_key(packages: Sequence[str], *, numba_only: bool = False, exclude: Sequence[str] = ()) -> str:
+def package_key(packages: Sequence[str], *, exclude: Sequence[str] = ()) -> str:
     """Hash of the Python sources of whole packages (found without importing them) and the numba
-    version: every ``.py`` file below each package's directory, or with ``numba_only`` only the
-    files that mention numba, minus the subpackages or modules named in ``exclude`` (dotted
-    names). Paths enter the hash relative to the package's parent, so a file moved inside a
+    version: every ``.py`` file below each package's directory, minus the subpackages or modules
+    named in ``exclude`` (dotted names). Paths enter the hash relative to the package's parent, so a file moved inside a
     package changes the key once, and a file outside the packages never does."""
     h = hashlib.sha256(numba.__version__.encode())
     skip = [_package_dir(name) for name in exclude]
@@ -53,11 +53,8 @@ def package_key(packages: Sequence[str], *, numba_only: bool = False, exclude: S
         for p in files:
             if any(p == s.with_suffix(".py") or s in p.parents for s in skip):
                 continue
-            data = p.read_bytes()
-            if numba_only and b"numba" not in data:
-                continue
             h.update(p.relative_to(root.parent).as_posix().encode())
-            h.update(data)
+            h.update(p.read_bytes())
     return h.hexdigest()[:16]
 
 
@@ -71,10 +68,15 @@ def _package_dir(dotted: str) -> Path:
     return base.joinpath(*tail.split(".")) if tail else base
 
 
+#: the application inside ``goniometer`` (the ``gonio`` host and its commands): outside the key
+SIMULATOR_APPLICATION = ("goniometer.cli",)
+
+
 def simulator_key() -> str:
-    """Key of the simulator's compiled code: the numba-bearing sources of ``goniometer``. It keys
-    the numba cache directory and checkpoints; editing a CLI or report module does not change it."""
-    return package_key(("goniometer",), numba_only=True)
+    """Key of the simulator's code: every source of ``goniometer`` but its CLI. It keys the numba
+    cache directory and checkpoints, so no change to the physics, the stack packing or the
+    assembly of results can reuse what older code compiled or traced."""
+    return package_key(("goniometer",), exclude=SIMULATOR_APPLICATION)
 
 
 @contextlib.contextmanager

@@ -220,8 +220,11 @@ def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
     if f.attrs.get("format") != FORMAT:
         raise StoreError(f"{p}: not a {FORMAT} file (format attribute {f.attrs.get('format')!r})")
     version = int(f.attrs.get("format_version", -1))
-    if version != FORMAT_VERSION:
-        raise StoreError(f"{p}: format version {version} is not supported (this software reads {FORMAT_VERSION})")
+    if version > FORMAT_VERSION:
+        raise StoreError(f"{p}: format version {version} is newer than this software reads "
+                         f"(versions 1 to {FORMAT_VERSION}); update goniometer")
+    if version < 1:
+        raise StoreError(f"{p}: format version {version} is not a version of {FORMAT}")
     for need in ("material/config", "incident/theta_deg", "incident/phi_deg", "simulation", "brdf/value", "energy/reflected"):
         if need not in f:
             raise StoreError(f"{p}: missing /{need}")

@@ -10,7 +10,7 @@ from typing import Any, Callable
 
 import numba
 
-from goniometer.cache import numba_cache_dir, package_key
+from goniometer.cache import SIMULATOR_APPLICATION, numba_cache_dir, package_key
 
 #: the application inside ``models``: its sources key the report, not compiled code
 APPLICATION = ("models.commands", "models.report")
@@ -18,8 +18,9 @@ APPLICATION = ("models.commands", "models.report")
 
 @lru_cache(maxsize=1)
 def models_key() -> str:
-    """Hash of the numba-bearing sources of ``goniometer`` and ``models`` (application excluded)."""
-    return package_key(("goniometer", "models"), numba_only=True, exclude=APPLICATION)
+    """Hash of the sources of ``goniometer`` and ``models``, the application of both excluded:
+    keys the models' compiled functions and the report's cached evaluations."""
+    return package_key(("goniometer", "models"), exclude=SIMULATOR_APPLICATION + APPLICATION)
 
 
 def njit(*args: Any, **options: Any) -> Callable:

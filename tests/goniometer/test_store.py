@@ -1,4 +1,4 @@
-"""The HDF5 contract of SLICES.md, dimension scales for general tools, atomic writes."""
+"""The HDF5 contract of docs/slices-format.md, dimension scales for general tools, atomic writes."""
 
 from __future__ import annotations
 
@@ -108,3 +108,17 @@ def test_check_writable(tmp_path):
         store.check_writable(tmp_path / "no" / "x.h5")
     with pytest.raises(store.StoreError, match="directory"):
         store.check_writable(tmp_path)
+
+
+def test_versions_up_to_ours_read_newer_refused(tmp_path, slab_file):
+    # docs/file-identity.md: a reader accepts every format version up to its own and refuses a
+    # newer one with a message naming both
+    p, _ = slab_file
+    newer = tmp_path / "newer.h5"
+    newer.write_bytes(p.read_bytes())
+    with h5py.File(newer, "r+") as f:
+        f.attrs["format_version"] = store.FORMAT_VERSION + 1
+    with pytest.raises(store.StoreError, match=rf"format version {store.FORMAT_VERSION + 1} is newer.*"
+                                               rf"versions 1 to {store.FORMAT_VERSION}"):
+        store.read(newer)
+    assert store.read(p).stack.name == "slab/S1"
