@@ -1,17 +1,12 @@
 """Material databases: definition files that expand to many named materials, and resumable,
 optionally distributed, simulation of all of them into one HDF5 file per material.
 
-Definition (see ``configs/bati2019.toml``): ``name``, ``[simulation]`` (incident_deg, resolution,
-seed, masking, parametrization: a name or ``{classic_if_alpha0_at_least = a, otherwise = p}``),
-``[quality]`` (rays per incident direction by quality name), ``[symbols.<param>]`` (named values),
-and ``[[family]]`` tables (category, name format, grid of parameter lists, variants, layers whose
-string values ``"$param"`` are substituted).
-
-Results directory layout::
+The definition format and the results directory are contracts of ``docs/database-format.md``::
 
     <out>/database.json                 manifest: database name, fingerprint, quality, format version
-    <out>/<category>/<material>.h5      one slices file per finished material (atomic writes)
-    <out>/.partial/<material>/m<k>.npz   checkpoints of finished incident directions of an
+    <out>/<name>.h5                     one slices file per finished material (atomic writes; names
+                                        are "<category>/<material>", hence a folder per category)
+    <out>/.partial/<name>/m<k>.npz      checkpoints of finished incident directions of an
                                         unfinished material (removed when it is written)
 
 A rerun skips finished materials, resumes unfinished ones from their checkpoints, and refuses a
@@ -346,7 +341,21 @@ def _simulate_material(db: Database, out: Path, material: Material, quality: str
     path.parent.mkdir(parents=True, exist_ok=True)
     store.write(path, result)
     checkpoints.clear()
+    _remove_empty_parents(checkpoints.directory.parent, out / ".partial")
     return path
+
+
+def _remove_empty_parents(directory: Path, stop: Path) -> None:
+    """Remove ``directory`` and its parents up to and including ``stop`` while they are empty."""
+    d = directory
+    while True:
+        try:
+            d.rmdir()
+        except OSError:
+            return
+        if d == stop:
+            return
+        d = d.parent
 
 
 def list_rows(db: Database, out_dir: str | Path | None = None, quality: str = "quick") -> list[dict]:
