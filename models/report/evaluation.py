@@ -189,4 +189,3 @@ def evaluate_material(mat: ReportMaterial, out: Path, models: Sequence[str] | No
              "elapsed_s": time.perf_counter() - t0}
     _save_cache(json_path, h5_path, entry, slices)
     return MaterialResult(mat, evaluation, key, slices, False), ref
-

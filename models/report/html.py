@@ -16,8 +16,10 @@ from models.report.reproduction import (CLOSE_RATIO, HOLDS_AT, IDENTICAL_REL, IN
 from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, ReportError, material_sort_key,
                                    param_text)
 
+#: format and version of the data embedded in the page (``docs/file-identity.md``)
 REPORT_FORMAT = "goniometer.report"
 REPORT_VERSION = 1
+#: the page template, its CSS and JS
 ASSETS = Path(__file__).resolve().parent / "assets"
 
 

@@ -15,6 +15,7 @@ from models.report.panels import DPI
 from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, material_sort_key,
                                    param_text)
 
+
 def error_records(results: list[MaterialResult]) -> list[dict]:
     """One record per (material, evaluated model): material, category, paper_name, parameters,
     model, side, internal, total (the error objects of ``gonio evaluate --json``)."""
