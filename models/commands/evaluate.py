@@ -138,7 +138,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
-    from models.report.build import ReportError, plot_file
+    from models.report import ReportError, plot_file
 
     incidents = None
     if args.incident is not None:

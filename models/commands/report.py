@@ -25,7 +25,7 @@ def register(sub) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from models.report.build import ReportError, build_report
+    from models.report import ReportError, build_report
     from tqdm import tqdm
     incidents = None
     if args.incidents:

@@ -38,9 +38,13 @@ def noise_floor(stderr: np.ndarray, omega: np.ndarray, mask: np.ndarray) -> np.n
     return np.sqrt((stderr**2 * (omega * mask)[:, None]).sum(axis=(0, 2, 3)) / M)
 
 
-def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 709 luminance of (M, 3, ...) RGB values, keeping a channel axis of length 1."""
-    return np.einsum("c,mc...->m...", LUMINANCE, rgb)[:, None]
+def luminance(rgb: np.ndarray, axis: int = 1, keepdims: bool = True) -> np.ndarray:
+    """Rec. 709 luminance (:data:`LUMINANCE` weights) of RGB values whose channel axis is ``axis``
+    (default: (M, 3, ...) values), that axis kept with length 1 (``keepdims``) or dropped."""
+    axis = axis % rgb.ndim
+    rest = [k for k in range(rgb.ndim) if k != axis]
+    lum = np.einsum(LUMINANCE, [axis], rgb, list(range(rgb.ndim)), rest)
+    return np.expand_dims(lum, axis) if keepdims else lum
 
 
 def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, omega: np.ndarray,

@@ -22,8 +22,10 @@ from goniometer.database import load_database, simulate_database
 from goniometer.slices import SliceGrid, light_direction
 import models.report.build as report_module
 from models.compare.evaluate import evaluate
-from models.report.build import (PAPER_COLOURS, ReportError, build_report, model_style, open_results, plane_cells,
-                           round_mantissa)
+from models.report import ReportError, build_report, model_style, open_results
+from models.report.evaluation import round_mantissa
+from models.report.figures import PAPER_COLOURS
+from models.report.geometry import plane_cells
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_database.toml"
 REQUIRED = ("material", "category", "paper_name", "model", "internal", "total")

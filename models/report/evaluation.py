@@ -1,0 +1,191 @@
+"""A material's evaluation by the models and its cache in the report directory.
+
+The evaluation of a material is keyed by the content hash of its reference file, the hash of the
+model code (:func:`model_code_key`), the number of sub-cells, the requested models and the
+isotropization; the figures are keyed by that key and :func:`report_code_key`. The cache files and
+the rules are described in ``docs/report.md`` (caching).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import h5py
+import numpy as np
+
+from goniometer import store
+from goniometer.cache import package_key
+from goniometer.results import SimulationResult
+from models import registry
+from models._jit import APPLICATION
+from models.base import ModelError
+from models.compare.evaluate import comparison_side, evaluate
+from models.report.files import material_dir, read_json, write_json
+from models.report.results import MaterialResult, ReportError, ReportMaterial
+
+CACHE_FORMAT = "goniometer.report-cache"
+CACHE_VERSION = 1
+#: bump when the figures change in a way the module source hash would not capture
+FIGURE_VERSION = 1
+#: precision of the model slices kept in the cache (for figures only)
+SLICE_CACHE_MANTISSA_BITS = 11
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def model_code_key() -> str:
+    """Hash of the sources that determine model values and errors: the ``goniometer`` and
+    ``models`` packages without the application (:data:`models._jit.APPLICATION`)."""
+    return package_key(("goniometer", "models"), exclude=APPLICATION)
+
+
+def report_code_key() -> str:
+    """Hash of the figures' code (the report package; the HTML assets do not change figures, and
+    the page is rewritten on every run anyway)."""
+    return package_key(("models.report",)) + f"-{FIGURE_VERSION}"
+
+
+def _reference_digest(path: Path, previous: dict | None) -> dict:
+    st = path.stat()
+    if previous and previous.get("size") == st.st_size and previous.get("mtime_ns") == st.st_mtime_ns:
+        return previous
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _sha256_file(path)}
+
+
+def _evaluation_key(digest: str, code: str, subcells: int, models: Sequence[str] | None,
+                    isotropize: str | None = None) -> str:
+    doc = {"v": CACHE_VERSION, "reference": digest, "code": code, "subcells": subcells,
+           "models": sorted(models) if models is not None else "all", "isotropize": isotropize}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def cache_paths(out: Path, name: str) -> tuple[Path, Path]:
+    """The cache files of material ``name`` in report ``out``: ``(entry.json, slices.h5)``."""
+    base = out / "cache" / material_dir(name)
+    return base.with_name(base.name + ".json"), base.with_name(base.name + ".h5")
+
+
+def judged_side(reference: SimulationResult, where: str) -> str:
+    """The side ``reference`` is judged on ("brdf" or "btdf"); ReportError if the file lacks it."""
+    side = comparison_side(reference.stack)
+    if (reference.brdf if side == "brdf" else reference.btdf) is None:
+        raise ReportError(f"{where}: the file has no {side.upper()} slices, which a {reference.stack.base}-base "
+                          f"stack is judged on")
+    return side
+
+
+def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int,
+                   isotropize: str | None = None) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time so
+    that one failing model does not lose the others. Returns the ``gonio evaluate --json``
+    object (with ``failed``: model -> message for models that raised) and model -> (top, internal).
+    """
+    stack = reference.stack
+    side = judged_side(reference, stack.name)
+    names = list(registry.all_models()) if models is None else list(models)
+    doc = {"material": stack.name, "category": stack.category, "side": side, "models": {}, "skipped": {},
+           "failed": {}}
+    slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name in names:
+        try:
+            ev = evaluate(reference, [name], s=subcells, isotropize=isotropize)
+        except ModelError as e:
+            msg = str(e)
+            doc["skipped"][name] = msg[len(name) + 2:] if msg.startswith(f"{name}: ") else msg
+            continue
+        except Exception as e:  # a model's bug must not sink the whole report; it is shown
+            doc["failed"][name] = f"{type(e).__name__}: {e}"
+            continue
+        doc["models"][name] = ev.errors[name]
+        for key in ("fits", "approximations"):
+            if name in getattr(ev, key):
+                doc.setdefault(key, {})[name] = getattr(ev, key)[name]
+        ms = ev.slices[name]
+        slices[name] = (ms.top, ms.internal)
+    return doc, slices
+
+
+def round_mantissa(a: np.ndarray, bits: int = SLICE_CACHE_MANTISSA_BITS) -> np.ndarray:
+    """``a`` as float32 rounded to ``bits`` explicit mantissa bits (relative error <= 2**-(bits+1));
+    the dropped bits are zero, which lets gzip + shuffle compress the slices about 2x better."""
+    u = np.ascontiguousarray(a, dtype=np.float32).view(np.uint32)
+    drop = 23 - bits
+    u = (u + np.uint32(1 << (drop - 1))) & np.uint32((0xFFFFFFFF << drop) & 0xFFFFFFFF)
+    return u.view(np.float32)
+
+
+def _save_cache(json_path: Path, h5_path: Path, entry: dict, slices: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """The integrated model slices (for figures only: float32 rounded by :func:`round_mantissa`;
+    the errors are computed at full precision and kept in the JSON) and the JSON entry."""
+    h5_path.parent.mkdir(parents=True, exist_ok=True)
+    with store.atomic_path(h5_path) as tmp:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = CACHE_FORMAT
+            f.attrs["key"] = entry["key"]
+            f.attrs["precision"] = f"float32 rounded to {SLICE_CACHE_MANTISSA_BITS} mantissa bits"
+            for name, (top, internal) in slices.items():
+                g = f.create_group(name)
+                for part, arr in (("top", top), ("internal", internal)):
+                    g.create_dataset(part, data=round_mantissa(arr), chunks=True, compression="gzip",
+                                     compression_opts=4, shuffle=True)
+    write_json(json_path, entry)  # written last: it vouches for the slices file by its key
+
+
+def load_slices(h5_path: Path, key: str, names: Iterable[str]) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
+    """The cached (top, internal) slices of ``names`` as float64, or None if the file is unreadable
+    or was written for another key."""
+    try:
+        with h5py.File(h5_path, "r") as f:
+            if f.attrs.get("key") != key:
+                return None
+            return {n: (f[f"{n}/top"][()].astype(np.float64), f[f"{n}/internal"][()].astype(np.float64))
+                    for n in names}
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _slices_key(path: Path) -> str | None:
+    try:
+        with h5py.File(path, "r") as f:
+            k = f.attrs.get("key")
+            return k.decode() if isinstance(k, bytes) else (str(k) if k is not None else None)
+    except OSError:
+        return None
+
+
+def read_reference(path: Path) -> SimulationResult:
+    """The simulated file ``path``; ReportError (naming the file) if it cannot be read."""
+    try:
+        return store.read(path)
+    except store.StoreError as e:
+        raise ReportError(str(e) if str(path) in str(e) else f"{path}: {e}") from None
+
+
+def evaluate_material(mat: ReportMaterial, out: Path, models: Sequence[str] | None, subcells: int, code: str,
+                      isotropize: str | None = None) -> tuple[MaterialResult, SimulationResult | None]:
+    """Cached or fresh evaluation of one material (and the reference if it had to be read)."""
+    json_path, h5_path = cache_paths(out, mat.name)
+    cached = read_json(json_path)
+    ok_cache = cached is not None and cached.get("format") == CACHE_FORMAT and cached.get("version") == CACHE_VERSION
+    digest = _reference_digest(mat.path, cached.get("reference") if ok_cache else None)
+    key = _evaluation_key(digest["sha256"], code, subcells, models, isotropize)
+    if ok_cache and cached.get("key") == key and _slices_key(h5_path) == key:
+        return MaterialResult(mat, cached["evaluation"], key, None, True), None
+    ref = read_reference(mat.path)
+    t0 = time.perf_counter()
+    evaluation, slices = run_evaluation(ref, models, subcells, isotropize)
+    entry = {"format": CACHE_FORMAT, "version": CACHE_VERSION, "key": key, "reference": digest,
+             "reference_path": str(mat.path), "evaluation": evaluation, "subcells": subcells,
+             "elapsed_s": time.perf_counter() - t0}
+    _save_cache(json_path, h5_path, entry, slices)
+    return MaterialResult(mat, evaluation, key, slices, False), ref

@@ -1,0 +1,311 @@
+"""The report's figures of one material (``docs/report.md``, figures): plane-of-incidence curves,
+top views (RGB, luminance isovalues, difference to the reference), the bounce-order decomposition
+(Bati 2019, figure 13) and the energy per bounce order; the models' colours and markers; the
+figure stamp that lets a rerun skip current figures; :func:`plot_file` for ``gonio plot``.
+
+Values are drawn through the paper's remap ``g(f) = log(1 + sqrt(f))``; the view and curve
+geometry is in :mod:`models.report.geometry`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from goniometer.results import SimulationResult, SliceData
+from goniometer.slices import SliceGrid, light_direction
+from models.compare.errors import luminance
+from models.compare.evaluate import comparison_side, evaluate
+from models.report.evaluation import cache_paths, judged_side, load_slices, read_reference
+from models.report.files import material_dir, read_json, safe_part, write_json
+from models.report.geometry import exposure, pixel_map, plane_cells, remap
+from models.report.panels import (DPI, colormap, compose, diverging_panel, iso_panel, mark_light, rgb_panel,
+                                  save_figure, write_png)
+from models.report.results import MaterialResult, ReportError
+
+#: the paper's colours (figures 5-10) for its models; others get FALLBACK_COLOURS in name order
+PAPER_COLOURS = {
+    "ww09": "#e41a1c",            # red
+    "elek10": "#ff8c00",          # orange
+    "belcour-fwd": "#00bcd4",     # cyan
+    "belcour-sym": "#1f4fd8",     # blue
+    "ww-bati19": "#e377c2",       # pink (figure 10, eq. 5)
+    "belcour-bati19": "#2ca02c",  # green (figure 10, eq. 6)
+    "belcour-btdf": "#009aa8",    # teal: Belcour forward on slabs (cyan in figure 9)
+}
+FALLBACK_COLOURS = ("#8c564b", "#9467bd", "#7f7f7f", "#bcbd22", "#393b79", "#637939", "#8c6d31",
+                    "#843c39", "#7b4173", "#17becf")
+PAPER_MARKERS = {"ww09": "o", "elek10": "s", "ww-bati19": "D", "belcour-fwd": "^", "belcour-sym": "v",
+                 "belcour-bati19": "P", "belcour-btdf": "^"}
+FALLBACK_MARKERS = ("X", "*", "h", "<", ">", "p", "d", "8")
+DISK_PX = 180          # top-view disk diameter (pixels)
+ORDER_DISK_PX = 130    # bounce-order disk diameter
+
+
+def model_style(names: Iterable[str]) -> dict[str, dict[str, str]]:
+    """Colour and marker of every model: the paper's for its models, a fixed fallback palette
+    (assigned in name order) for the others."""
+    out: dict[str, dict[str, str]] = {}
+    others = sorted(n for n in set(names) if n not in PAPER_COLOURS)
+    for n in set(names):
+        if n in PAPER_COLOURS:
+            out[n] = {"colour": PAPER_COLOURS[n], "marker": PAPER_MARKERS.get(n, "o")}
+    for i, n in enumerate(others):
+        out[n] = {"colour": FALLBACK_COLOURS[i % len(FALLBACK_COLOURS)],
+                  "marker": FALLBACK_MARKERS[i % len(FALLBACK_MARKERS)]}
+    return out
+
+
+@dataclass
+class _Incident:
+    """Everything the figures of one incident direction need."""
+
+    m: int
+    theta: float
+    phi: float
+    light: np.ndarray
+    ref: np.ndarray            # (3, nt, nph) total reference
+    ref_se: np.ndarray
+    ref_internal: np.ndarray
+    ref_internal_se: np.ndarray
+    orders: np.ndarray         # (K, 3, nt, nph)
+    mask: np.ndarray
+    omega: np.ndarray
+    models: dict[str, tuple[np.ndarray, np.ndarray]]   # (top, internal), each (3, nt, nph)
+
+
+def _incidents(ref: SimulationResult, sd: SliceData, slices: dict, which: list[int]) -> Iterable[_Incident]:
+    internal = sd.orders[:, 1:].astype(np.float64).sum(axis=1)
+    se_int = sd.stderr_internal if sd.stderr_internal is not None else sd.stderr
+    for m in which:
+        th, ph = float(ref.theta_deg[m]), float(ref.phi_deg[m])
+        yield _Incident(m, th, ph, light_direction(th, ph), sd.value[m], sd.stderr[m], internal[m], se_int[m],
+                        sd.orders[m].astype(np.float64), sd.mask[m], sd.proj_solid_angle[m],
+                        {n: (t[m], i[m]) for n, (t, i) in slices.items()})
+
+
+def _figure_incidents(ref: SimulationResult, wanted: Sequence[float] | None) -> list[int]:
+    if wanted is None:
+        return list(range(len(ref.theta_deg)))
+    return [m for m, t in enumerate(ref.theta_deg) if any(abs(float(t) - float(w)) < 1e-6 for w in wanted)]
+
+
+def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndarray, np.ndarray]],
+                          fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None) -> dict:
+    """Draw every figure of one material into ``fig_dir``; returns their paths relative to the
+    report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``."""
+    side = comparison_side(ref.stack)
+    sd = ref.brdf if side == "brdf" else ref.btdf
+    entries = []
+    for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
+        plane = f"plane_m{inc.m}.png"
+        save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays), fig_dir / plane)
+        tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir)
+        orders = f"orders_m{inc.m}.png"
+        write_png(fig_dir / orders, _orders_image(inc, sd.grid))
+        entries.append({"index": inc.m, "theta": inc.theta, "phi": inc.phi, "plane": f"{rel}/{plane}",
+                        "orders": f"{rel}/{orders}", "top": {k: f"{rel}/{v}" for k, v in tops.items()},
+                        "diff_scale": diff_scale, "scale": lum_scale})
+    save_figure(_energy_figure(ref, sd, side), fig_dir / "energy.png")
+    return {"incidents": entries, "energy": f"{rel}/energy.png", "orders_k": int(sd.orders.shape[1])}
+
+
+def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | None = None,
+              incidents: Sequence[float] | None = None, subcells: int = 5,
+              isotropize: str | None = None) -> dict:
+    """The per-material figures of the report for one simulated file, written into ``out_dir``.
+
+    ``models``: names to draw beside the reference (``["all"]``: every model that supports the
+    stack; None or empty: the reference alone), integrated onto the file's cells exactly as
+    ``gonio evaluate`` does (``subcells``, ``isotropize``). ``incidents``: polar angles (degrees)
+    of the file's incident directions to draw (None: all). Returns ``{"figures": [paths],
+    "evaluation": the gonio evaluate --json object or None}``. Raises ReportError for a bad file or
+    an incident angle the file does not hold, ModelError for an unknown or unsupported model.
+    """
+    ref = read_reference(Path(path))
+    if incidents is not None:
+        have = [float(t) for t in ref.theta_deg]
+        missing = [w for w in incidents if not any(abs(t - float(w)) < 1e-6 for t in have)]
+        if missing:
+            raise ReportError(f"{path}: no incident direction at theta = {', '.join(f'{w:g}' for w in missing)} deg "
+                              f"(the file has {', '.join(f'{t:g}' for t in have)})")
+    judged_side(ref, str(path))
+    slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    doc = None
+    if models:
+        names = None if list(models) == ["all"] else list(models)
+        ev = evaluate(ref, names, s=subcells, isotropize=isotropize)
+        slices = {n: (ms.top, ms.internal) for n, ms in ev.slices.items()}
+        doc = ev.to_json()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents)
+    paths = [out / "energy.png"]
+    for e in figs["incidents"]:
+        paths += [out / e["plane"], out / e["orders"]] + [out / t for t in e["top"].values()]
+    return {"figures": [str(p.resolve()) for p in paths], "evaluation": doc}
+
+
+def _lum(cells: np.ndarray) -> np.ndarray:
+    """Luminance of (3, ...) cell values (channel axis first, dropped)."""
+    return luminance(cells, axis=0, keepdims=False)
+
+
+#: upper bound drawn for a cell no path reached: 3 / (N Omega) is the 95 % upper limit of its value
+#: (no hit among N rays of weight <= 1: the expected count N f Omega is below 3 at 95 %)
+ZERO_HIT_BOUND = 3.0
+
+
+def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, title: str, rays: int):
+    """The plane-of-incidence figure. The grey band is the reference +- 2 standard errors; where no
+    path reached a cell (value 0, standard error 0: tiny cells near the pole of half slices at low
+    ray counts) it spans [0, 3 / (N Omega)] instead, the 95 % upper limit, so an empty cell does not
+    look like a confident zero."""
+    from matplotlib.figure import Figure
+    x, rows, cols = plane_cells(grid, inc.light, inc.phi, inc.mask)
+    # (title, reference cells, their standard error, the model part drawn from (top, internal))
+    if side == "brdf":
+        parts = [("total", inc.ref, inc.ref_se, lambda t, i: t + i),
+                 ("internal paths (order 1 / top lobe dropped)", inc.ref_internal, inc.ref_internal_se,
+                  lambda t, i: i)]
+    else:
+        parts = [("BTDF", inc.ref, inc.ref_se, lambda t, i: t + i)]
+    width = 4.0 * len(parts) + 1.6
+    fig = Figure(figsize=(width, 2.9), dpi=DPI)   # fixed layout: constrained layout costs ~0.3 s a figure
+    fig.subplots_adjust(left=0.6 / width, right=1.0 - 1.55 / width, bottom=0.17, top=0.84, wspace=0.22)
+    axes = fig.subplots(1, len(parts), squeeze=False)[0]
+
+    def along(cells: np.ndarray) -> np.ndarray:
+        return 0.5 * (cells[rows, cols[:, 0]] + cells[rows, cols[:, 1]])
+
+    bound = along(ZERO_HIT_BOUND / (max(rays, 1) * np.where(inc.omega > 0, inc.omega, np.inf)))
+    for ax, (label, ref_cells, se_cells, pick) in zip(axes, parts):
+        lum = along(_lum(ref_cells))
+        se = along(_lum(se_cells))
+        upper = np.where(lum > 0, lum + 2 * se, bound)
+        ax.fill_between(x, remap(lum - 2 * se), remap(upper), color="0.8", lw=0,
+                        label="reference ±2σ\n(no hit: 95% bound)")
+        ax.plot(x, remap(lum), "k--", lw=1.3, label="reference")
+        for name, (top, internal) in inc.models.items():
+            st = styles.get(name, {"colour": "k"})
+            ax.plot(x, remap(along(_lum(pick(top, internal)))), "-", color=st["colour"], lw=1.1, label=name)
+        ax.axvline(inc.theta, color="0.5", lw=0.6, ls=":")
+        ax.set_xlim(-90, 90)
+        ax.set_xticks([-90, -60, -30, 0, 30, 60, 90])
+        ax.set_xlabel("signed θ_v (deg), > 0 on the " + ("mirror" if side == "brdf" else "straight-through")
+                      + " side", fontsize=8)
+        ax.set_title(label, fontsize=9)
+        ax.tick_params(labelsize=8)
+    axes[0].set_ylabel("log(1 + √f), luminance", fontsize=8)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
+    fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°", fontsize=9)
+    return fig
+
+
+def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path) -> tuple[dict[str, str], float, float]:
+    """Reference and model top views, one PNG each with three disks: RGB, luminance isovalues and
+    the signed difference of g(L) to the reference (for the reference: its 2-sigma noise), all
+    on scales shared by the reference and the models. Returns file names, the difference scale
+    and the luminance scale."""
+    pm = pixel_map(grid, inc.light, inc.mask, DISK_PX)
+    scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
+    lum_ref = _lum(inc.ref)
+    lum_scale = exposure(remap(lum_ref), inc.omega, inc.mask)
+    g_lum_ref = remap(pm.sample(lum_ref))
+    diffs = {n: remap(pm.sample(_lum(t + i))) - g_lum_ref for n, (t, i) in inc.models.items()}
+    allabs = np.concatenate([np.abs(d[np.isfinite(d)]) for d in diffs.values()]) if diffs else np.zeros(0)
+    lim = float(np.percentile(allabs, 99)) if allabs.size else 0.0
+    lim = max(lim, 1e-3 * lum_scale, 1e-12)
+    noise = remap(pm.sample(lum_ref + 2.0 * _lum(inc.ref_se))) - g_lum_ref
+    out = {}
+    panels = {"reference": (inc.ref, noise)}
+    panels.update({n: (t + i, diffs[n]) for n, (t, i) in inc.models.items()})
+    for name, (cells, third) in panels.items():
+        a = mark_light(rgb_panel(cells, scale, pm), inc.light)
+        b = mark_light(iso_panel(_lum(cells), lum_scale, pm), inc.light)
+        c = mark_light(diverging_panel(third, lim, pm), inc.light)
+        fname = f"top_m{inc.m}_{safe_part(name)}.png"
+        write_png(fig_dir / fname, compose([[a, b, c]]))
+        out[name] = fname
+    return out, lim, lum_scale
+
+
+def _orders_image(inc: _Incident, grid: SliceGrid) -> np.ndarray:
+    """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled) over isovalues (each
+    order exposed on its own range, see :func:`exposure`)."""
+    pm = pixel_map(grid, inc.light, inc.mask, ORDER_DISK_PX)
+    scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
+    top, bottom = [], []
+    for k in range(inc.orders.shape[0]):
+        cells = inc.orders[k]
+        top.append(mark_light(rgb_panel(cells, scale, pm, factor=1.0 if k == 0 else 2.0), inc.light))
+        lum = _lum(cells)
+        bottom.append(mark_light(iso_panel(lum, exposure(remap(lum), inc.omega, inc.mask), pm), inc.light))
+    return compose([top, bottom])
+
+
+def order_energy(sd: SliceData) -> np.ndarray:
+    """Luminance of the energy ``sum_cells f Omega`` per incident and bounce order, (M, K)."""
+    lum = luminance(sd.orders.astype(np.float64), axis=2, keepdims=False)   # (M, K, nt, nph)
+    return np.einsum("mkij,mij->mk", lum, sd.proj_solid_angle)
+
+
+def _energy_figure(ref: SimulationResult, sd: SliceData, side: str):
+    from matplotlib.figure import Figure
+    e = order_energy(sd)
+    K = e.shape[1]
+    fig = Figure(figsize=(5.0, 2.6), dpi=DPI)
+    fig.subplots_adjust(left=0.13, right=0.78, bottom=0.17, top=0.89)
+    ax = fig.add_subplot()
+    xs = np.arange(e.shape[0])
+    bottom = np.zeros(e.shape[0])
+    colours = colormap("viridis")(np.linspace(0.0, 0.9, K))
+    for k in range(K):
+        label = f"order {k + 1}" + ("+" if k == K - 1 else "")
+        ax.bar(xs, e[:, k], bottom=bottom, color=colours[k], label=label, width=0.7)
+        bottom += e[:, k]
+    ax.set_xticks(xs, [f"{t:g}°" for t in ref.theta_deg])
+    ax.set_xlabel("θ_l", fontsize=8)
+    ax.set_ylabel(("reflected" if side == "brdf" else "transmitted") + " energy (luminance)", fontsize=8)
+    ax.tick_params(labelsize=8)
+    ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    ax.set_title(f"{ref.stack.name}: energy per bounce order", fontsize=9)
+    return fig
+
+
+def material_figures(res: MaterialResult, ref: SimulationResult | None, out: Path, styles: dict,
+                     incidents: Sequence[float] | None, report_key: str) -> bool:
+    """Draw the material's figures unless its stamp says they are current; True if drawn."""
+    rel_dir = Path("figures") / material_dir(res.material.name)
+    fig_dir = out / rel_dir
+    style_key = {n: styles[n] for n in res.evaluation["models"]}
+    fkey = hashlib.sha256(json.dumps([res.key, report_key, None if incidents is None else sorted(incidents),
+                                      style_key], sort_keys=True).encode()).hexdigest()[:20]
+    stamp_path = fig_dir / "stamp.json"
+    stamp = read_json(stamp_path)
+    if stamp and stamp.get("key") == fkey and _files_exist(out, stamp.get("figures", {})):
+        res.figures = stamp["figures"]
+        return False
+    if ref is None:
+        ref = read_reference(res.material.path)
+    if res.slices is None:
+        res.slices = load_slices(cache_paths(out, res.material.name)[1], res.key, res.evaluation["models"])
+        if res.slices is None:
+            raise ReportError(f"{cache_paths(out, res.material.name)[1]}: unreadable cache; delete it and rerun")
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    res.figures = draw_material_figures(ref, res.slices, fig_dir, rel_dir.as_posix(), styles, incidents)
+    write_json(stamp_path, {"key": fkey, "figures": res.figures})
+    return True
+
+
+def _files_exist(out: Path, figures: dict) -> bool:
+    paths = [figures.get("energy")]
+    for inc in figures.get("incidents", []):
+        paths += [inc.get("plane"), inc.get("orders"), *inc.get("top", {}).values()]
+    return all(p and (out / p).is_file() for p in paths)

@@ -1,0 +1,105 @@
+"""Raster panels of the report's figures (numpy images: float RGB in [0, 1], row 0 at the top)
+and the PNG writing of images and matplotlib figures (atomic, fixed zlib level)."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from goniometer import atomic
+from models.report.geometry import PixelMap, remap
+
+ISO_LEVELS = 10        # luminance isovalue bands
+DPI = 100
+PNG_COMPRESSION = 3    # zlib level: as small as 9 on these images, and 5-10x faster
+
+
+def colormap(name: str):
+    """The matplotlib colour map ``name`` (matplotlib is imported on first use)."""
+    import matplotlib
+    return matplotlib.colormaps[name]
+
+
+def rgb_panel(rgb: np.ndarray, scale: float, pm: PixelMap, factor: float = 1.0) -> np.ndarray:
+    """(3, S, S) cell values -> (S, S, 3) image of ``factor * g(f) / scale``."""
+    img = np.moveaxis(np.clip(factor * remap(pm.sample(rgb)) / scale, 0.0, 1.0), 0, -1)
+    return _frame(img, pm)
+
+
+def iso_panel(lum: np.ndarray, scale: float, pm: PixelMap, levels: int = ISO_LEVELS) -> np.ndarray:
+    """Luminance isovalue bands of ``g(L) / scale`` in false colour (viridis), with black band
+    boundaries; values above the scale are white."""
+    g = remap(pm.sample(lum)) / scale
+    band = np.where(np.isfinite(g), np.floor(np.clip(g, 0.0, None) * levels), -1).astype(int)
+    band = np.minimum(band, levels)
+    colours = colormap("viridis")(np.linspace(0.0, 1.0, levels))[:, :3]
+    img = np.ones(band.shape + (3,))
+    inside = (band >= 0) & (band < levels)
+    img[inside] = colours[band[inside]]
+    edge = np.zeros(band.shape, bool)
+    edge[:, 1:] |= (band[:, 1:] != band[:, :-1]) & (band[:, 1:] >= 0) & (band[:, :-1] >= 0)
+    edge[1:, :] |= (band[1:, :] != band[:-1, :]) & (band[1:, :] >= 0) & (band[:-1, :] >= 0)
+    img[edge] = 0.1
+    return _frame(img, pm)
+
+
+def diverging_panel(d: np.ndarray, lim: float, pm: PixelMap) -> np.ndarray:
+    """(S, S) signed values -> RdBu_r colours over [-lim, lim]."""
+    t = np.clip(0.5 + 0.5 * d / lim, 0.0, 1.0)
+    img = colormap("RdBu_r")(np.nan_to_num(t, nan=0.5))[..., :3]
+    return _frame(img, pm, valid=np.isfinite(d))
+
+
+def _frame(img: np.ndarray, pm: PixelMap, valid: np.ndarray | None = None) -> np.ndarray:
+    ok = pm.ok if valid is None else (pm.ok & valid)
+    out = np.where(ok[..., None], np.nan_to_num(img), 0.82)   # masked cells: light grey
+    out[~pm.inside] = 1.0
+    ring = pm.inside & ~np.pad(pm.inside, 1)[2:, 1:-1] | pm.inside & ~np.pad(pm.inside, 1)[1:-1, 2:] \
+        | pm.inside & ~np.pad(pm.inside, 1)[:-2, 1:-1] | pm.inside & ~np.pad(pm.inside, 1)[1:-1, :-2]
+    out[ring] = 0.45
+    return out
+
+
+def mark_light(img: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """Hollow yellow ring (dark outline) at the top-view position of the light direction; the
+    values under its centre stay visible."""
+    s = img.shape[0]
+    cx = (light[0] + 1.0) / 2.0 * s - 0.5
+    cy = (1.0 - light[1]) / 2.0 * s - 0.5
+    yy, xx = np.mgrid[0:s, 0:s]
+    r = np.sqrt((xx - cx) ** 2 + (yy - cy) ** 2)
+    rad = max(4.0, s / 40)
+    img[(r >= rad - 2.2) & (r <= rad + 1.2)] = (0.1, 0.1, 0.1)
+    img[(r >= rad - 1.2) & (r <= rad + 0.2)] = (1.0, 0.85, 0.0)
+    return img
+
+
+def compose(rows: list[list[np.ndarray]], gap: int = 8) -> np.ndarray:
+    """Panels (float RGB in [0, 1]) on a white canvas, row by row."""
+    h = max(p.shape[0] for row in rows for p in row)
+    w = max(sum(p.shape[1] for p in row) + gap * (len(row) - 1) for row in rows)
+    canvas = np.ones((len(rows) * h + gap * (len(rows) - 1), w, 3))
+    for r, row in enumerate(rows):
+        x = 0
+        for p in row:
+            y = r * (h + gap)
+            canvas[y:y + p.shape[0], x:x + p.shape[1]] = p
+            x += p.shape[1] + gap
+    return canvas
+
+
+def write_png(path: Path, img: np.ndarray) -> None:
+    """``img`` (float RGB, clipped to [0, 1]) as an 8-bit PNG, written atomically."""
+    from PIL import Image
+    buf = io.BytesIO()
+    Image.fromarray((np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)).save(buf, format="PNG", compress_level=PNG_COMPRESSION)
+    atomic.write_bytes(path, buf.getvalue())
+
+
+def save_figure(fig, path: Path) -> None:
+    """The matplotlib figure ``fig`` as a PNG at :data:`DPI`, written atomically."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
+    atomic.write_bytes(path, buf.getvalue())
