@@ -21,7 +21,7 @@ from goniometer import store
 from goniometer.cache import package_key
 from goniometer.results import SimulationResult
 from models import registry
-from models._jit import APPLICATION
+from models._jit import models_key
 from models.base import ModelError
 from models.compare.evaluate import comparison_side, evaluate
 from models.report.files import material_dir, read_json, write_json
@@ -44,9 +44,9 @@ def _sha256_file(path: Path) -> str:
 
 
 def model_code_key() -> str:
-    """Hash of the sources that determine model values and errors: the ``goniometer`` and
-    ``models`` packages without the application (:data:`models._jit.APPLICATION`)."""
-    return package_key(("goniometer", "models"), exclude=APPLICATION)
+    """Hash of the sources that determine model values and errors: the models' key
+    (:func:`models._jit.models_key`: ``goniometer`` and ``models`` without their application)."""
+    return models_key()
 
 
 def report_code_key() -> str:
