@@ -133,7 +133,8 @@ class Context:
         """Eq. 18 per channel: the reflectance the layers below must have, as seen in the current
         medium, for a lobe of energy ``R`` outside (``R`` itself for an empty stack)."""
         r = as_rgb(R, "R")
-        return np.array([eq18_scalar(r[c], self.state[ROW_T0, c], self.state[ROW_TI, c], self.state[ROW_RI, c]) for c in range(3)])
+        return np.array([eq18_scalar(r[c], self.state[ROW_T0, c], self.state[ROW_TI, c], self.state[ROW_RI, c])
+                         for c in range(3)])
 
     def sigma_r(self, R_prime: Any, sigma: float) -> np.ndarray:
         """Eq. 19 per channel: the variance sigma^R_{n,n+l} the layers below must have."""

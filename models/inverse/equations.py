@@ -24,7 +24,7 @@ from models.inverse.lobes import InverseError
 CONDUCTOR_R_MIN = 3.0 - 2.0 * math.sqrt(2.0)
 
 
-# ============================================================================ compiled scalar forms (used by the kernels)
+# ============================================================================ compiled scalar forms (kernels)
 
 @njit(cache=True)
 def eq18_scalar(rk, t0, ti, ri) -> float:

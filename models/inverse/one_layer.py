@@ -146,7 +146,8 @@ def one_layer_dielectric_class(lobe: Lobe, context: Context | None = None) -> On
             branches["lower"] = Interval(1.0 if ctx.absorbing else lv, lv)
     bounds["eta1"] = {k: v for k, v in branches.items()}
     # the largest energy per channel: eq. 17 with the largest FGD reachable (eta1 = eta_max or 1)
-    r_max = np.array([_eq17_scalar(max(fgd_for(o, at[c], o.eta_max / ctx.eta), fgd_for(o, at[c], 1.0 / ctx.eta)), ctx, c)
+    r_max = np.array([_eq17_scalar(max(fgd_for(o, at[c], o.eta_max / ctx.eta), fgd_for(o, at[c], 1.0 / ctx.eta)),
+                                   ctx, c)
                       for c in range(3)])
     bounds["R_max"] = r_max
     if ctx.absorbing:
@@ -190,7 +191,8 @@ def conductor_point(o: InverseOptions, alpha_lookup: float, target: float, eta_n
 
     if target >= albedo_for(o, alpha_lookup):
         return (f"the conductor would need a reflectance {target:.4g} at or above the albedo "
-                f"{albedo_for(o, alpha_lookup):.4g} of a perfectly reflecting GGX interface of alpha={alpha_lookup:.4g}")
+                f"{albedo_for(o, alpha_lookup):.4g} of a perfectly reflecting GGX interface of "
+                f"alpha={alpha_lookup:.4g}")
     lo_rf = CONDUCTOR_R_MIN
     if eta is not None:
         # the smallest R_F whose class contains eta: eta <= eta_c_max(R_F) (eq. 9 grows with R_F)

@@ -26,6 +26,7 @@ from models.inverse.lobes import (ETA_MAX_DEFAULT, InverseError, InverseOptions,
 from models.inverse.one_layer import conductor_class, one_layer_dielectric_class
 from models.inverse.two_layer import two_layer_class
 
+
 # ============================================================================ dispatch
 
 def lobe_class(lobe: Lobe, context: Context | None = None, conductor: bool = False, tau0: Any = None,

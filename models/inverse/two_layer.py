@@ -63,7 +63,8 @@ def _two_layer_eval(st, sc, w1, xs, rk, sigma, eta1, eta_max, conductor, exact, 
             for c in range(3):
                 at = variance_to_roughness(st[ROW_VT0, c] + vr) if st[ROW_VT0, c] > 0.0 else variance_to_roughness(vr)
                 r1 = fgd_normal(w1, xs, at, eta1 / sc[SCALAR_ETA], 0.0)
-                per[c] = eq19_scalar(sigma, r1, st[ROW_RI, c], st[ROW_VTI, c], st[ROW_VT0, c], st[ROW_VRI, c], sc[SCALAR_J0])
+                per[c] = eq19_scalar(sigma, r1, st[ROW_RI, c], st[ROW_VTI, c], st[ROW_VT0, c], st[ROW_VRI, c],
+                                     sc[SCALAR_J0])
                 q[c] = st[ROW_RI, c] * r1
             vr_new = combine_sigma(per, q, sc[SCALAR_J0], minimax, ch_top, use)
             if vr_new < 0.0:

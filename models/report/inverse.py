@@ -26,6 +26,7 @@ from models.inverse import (FORWARD_RTOL, SIGMA_RES, CaseResult, Inversion, Lobe
                             TwoLayerClass, conductor_point, fgd_for, jsonable, lobe_albedo, lobe_ring_fractions,
                             validation_json)
 
+
 # ============================================================================ material file (gonio invert --out)
 
 def material_text(inv, stack, checks) -> str:
@@ -34,7 +35,8 @@ def material_text(inv, stack, checks) -> str:
             f"# base: {inv.base}; eta_max = {inv.options.eta_max:g}; lobes (top first), requested -> forward model:"]
     for k, (lobe, c) in enumerate(zip(inv.lobes, checks)):
         sol = inv.solutions[k]
-        head.append(f"#   lobe {k + 1}: {lobe.describe()} -> R={rgb_text(c.R_forward)} sigma={rgb_text(c.sigma_forward)}")
+        head.append(f"#   lobe {k + 1}: {lobe.describe()} -> R={rgb_text(c.R_forward)} "
+                    f"sigma={rgb_text(c.sigma_forward)}")
         head.append("#     choices: " + ", ".join(f"{key}={value_text(v)}" for key, v in sol.choices.items()))
     if inv.searched:
         head.append("#   (some default choices were moved by the search so that every lobe is achievable)")
