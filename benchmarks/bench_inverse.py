@@ -22,7 +22,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from models.inverse import solver as I
+from models import inverse as I
 
 TARGET_S = 0.050
 L = I.Lobe

@@ -1,5 +1,6 @@
 """``gonio invert`` and ``gonio validate-inverse``: the command line of the inverse method
-(:mod:`models.inverse.solver`, :mod:`models.inverse.validation`).
+(:mod:`models.inverse`; reports and figures: :mod:`models.report.inverse`). Parsing, calls and
+printing only.
 
 Registered through :func:`register` (the ``models`` command plugin). User errors raise
 :class:`goniometer.cli.common.UsageError` (one line ``gonio: error: ...``, exit status 2). A well-formed
@@ -14,9 +15,6 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
-
-import numpy as np
 
 from goniometer.cli.common import UsageError
 
@@ -49,7 +47,7 @@ def _check_out(path: str | None, suffix: str, option: str, create_parent: bool =
 # ---------------------------------------------------------------------------- invert
 
 def _options(args: argparse.Namespace):
-    from models.inverse.solver import InverseError, InverseOptions
+    from models.inverse import InverseError, InverseOptions
     try:
         return InverseOptions(eta_max=args.eta_max, variance_channel=args.variance_channel,
                               top_variance=args.top_variance)
@@ -57,38 +55,11 @@ def _options(args: argparse.Namespace):
         raise _usage(str(e)) from None
 
 
-def _material_text(inv, stack, checks) -> str:
-    """The TOML material (SIMULATION.md contract) with the request as comments."""
-    head = ["# written by `gonio invert` (Bati 2021 inverse method, models.inverse)",
-            f"# base: {inv.base}; eta_max = {inv.options.eta_max:g}; lobes (top first), requested -> forward model:"]
-    for k, (lobe, c) in enumerate(zip(inv.lobes, checks)):
-        sol = inv.solutions[k]
-        head.append(f"#   lobe {k + 1}: {lobe.describe()} -> R={_rgb(c.R_forward)} sigma={_rgb(c.sigma_forward)}")
-        head.append("#     choices: " + ", ".join(f"{key}={_val(v)}" for key, v in sol.choices.items()))
-    if inv.searched:
-        head.append("#   (some default choices were moved by the search so that every lobe is achievable)")
-    return "\n".join(head) + "\n" + stack.to_toml()
-
-
-def _rgb(a: Any) -> str:
-    a = np.atleast_1d(np.asarray(a, dtype=float))
-    if a.size == 1 or (a.size == 3 and np.ptp(a) == 0):
-        return f"{a[0]:.5g}"
-    return "[" + ", ".join(f"{x:.5g}" for x in a) + "]"
-
-
-def _val(v: Any) -> str:
-    if isinstance(v, str):
-        return v
-    a = np.atleast_1d(np.asarray(v, dtype=float))
-    return _rgb(a) if a.size in (1, 3) else str(v)
-
-
 def cmd_invert(args: argparse.Namespace) -> int:
-    from models.inverse import solver as inverse
-    from models.inverse.solver import InverseError
     from goniometer import atomic
-    from models.inverse.validation import forward_check
+    from models import inverse
+    from models.inverse import InverseError, forward_check
+    from models.report.inverse import material_text, rgb_text, value_text
     if not args.lobe:
         raise _usage("invert: at least one --lobe is required (e.g. --lobe \"R=0.04 sigma=0 layers=1\")")
     try:
@@ -106,35 +77,30 @@ def cmd_invert(args: argparse.Namespace) -> int:
     if not inv.achievable:
         print(f"not physically achievable: {inv.reason}", file=sys.stderr)
         if classes_png is not None and inv.classes:
-            from models.inverse.validation import classes_figure, save_png
+            from models.report.inverse import classes_figure, save_png
             save_png(classes_figure(inv), classes_png)
             print(f"wrote {classes_png} (classes down to the failing lobe)", file=sys.stderr)
         if args.json:
-            print(json.dumps(inverse._jsonable(inv.to_json()), indent=2))
+            print(json.dumps(inverse.inversion_json(inv), indent=2))
         return EXIT_NOT_ACHIEVABLE
     stack = inv.stack()
     checks = forward_check(inv)
     if out is not None:
-        atomic.write_bytes(out, _material_text(inv, stack, checks).encode())
+        atomic.write_bytes(out, material_text(inv, stack, checks).encode())
     if classes_png is not None:
-        from models.inverse.validation import classes_figure, save_png
+        from models.report.inverse import classes_figure, save_png
         save_png(classes_figure(inv), classes_png)
     if args.json:
-        d = inverse._jsonable(inv.to_json())
-        d["stack"] = json.loads(stack.to_json())
-        for k, c in enumerate(checks):
-            d["lobes"][k]["R_forward"] = c.R_forward.tolist()
-            d["lobes"][k]["sigma_forward"] = c.sigma_forward.tolist()
-        print(json.dumps(d, indent=2))
+        print(json.dumps(inverse.inversion_json(inv, stack, checks), indent=2))
         return 0
     print(f"{stack.name} ({stack.category}), {len(stack.interfaces)} interface(s), solved in "
           f"{1000 * inv.elapsed_s:.1f} ms" + (" (default choices moved by the search)" if inv.searched else ""))
     for layer in json.loads(stack.to_json())["layers"]:
-        print("  " + ", ".join(f"{k}={_val(v) if not isinstance(v, str) else v}" for k, v in layer.items()))
+        print("  " + ", ".join(f"{k}={value_text(v) if not isinstance(v, str) else v}" for k, v in layer.items()))
     print(f"{'lobe':>4}  {'R requested':>22} {'R forward':>22}  {'sigma req.':>10} {'sigma forward':>24}")
     for k, (lobe, c) in enumerate(zip(lobes, checks)):
-        print(f"{k + 1:>4}  {_rgb(lobe.rgb):>22} {_rgb(c.R_forward):>22}  {lobe.sigma:>10.4g} "
-              f"{_rgb(c.sigma_forward):>24}")
+        print(f"{k + 1:>4}  {rgb_text(lobe.rgb):>22} {rgb_text(c.R_forward):>22}  {lobe.sigma:>10.4g} "
+              f"{rgb_text(c.sigma_forward):>24}")
     if out is not None:
         print(f"wrote {out} (simulate it with: gonio simulate {out} --out FILE.h5 --incident 0 --parametrization half)")
     if classes_png is not None:
@@ -145,8 +111,9 @@ def cmd_invert(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------- validate-inverse
 
 def cmd_validate_inverse(args: argparse.Namespace) -> int:
-    from models.inverse.solver import InverseError
-    from models.inverse import validation as V
+    from models import inverse as V
+    from models.inverse import InverseError
+    from models.report import inverse as report
     try:
         cases = V.load_cases(args.cases)
     except InverseError as e:
@@ -181,9 +148,9 @@ def cmd_validate_inverse(args: argparse.Namespace) -> int:
     doc = V.validation_json(results, args.simulate, {"cases_file": str(args.cases), "rays": args.rays or V.DEFAULT_RAYS,
                                                       "resolution": list(resolution), "seed": args.seed})
     if json_out is not None:
-        V.write_json(json_out, doc)
+        report.write_json(json_out, doc)
     if args.report:
-        paths = V.write_report(results, args.report, args.simulate)
+        paths = report.write_report(results, args.report, args.simulate)
     _print_table(results, args.simulate)
     s = doc["summary"]
     print(f"{s['cases']} case(s), {s['achievable']} achievable; largest forward error R "
@@ -202,6 +169,7 @@ def _pct(x: float | None) -> str:
 
 
 def _print_table(results, simulate: bool) -> None:
+    from models.report.inverse import rgb_text
     for r in results:
         if not r.achievable:
             print(f"{r.case.name}: not physically achievable{'' if not r.case.expect_achievable else ' (UNEXPECTED)'}: "
@@ -210,11 +178,11 @@ def _print_table(results, simulate: bool) -> None:
         er, es = r.max_forward_error()
         print(f"{r.case.name}: forward error R {_pct(er)}, sigma {_pct(es)}")
         for k, c in enumerate(r.checks):
-            line = (f"    lobe {k + 1}: R {_rgb(c.R_requested)} -> {_rgb(c.R_forward)}; sigma {c.sigma_requested:.4g} "
-                    f"-> {_rgb(c.sigma_forward)}")
+            line = (f"    lobe {k + 1}: R {rgb_text(c.R_requested)} -> {rgb_text(c.R_forward)}; "
+                    f"sigma {c.sigma_requested:.4g} -> {rgb_text(c.sigma_forward)}")
             if simulate:
                 if c.R_simulated is not None:
-                    line += f"; simulated R {_rgb(c.R_simulated)}, sigma {_rgb(c.sigma_simulated)}"
+                    line += f"; simulated R {rgb_text(c.R_simulated)}, sigma {rgb_text(c.sigma_simulated)}"
                 elif c.group:
                     line += f"; simulated together with lobes {c.group}"
             print(line)

@@ -22,8 +22,9 @@ from goniometer import atomic
 from goniometer import cli, optics
 from goniometer.stack import Interface, Stack, load_toml
 from models.belcour import model as belcour
-from models.inverse import solver as I
-from models.inverse import validation as V
+from models import inverse as I
+from models import inverse as V
+from models.report import inverse as report_inverse
 from models.commands import inverse as inverse_cli
 from tests.conftest import Z_TOL
 
@@ -196,7 +197,7 @@ def test_simulated_case_reports_every_lobe(tmp_path):
     # percent for moderately rough lobes), so 15 % is a stated model-error budget, not a noise bound
     for k, c in enumerate(r.checks):
         assert np.allclose(c.R_simulated, c.R_requested, rtol=0.15), k
-    paths = V.write_report([r], tmp_path / "rep", simulate=True)
+    paths = report_inverse.write_report([r], tmp_path / "rep", simulate=True)
     assert paths["markdown"].read_text().count("fig19b") >= 1
     assert (tmp_path / "rep" / "figure25.png").stat().st_size > 1000
     assert json.loads(paths["json"].read_text())["cases"][0]["lobes"][1]["R_simulated"]
@@ -297,7 +298,7 @@ def test_full_validation_with_simulation(tmp_path):
     internal reflection are within a stated 15 % model-error budget of Belcour's forward model (the
     simulation measures the forward model's error; the report explains the larger ones)."""
     results = V.run_validation(V.load_cases(CASES), simulate=True, rays=2_000_000)
-    V.write_report(results, tmp_path / "rep", simulate=True)
+    report_inverse.write_report(results, tmp_path / "rep", simulate=True)
     skip = {"fig17-blue-over-red", "fig17-red-over-blue"}   # two close 2-layer lobes: poorly separable
     for r in results:
         if not r.achievable or r.case.name in skip:
