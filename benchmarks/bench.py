@@ -28,7 +28,7 @@ import numpy as np
 
 from goniometer.results import cell_geometry
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.tasks import warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 

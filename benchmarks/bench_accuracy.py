@@ -33,7 +33,7 @@ import numpy as np
 
 from goniometer.results import cell_geometry
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.tasks import warm_up
 from models.compare.errors import noise_floor, reference_parts
 

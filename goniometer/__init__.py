@@ -30,7 +30,7 @@ _EXPORTS = {
     "load_stack": "goniometer.stack",
     # running
     "SimulationSettings": "goniometer.settings", "SettingsError": "goniometer.settings",
-    "simulate": "goniometer.simulate", "run_incidents": "goniometer.simulate",
+    "simulate": "goniometer.run", "run_incidents": "goniometer.run",
     "Checkpoints": "goniometer.checkpoint",
     # results and files
     "SimulationResult": "goniometer.results", "SliceData": "goniometer.results", "SliceGrid": "goniometer.slices",

@@ -1,7 +1,7 @@
 """Checkpoints of a simulation: its finished incident directions, kept until its file is written.
 
 A run (one stack, one :class:`~goniometer.settings.SimulationSettings`) traces its incident
-directions one after the other (:func:`goniometer.simulate.run_incidents`). Each finished
+directions one after the other (:func:`goniometer.run.run_incidents`). Each finished
 direction's raw sums (an :class:`~goniometer.results.IncidentPart`) are saved atomically as ``m<k>.npz`` in a checkpoint
 directory, beside ``meta.json`` describing the run; a rerun of the same run loads them instead of
 tracing again, and the directory is removed once the result is written. Because results are

@@ -31,7 +31,7 @@ from goniometer import atomic, store
 from goniometer.checkpoint import Checkpoints
 from goniometer.results import run_description, same_run
 from goniometer.settings import SettingsError, SimulationSettings
-from goniometer.simulate import run_incidents
+from goniometer.run import run_incidents
 from goniometer.stack import Stack, StackError, stack_from_dict
 
 MANIFEST = "database.json"

@@ -27,7 +27,7 @@ _EXPORTS = {
     "FITTED": ("models.registry", "FITTED"),
     # the comparison harness
     "evaluate": ("models.compare.evaluate", "evaluate"), "Evaluation": ("models.compare.evaluate", "Evaluation"),
-    "integrate": ("models.compare.integrate", "integrate"), "compare": ("models.compare.errors", "compare"),
+    "integrate": ("models.compare.integrate", "integrate"),
     # fitted models
     "fit": ("models.fitted.fit", "fit"),
     # the inverse method (Bati 2021)

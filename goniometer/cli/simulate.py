@@ -42,7 +42,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer.checkpoint import Checkpoints, checkpoint_dir
     from goniometer.results import run_description
     from goniometer.settings import SettingsError, SimulationSettings
-    from goniometer.simulate import run_incidents
+    from goniometer.run import run_incidents
     from goniometer.stack import StackError, load_toml
     from goniometer.tasks import warm_up
 

@@ -190,7 +190,7 @@ def simulate_case(stack: Stack, lobes: Sequence[Lobe], rays: int = DEFAULT_RAYS,
                   threads: int | None = None) -> tuple[Any, RingData]:
     """Simulate ``stack`` at normal incidence (half slices) and reduce to rings."""
     from goniometer.settings import SimulationSettings
-    from goniometer.simulate import simulate
+    from goniometer.run import simulate
     settings = SimulationSettings(incident_deg=(0.0,), rays=int(rays), parametrization="half",
                                   resolution=tuple(resolution), seed=int(seed), threads=threads)
     result = simulate(stack, settings)

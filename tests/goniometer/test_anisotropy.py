@@ -10,7 +10,7 @@ import pytest
 
 from goniometer import optics
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.slices import light_direction
 from goniometer.stack import Interface, Stack, StackError, load_toml
 from tests.conftest import assert_cells_match, chi2_limit

@@ -13,7 +13,7 @@ from goniometer.checkpoint import Checkpoints, checkpoint_dir
 from goniometer.results import run_description
 from goniometer.cli import main
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate, simulate_resumable
+from goniometer.run import simulate, simulate_resumable
 from goniometer.tasks import trace_incident
 from goniometer.stack import Interface, Medium, Stack, load_toml
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from goniometer.settings import SettingsError, SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 
 
 def _arrays(r):

@@ -10,7 +10,7 @@ import pytest
 
 from goniometer import store
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 
 
 @pytest.fixture(scope="module")

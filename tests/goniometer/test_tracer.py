@@ -15,7 +15,7 @@ import pytest
 
 from goniometer import optics, smooth
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.slices import light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from tests.conftest import Z_TOL, assert_cells_match, cell_chi2, chi2_limit

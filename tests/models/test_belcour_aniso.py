@@ -24,7 +24,7 @@ import pytest
 
 from goniometer import optics
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.tables import belcour as tables
 from models.base import ModelError

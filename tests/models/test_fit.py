@@ -12,7 +12,7 @@ from scipy import integrate, special, stats
 from goniometer import optics
 from goniometer.results import SimulationResult, SliceData
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.fitted import fit as F

@@ -7,7 +7,7 @@ import pytest
 
 from goniometer import optics
 from goniometer.settings import SimulationSettings
-from goniometer.simulate import simulate
+from goniometer.run import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Stack
 from models.base import Model, ModelValue
