@@ -310,7 +310,7 @@ def kernel_arguments(stack: Stack) -> tuple:
 class MultilayerLUT(Model):
     """Steinberg's real-time multi-layered microfacet model with our numerical T / C tables.
 
-    See the module docstring for the equations and every choice. ``cache_dir``: where the tables
+    The equations and every choice: ``docs/multilayer-lut.md``. ``cache_dir``: where the tables
     are cached (default ``$GONIOMETER_CACHE`` or ``~/.cache/goniometer``); they are built on first
     use (a few seconds).
     """
@@ -319,7 +319,7 @@ class MultilayerLUT(Model):
     description = ("Multi-layered microfacet model (Steinberg 2016): top-down, mean transmission and "
                    "mean refraction tables, G of the refracted pair, radiance Jacobian")
     sides = ("brdf",)
-    #: multiply by 1 / eta_k^2 per interface (radiance compression); see the module docstring
+    #: multiply by 1 / eta_k^2 per interface (radiance compression); ``docs/multilayer-lut.md``
     jacobian = True
 
     def __init__(self, cache_dir: str | os.PathLike | None = None) -> None:
@@ -331,7 +331,7 @@ class MultilayerLUT(Model):
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         if side != "brdf":  # unreachable: Model.evaluate checks sides
             raise ModelError(f"{self.name}: cannot evaluate the {side.upper()}")
-        tables = mt.load_tables(self.cache_dir)
+        tables = mt.load_multilayer_tables(self.cache_dir)
         shape = v.shape[:-1]
         vv = np.ascontiguousarray(v, dtype=np.float64).reshape(-1, 3)
         top = np.empty((vv.shape[0], 3))

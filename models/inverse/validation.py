@@ -78,9 +78,9 @@ from scipy import optimize
 
 from goniometer import atomic
 from goniometer.stack import Stack
-from models.belcour import model as belcour
+from models import belcour
 from models.inverse import solver as inverse
-from models.belcour.model import roughness_to_variance, variance_to_roughness
+from models.belcour import roughness_to_variance, variance_to_roughness
 from models.inverse.solver import InverseError, Inversion, Lobe
 
 #: requested variances closer than this ratio are fitted as one lobe

@@ -64,7 +64,7 @@ from goniometer.cache import package_key
 from models._jit import APPLICATION, njit
 from models import registry
 from models.base import ModelError
-from models.compare.evaluate import comparison_side, evaluate
+from models.compare import comparison_side, evaluate
 
 REPORT_FORMAT = "goniometer.report"
 REPORT_VERSION = 1

@@ -110,6 +110,9 @@ from models.tables import cache as table_cache
 
 #: bump whenever the definition, numerics or layout of a table changes
 TABLE_VERSION = 2
+#: stated absolute error of 4D FGD table lookups where Fresnel has no critical angle (eta >= 1.2 or
+#: kappa >= 0.5) for mu >= 0.05
+FGD_ERROR = 3e-3
 #: stated absolute error of TIR lookups (table and slices) for alpha >= 0.1, mu >= 0.05
 TIR_ERROR = 6e-3
 
@@ -458,7 +461,7 @@ def tir_lookup(tir: np.ndarray, mu: float, alpha: float, eta_up: float) -> float
 # --------------------------------------------------------------------------- tables and cache
 
 @dataclass(frozen=True)
-class Tables:
+class BelcourTables:
     """The loaded tables of one masking model (read-only arrays; grids as in the module docstring)."""
 
     height_correlated: bool
@@ -522,7 +525,7 @@ def compute_tables(height_correlated: bool = False, progress: Progress | None = 
     return {"kernel": kernel, "fgd": fgd, "tir": np.clip(tir, 0.0, 1.0)}
 
 
-def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None,
+def build_belcour_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None,
                  height_correlated: bool = False) -> dict[str, Path]:
     """(Re)build the FGD and TIR tables of one masking model and write them atomically.
 
@@ -540,27 +543,29 @@ def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress 
     return paths
 
 
-def _read_if_current(path: Path, height_correlated: bool, keys: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+def read_if_current(path: Path, height_correlated: bool, keys: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+    """The arrays ``keys`` of the table file ``path`` if it holds tables of the current version and
+    grid for this masking model, else None (missing, stale or unreadable)."""
     return table_cache.read_current(path, TABLE_VERSION, _grid_signature(height_correlated), keys)
 
 
 @lru_cache(maxsize=8)
-def _load_cached(cache_dir: str, height_correlated: bool) -> Tables:
+def _load_cached(cache_dir: str, height_correlated: bool) -> BelcourTables:
     paths = table_paths(cache_dir, height_correlated)
 
     def read() -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
-        a = _read_if_current(paths["fgd"], height_correlated, ("kernel", "fgd"))
-        b = _read_if_current(paths["tir"], height_correlated, ("tir",))
+        a = read_if_current(paths["fgd"], height_correlated, ("kernel", "fgd"))
+        b = read_if_current(paths["tir"], height_correlated, ("tir",))
         return None if a is None or b is None else (a, b)
 
-    a, b = table_cache.load_or_build(read, lambda: build_tables(cache_dir, None, height_correlated),
+    a, b = table_cache.load_or_build(read, lambda: build_belcour_tables(cache_dir, None, height_correlated),
                                      f"the Belcour tables in {cache_dir}")
     for arr in (a["kernel"], a["fgd"], b["tir"]):
         arr.setflags(write=False)
-    return Tables(height_correlated, a["kernel"], a["fgd"], b["tir"])
+    return BelcourTables(height_correlated, a["kernel"], a["fgd"], b["tir"])
 
 
-def load_tables(cache_dir: str | os.PathLike | None = None, height_correlated: bool = False) -> Tables:
+def load_belcour_tables(cache_dir: str | os.PathLike | None = None, height_correlated: bool = False) -> BelcourTables:
     """The tables of one masking model, built (and cached on disk) on first use.
 
     A file with another version or grid is rebuilt. The result is memoised per
@@ -656,7 +661,7 @@ def _fgd_slice_cached(eta: float, kappa: float, height_correlated: bool, cache_d
         xs = split_x_nodes(mu_split)
         return TableSlice(mu_split, _fgd_from_kernel(w_lo, xs, lo, eta, kappa),
                           _fgd_from_kernel(w_hi, xs, hi, eta, kappa))
-    kernel = load_tables(cache_dir, height_correlated).kernel
+    kernel = load_belcour_tables(cache_dir, height_correlated).kernel
     return TableSlice(0.0, _freeze(np.zeros((2, N_ALPHA))),
                       _fgd_from_kernel(kernel, x_nodes(), _eval_mu(mu_nodes()), eta, kappa))
 
@@ -675,7 +680,7 @@ def fgd_slice(eta: float, kappa: float = 0.0, height_correlated: bool = False,
                              None if cache_dir is None else str(cache_dir), split)
 
 
-def fgd_slice_from_table(tables: Tables, eta: float, kappa: float = 0.0) -> TableSlice:
+def fgd_slice_from_table(tables: BelcourTables, eta: float, kappa: float = 0.0) -> TableSlice:
     """The 4D table interpolated at (eta, kappa): identical to quadrilinear lookups."""
     k, fk = _axis_py(eta / ETA_MAX, N_ETA)
     m, fm = _axis_py(kappa / KAPPA_MAX, N_KAPPA)
@@ -709,11 +714,11 @@ def tir_slice(eta_up: float, height_correlated: bool = False, cache_dir: str | o
     if eta_up >= 1.0:
         return TableSlice(0.0, _freeze(np.ones((2, N_ALPHA))), _freeze(np.ones((2, N_ALPHA))))
     if math.sqrt(1.0 - eta_up * eta_up) < mu_min - SPLIT_MARGIN:
-        return tir_slice_from_table(load_tables(cache_dir, height_correlated), eta_up)
+        return tir_slice_from_table(load_belcour_tables(cache_dir, height_correlated), eta_up)
     return _tir_slice_cached(eta_up, bool(height_correlated))
 
 
-def tir_slice_from_table(tables: Tables, eta_up: float) -> TableSlice:
+def tir_slice_from_table(tables: BelcourTables, eta_up: float) -> TableSlice:
     """The 3D TIR table interpolated at ``eta_up`` (identical to trilinear lookups)."""
     if eta_up >= 1.0:
         return TableSlice(0.0, _freeze(np.ones((2, N_ALPHA))), _freeze(np.ones((2, N_ALPHA))))

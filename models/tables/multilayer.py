@@ -159,7 +159,7 @@ QUAD_Z = 32
 QUAD_PHI = 64
 MU_FLOOR = 1e-6
 
-#: stated interpolation error bounds (see the module docstring for where each holds)
+#: stated interpolation error bounds (where each holds: ``docs/tables.md``)
 ERROR_T_UP = 6e-3
 ERROR_T_DOWN = 1.2e-2
 ERROR_T_KINK = 2.5e-2
@@ -414,7 +414,7 @@ def direct(mu, alpha, eta, n_z: int = QUAD_Z, n_phi: int = QUAD_PHI) -> np.ndarr
 # --------------------------------------------------------------------------- tables and cache
 
 @dataclass(frozen=True)
-class Tables:
+class MultilayerTables:
     """The loaded tables (read-only; grids, axis order and contents in the module docstring)."""
 
     up: np.ndarray      # (N_MU_UP, N_ALPHA, N_ETA_UP, 2) float64
@@ -478,7 +478,7 @@ def compute_tables(progress: Progress | None = None) -> dict[str, np.ndarray]:
     return out
 
 
-def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None) -> Path:
+def build_multilayer_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None) -> Path:
     """(Re)build the tables and write them atomically; returns the file's path.
 
     ``progress(stage, fraction)`` is called as the build advances. Clears the loader's memo.
@@ -503,16 +503,16 @@ def read_if_current(path: Path) -> dict[str, np.ndarray] | None:
 
 
 @lru_cache(maxsize=4)
-def _load_cached(cache_dir: str) -> Tables:
+def _load_cached(cache_dir: str) -> MultilayerTables:
     path = table_path(cache_dir)
-    t = table_cache.load_or_build(lambda: read_if_current(path), lambda: build_tables(cache_dir),
+    t = table_cache.load_or_build(lambda: read_if_current(path), lambda: build_multilayer_tables(cache_dir),
                                   f"the multilayer tables at {path}")
     for a in t.values():
         a.setflags(write=False)
-    return Tables(t["up"], t["down"], c_split())
+    return MultilayerTables(t["up"], t["down"], c_split())
 
 
-def load_tables(cache_dir: str | os.PathLike | None = None) -> Tables:
+def load_multilayer_tables(cache_dir: str | os.PathLike | None = None) -> MultilayerTables:
     """The tables, built (and cached on disk) on first use; a stale file is rebuilt.
 
     Memoised per cache directory in an ``lru_cache``.

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from goniometer.stack import Interface, Medium, Stack, load_toml
-from models.belcour import model as belcour
+from models import belcour
 from models.inverse import solver as I
 from models.tables import belcour as tables
 from models.inverse.validation import forward_check, forward_lobes

@@ -21,7 +21,7 @@ from scipy import integrate
 from goniometer import atomic
 from goniometer import cli, optics
 from goniometer.stack import Interface, Stack, load_toml
-from models.belcour import model as belcour
+from models import belcour
 from models.inverse import solver as I
 from models.inverse import validation as V
 from models.commands import inverse as inverse_cli
