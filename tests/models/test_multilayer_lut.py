@@ -99,7 +99,7 @@ def conductor(alpha1=0.2, eta1=1.45, kappa1=(1.0, 0.01, 0.01)) -> Interface:
 
 
 def database_stacks() -> list[Stack]:
-    """The 48 BRDF materials of DATABASE.md (plastics and metals)."""
+    """The 48 BRDF materials of docs/database-format.md (plastics and metals)."""
     out = []
     for a0 in (0.001, 0.05, 0.2):
         for tau in ((0.2,) * 3, (0.05, 0.1, 0.4)):
