@@ -104,7 +104,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
 def bench_models(repeats: int = 3) -> list[dict]:
     """Seconds to integrate each model onto one material (7 incident directions, 90 x 360 cells,
     5 x 5 sub-cells) on one thread, after warm-up (best of ``repeats``)."""
-    from models.compare.integrate import integrate
+    from models.compare import integrate
     from models.registry import all_models
     numba.set_num_threads(1)
     rows = []

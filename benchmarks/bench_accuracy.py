@@ -35,7 +35,7 @@ from goniometer.results import cell_geometry
 from goniometer.settings import SimulationSettings
 from goniometer.run import simulate
 from goniometer.tasks import warm_up
-from models.compare.errors import noise_floor, reference_parts
+from models.compare import noise_floor, reference_parts
 
 from bench import INCIDENT, MATERIALS, cpu_model
 

@@ -1,12 +1,13 @@
-"""The interface every analytic layered model implements, and the model registry.
+"""The interface every analytic layered model implements (:class:`Model`, :class:`ModelValue`,
+:class:`ModelError`) and the coated-base description of two-interface stacks (:func:`coated_base`).
 
-Conventions (same as :mod:`goniometer.optics` and SLICES.md):
+Conventions (same as :mod:`goniometer.optics` and ``docs/slices-format.md``):
 
 * ``l`` is the unit light direction (pointing towards the light, ``l_z > 0``), shape (3,).
 * ``v`` is an array of unit outgoing directions (pointing towards the viewer), shape (..., 3):
   upper hemisphere for the BRDF (``side="brdf"``), lower hemisphere for the BTDF (``side="btdf"``).
 * Values are BSDF values **without** the cosine factor, in 1/sr, RGB on the last axis: (..., 3).
-  BTDF values are flux based (SLICES.md), i.e. the radiance BTDF when light exits into air.
+  BTDF values are flux based (``docs/slices-format.md``), i.e. the radiance BTDF when light exits into air.
 * A BRDF is split into ``top`` -- the lobe of light reflected directly off the top interface
   (bounce order 1 in the simulator) -- and ``internal`` -- everything else. For a BTDF ``top``
   is zero and ``internal`` holds the whole BTDF.

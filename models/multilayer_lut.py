@@ -1,99 +1,21 @@
-"""The real-time multi-layered microfacet model with mean-transmission / mean-refraction tables.
+"""The real-time multi-layered microfacet model (``multilayer-lut``, S. Steinberg 2016, "Light
+Transport in a Multi-Layered Microfacet Model", sections "Light transport through a microfacet layer"
+and "Evaluating a multi-layered BRDF") with our own mean-transmission / mean-refraction tables
+(:mod:`models.tables.multilayer`, no curve fits).
 
-Source: "Light Transport in a Multi-Layered Microfacet Model" (``../papers/multilayer-microfacet-
-realtime-blog.txt``, S. Steinberg 2016), sections "Light transport through a microfacet layer" and
-"Evaluating a multi-layered BRDF". Its two look-up tables -- the visible-microfacet-averaged Fresnel
-transmission ``t(v, alpha, eta)`` and the mean refracted direction -- are computed by our own
-quadrature (:mod:`models.tables.multilayer`, no curve fits).
+Conventions (as :mod:`models.base` and :mod:`goniometer.optics`): ``z`` is the macro normal; ``l``
+(light) and ``v`` (viewer) point away from the surface. Inside the stack, the pair ``(l_k, v_k)``
+lives in region ``k`` (region 0 = air, region ``k + 1`` lies below interface ``k``) and points
+**up**, away from the layers below (``z > 0``). Values are BRDF values without the cosine factor, in
+1/sr, RGB last; ``top`` is the GGX reflection of the top interface (the whole value for a single
+conductor interface or a bare Lambertian, matching the simulator's bounce order 1), ``internal``
+everything else. Masking is separable Smith ``G2 = G1 G1`` throughout.
 
-Conventions (as :mod:`models.base` and :mod:`goniometer.optics`)
------------------------------------------------------------------
-* ``z`` is the macro normal. ``l`` (light) and ``v`` (viewer) point away from the surface.
-  Inside the stack, the pair ``(l_k, v_k)`` lives in region ``k`` (region 0 = air, region ``k + 1``
-  lies below interface ``k``) and points **up**, away from the layers below (``z > 0``), i.e. minus
-  the propagation direction of the light travelling down along ``l_k``.
-* Values are BRDF values without the cosine factor, in 1/sr, RGB on the last axis. ``top`` is the
-  GGX reflection of the top interface (the whole value for a single conductor interface or a bare
-  Lambertian, matching the simulator's bounce order 1), ``internal`` everything else.
-* Fresnel, GGX D, Smith Lambda/G and the Walter 2007 microfacet BRDF come from
-  :mod:`goniometer.optics`; masking is **separable** Smith ``G2 = G1 G1`` throughout.
-
-The model (what the article specifies)
---------------------------------------
-Top-down evaluation (article, "Evaluating a multi-layered BRDF", steps 1-8), accumulated
-attenuation ``q`` (RGB, starts at 1) and result ``r``. For each dielectric interface ``k``
-(roughness ``alpha_k``, relative index ``eta_k = n_{k+1} / n_k``):
-
-1.  ``t_i = T(l_k.z, alpha_k, eta_k)``, ``t_o = T(v_k.z, alpha_k, eta_k)`` (tables).
-2.  ``l_{k+1}``, ``v_{k+1}``: the mean refracted directions of ``l_k`` and ``v_k`` (tables give their
-    cosine ``C``; the azimuth is that of ``l_k`` resp. ``v_k``: refraction goes forward).
-3.-4. absorption in region ``k + 1``: ``a = exp(-tau_{k+1} (1 / l_{k+1}.z + 1 / v_{k+1}.z))``
-    (``Medium`` optical depth at normal incidence, Beer-Lambert along the mean refracted pair).
-5.  ``r += q * f_k(l_k, v_k)`` with ``f_k`` the GGX dielectric reflection BRDF of interface ``k``
-    (:func:`goniometer.optics.microfacet_reflection`); for ``k = 0`` this is the ``top`` lobe.
-6.-7. ``q *= t_i t_o G_k a`` (and the radiance Jacobian below), continue with
-    ``(l_{k+1}, v_{k+1})``.
-
-Base (article, "Each layer exhibits a diffuse component" and "Dialectics and conductors"):
-
-* **Lambertian** albedo ``rho``: ``r += q * rho / pi``. In the article a layer's diffuse colour is
-  ``t_i t_o ((1 - k) c) / pi``; our stacks map onto it as: a ``Medium`` is a purely absorbing layer
-  volume (``c = 0``, no volume diffuse), and the Lambertian base is an opaque layer without an
-  interface of its own (``t_i = t_o = 1``, no G) whose volume scatters everything (``1 - k = 1``)
-  with albedo ``c = rho``. The interfaces and media above act through ``q``.
-* **Conductor** (complex index relative to the region above it, ``(eta + i kappa) / n_K``): only
-  reflection (the article: metals have no internal scattering and no diffuse):
-  ``r += q * f_K(l_K, v_K)``, the GGX conductor BRDF, per colour channel.
-
-Choices where the article is vague or wrong (each tested in ``tests/models/test_multilayer_lut.py``)
---------------------------------------------------------------------------------------------------
-* **Which G.** ``G_k = G1(l_{k+1}) G1(v_{k+1})`` -- separable Smith masking of the two *mean
-  refracted (inner) directions* by interface ``k`` (its roughness ``alpha_k``). Reason: ``T`` is
-  normalised over the visible normal distribution of the incident direction, so the shadowing of the
-  incident direction is already inside it; the single-scattering energy lost on transmission is the
-  masking of the *refracted* ray, ``Int D_v(m) (1 - F) G1(t(m)) dm ~ T G1(mean t)``. The exit is
-  treated by reciprocity (next item), so the view path gets ``G1(v_{k+1})`` as well. (The author's
-  shader multiplies by ``G1`` of the outer pair instead.)
-* **Exit transmission and the mean refracted direction from below.** Light leaves layer ``k``
-  travelling from region ``k + 1`` into region ``k`` towards ``v_k``. We use reciprocity of the
-  single-scattering BTDF (Walter 2007; its separable G2 and Fresnel are symmetric): the energy
-  reaching ``v_k`` from below and the inner directions it comes from have the same distribution as
-  the light transmitted *from* ``v_k`` downwards, so ``t_o = T(v_k)`` and the inner view direction
-  ``v_{k+1}`` is the mean refracted direction of ``v_k`` seen from above -- one table, queried
-  from the side of the outer direction, for both paths. Hence the model is reciprocal,
-  ``f(l, v) = f(v, l)``.
-* **Radiance Jacobian.** The article has none. Light leaving a denser medium spreads over a larger
-  solid angle: crossing interface ``k`` down and back up multiplies the BRDF by ``1 / eta_k^2``
-  (Bati et al. 2019, appendix C; Weidlich-Wilkie omit it too), so ``q`` carries ``1 / n_k^2`` in
-  region ``k``. Without it the smooth limit disagrees with the adding equations by ``eta^2``
-  (2.25 for a coat of 1.5). :class:`MultilayerLUTArticle` (not registered) drops it.
-* **Absorption path lengths** use the mean refracted pair of the region (``1 / l_{k+1}.z`` and
-  ``1 / v_{k+1}.z`` for one way down and one way up); the article's thickness ``d`` and attenuation
-  coefficient are our ``Medium`` optical depth ``tau = a d`` at normal incidence.
-* **Index-matched interface** (``eta_k = 1`` exactly): optically absent, as in the simulator: no
-  reflection, ``T = 1``, no deviation, no masking, no Jacobian.
-* **Perfectly smooth interfaces** (``alpha = 0``): their reflection lobe is a Dirac that cannot be
-  evaluated pointwise, so it contributes 0 (``top`` = 0 for a smooth top interface; an internal
-  smooth conductor gives 0). Their transmission is exact: ``T = 1 - F``, Snell's direction, ``G = 1``.
-* **Tables** (:mod:`models.tables.multilayer`): ``T`` and ``C`` are averaged over the visible
-  normal distribution ``D_v`` (the article: ``D cos theta_m`` over front-facing facets), the mean
-  direction weighted by the transmitted energy ``D_v (1 - F)``.
-* Where everything is totally reflected (``T = 0``) or a mean direction is grazing (``C = 0``) the
-  path below ends (contributes 0). Degenerate inputs (``l_z <= 0``, ``v_z <= 0``, non-finite ``v``)
-  give 0.
-
-Supported stacks: any number of dielectric interfaces (relative indices within the tables' range
-``[ETA_MIN, ETA_MAX] = [1/3, 3]``) with optional absorbing media between them, ending in a conductor
-interface or a Lambertian base; also a bare conductor interface or a bare Lambertian. BRDF only.
-
-Known limitations (the article's approximations, kept): light is followed along the *mean*
-refracted directions only, so an internal lobe is never wider than the inner interface's own
-roughness (a smooth base under a rough coat keeps a needle-sharp lobe); inter-reflections between
-layers and multiple scattering on the microsurfaces are ignored (the model's directional albedo is
-below the simulator's). Against the simulator (4 M rays, light at 0/45/70 deg, 45 x 90 cells,
-internal paths) the mean internal RMSE on three database materials was 0.0080, 0.0021, 0.0005
-(``ww-bati19``: 0.0079, 0.0019, 0.0005; noise floors 0.0031, 0.0003, 0.0004);
-:class:`MultilayerLUTArticle` was 7 to 30 times worse (2.25 times too bright).
+Supported stacks: dielectric interfaces (relative indices within ``[ETA_MIN, ETA_MAX] = [1/3, 3]``)
+with optional absorbing media between them, ending in a conductor interface or a Lambertian base;
+also a bare conductor interface or a bare Lambertian. BRDF only. The model step by step, the choices
+where the article is vague or wrong (which G, exit transmission by reciprocity, the radiance
+Jacobian, ...) and its known limitations: ``docs/multilayer-lut.md``.
 """
 
 from __future__ import annotations
@@ -310,7 +232,7 @@ def kernel_arguments(stack: Stack) -> tuple:
 class MultilayerLUT(Model):
     """Steinberg's real-time multi-layered microfacet model with our numerical T / C tables.
 
-    See the module docstring for the equations and every choice. ``cache_dir``: where the tables
+    The equations and every choice: ``docs/multilayer-lut.md``. ``cache_dir``: where the tables
     are cached (default ``$GONIOMETER_CACHE`` or ``~/.cache/goniometer``); they are built on first
     use (a few seconds).
     """
@@ -319,7 +241,7 @@ class MultilayerLUT(Model):
     description = ("Multi-layered microfacet model (Steinberg 2016): top-down, mean transmission and "
                    "mean refraction tables, G of the refracted pair, radiance Jacobian")
     sides = ("brdf",)
-    #: multiply by 1 / eta_k^2 per interface (radiance compression); see the module docstring
+    #: multiply by 1 / eta_k^2 per interface (radiance compression); ``docs/multilayer-lut.md``
     jacobian = True
 
     def __init__(self, cache_dir: str | os.PathLike | None = None) -> None:
@@ -331,7 +253,7 @@ class MultilayerLUT(Model):
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         if side != "brdf":  # unreachable: Model.evaluate checks sides
             raise ModelError(f"{self.name}: cannot evaluate the {side.upper()}")
-        tables = mt.load_tables(self.cache_dir)
+        tables = mt.load_multilayer_tables(self.cache_dir)
         shape = v.shape[:-1]
         vv = np.ascontiguousarray(v, dtype=np.float64).reshape(-1, 3)
         top = np.empty((vv.shape[0], 3))

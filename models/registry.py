@@ -7,8 +7,7 @@ from models.base import Model, ModelError
 
 def all_models() -> dict[str, Model]:
     """Every analytic model of the harness, by its fixed name, in display order."""
-    from models.belcour.model import BelcourBati19, BelcourBTDF, BelcourForward, BelcourSymmetric
-    from models.belcour.aniso import BelcourAniso
+    from models.belcour import BelcourAniso, BelcourBati19, BelcourBTDF, BelcourForward, BelcourSymmetric
     from models.multilayer_lut import MultilayerLUT
     from models.weidlich_wilkie import Elek10, WW09, WWBati19
     found: list[Model] = [WW09(), Elek10(), WWBati19(), BelcourForward(), BelcourSymmetric(), BelcourBati19(),
@@ -22,7 +21,7 @@ FITTED = ("hp15-fit", "ggx1-fit", "ggx2-fit")
 
 def fitted_models() -> dict[str, type[Model]]:
     """The fitted model classes by name (they need parameters: build them with a fit)."""
-    from models.fitted.fit import GGX1Fit, GGX2Fit, HP15Fit
+    from models.fitted import GGX1Fit, GGX2Fit, HP15Fit
     return {c.name: c for c in (HP15Fit, GGX1Fit, GGX2Fit)}
 
 

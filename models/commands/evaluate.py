@@ -69,7 +69,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 def cmd_fit(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
-    from models.fitted.fit import fit
+    from models.fitted import fit
     try:
         reference = store.read(args.file)
         if reference.brdf is None:
@@ -102,7 +102,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
-    from models.compare.evaluate import evaluate, save_slices
+    from models.compare import evaluate, save_slices
 
     try:
         if args.save_slices:

@@ -27,14 +27,13 @@ def _bar(name: str):
 
 
 def cmd_tables(args: argparse.Namespace) -> int:
-    from models.tables import cache as table_cache
-    from models.tables.check import MASKINGS, run
+    from models.tables import MASKINGS, cache_directory, check_tables
     if args.check < 0:
         raise UsageError(f"--check: must be >= 0 random points, got {args.check}")
     maskings = MASKINGS if args.masking == "all" else (args.masking,)
-    cache_dir = table_cache.cache_directory(args.cache_dir)
-    entries = run(cache_dir, maskings, build=not args.status, rebuild=args.rebuild, check_points=args.check,
-                  seed=args.seed, progress=None if args.json else _bar)
+    cache_dir = cache_directory(args.cache_dir)
+    entries = check_tables(cache_dir, maskings, build=not args.status, rebuild=args.rebuild, check_points=args.check,
+                           seed=args.seed, progress=None if args.json else _bar)
     ok = all(c.ok for e in entries for c in e.checks)
     if args.json:
         print(json.dumps({"cache_dir": str(cache_dir), "tables": [e.to_dict() for e in entries], "ok": ok},

@@ -1,4 +1,4 @@
-"""Errors between reference slices and model slices (Bati 2019, eq. 4; SLICES.md "Errors").
+"""Errors between reference slices and model slices (Bati 2019, eq. 4; ``docs/slices-format.md``, "Errors").
 
 Per colour channel c, over the M incident directions and the valid (unmasked) cells::
 

@@ -128,7 +128,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             raise ModelError(f"{name}: fitted models are BRDF models; this stack is judged on its {side.upper()}")
         if progress is not None:
             progress(name)
-        from models.fitted.fit import fit
+        from models.fitted import fit
         fr = fit(reference, name, errors=False)
         ms = integrate(fr.model, reference, side, s)
         result.slices[name] = ms

@@ -1,4 +1,4 @@
-"""Integrate analytic models onto the cells of a simulated file (SLICES.md, "Cell value").
+"""Integrate analytic models onto the cells of a simulated file (``docs/slices-format.md``, "Cell value").
 
 Every cell is split into ``s x s`` sub-cells uniform in the slice's own coordinates; the model is
 evaluated at the sub-cell centres and weighted by each sub-cell's projected solid angle

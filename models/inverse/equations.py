@@ -17,7 +17,7 @@ from scipy import optimize
 
 from goniometer import optics
 from models._jit import njit
-from models.belcour.model import roughness_to_variance
+from models.belcour import roughness_to_variance
 from models.inverse.lobes import InverseError
 
 #: smallest normal reflectance of a conductor with kappa >= eta (eq. 9 defined): 3 - 2 sqrt(2)

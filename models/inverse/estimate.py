@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import optimize
 
-from models.belcour.model import roughness_to_variance, variance_to_roughness
+from models.belcour import roughness_to_variance, variance_to_roughness
 from models.inverse.lobes import Lobe
 
 #: requested variances closer than this ratio are fitted as one lobe

@@ -21,7 +21,7 @@ import numpy as np
 from goniometer import optics
 from models._jit import njit
 from models.tables import belcour as tables
-from models.belcour.model import roughness_to_variance, variance_to_roughness
+from models.belcour import roughness_to_variance, variance_to_roughness
 from models.inverse.equations import eq7_roots, eq19_scalar
 from models.inverse.lobes import InverseOptions
 
@@ -53,7 +53,7 @@ FAIL_TEXT = {
 @lru_cache(maxsize=4)
 def _kernel(cache_dir: str | None, height_correlated: bool) -> tuple[np.ndarray, np.ndarray]:
     """The angular kernel row at mu = 1 (N_ALPHA x N_X) and its x nodes (models.tables)."""
-    t = tables.load_tables(cache_dir, height_correlated)
+    t = tables.load_belcour_tables(cache_dir, height_correlated)
     w1 = np.ascontiguousarray(t.kernel[-1], dtype=np.float64)
     xs = np.ascontiguousarray(tables.x_nodes(), dtype=np.float64)
     w1.setflags(write=False)

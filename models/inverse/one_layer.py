@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from models.belcour.model import variance_to_roughness
+from models.belcour import variance_to_roughness
 from models.inverse.classes import Layer, LobeClass, LobeSolution
 from models.inverse.context import Context, scalar_sigma_r
 from models.inverse.equations import CONDUCTOR_R_MIN, conductor_eta_bounds, eq8_kappa, eq9_eta_max

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from models._jit import njit
-from models.belcour.model import variance_to_roughness
+from models.belcour import variance_to_roughness
 from models.inverse.classes import Layer, LobeClass, LobeSolution
 from models.inverse.context import Context, SubLobe, scalar_sigma_r
 from models.inverse.equations import conductor_eta_bounds, eq18_scalar, eq19_scalar, eta_sigma_max

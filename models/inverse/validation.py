@@ -23,7 +23,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from goniometer.stack import Stack
-from models.belcour import model as belcour
+from models import belcour
 from models.inverse.estimate import RingData, estimate_lobes, ring_data
 from models.inverse.lobes import InverseError, InverseOptions, Lobe, Pick, jsonable, parse_picks
 from models.inverse.solver import Inversion, solve

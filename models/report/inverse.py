@@ -20,8 +20,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from goniometer import atomic
-from models.belcour import model as belcour
-from models.belcour.model import variance_to_roughness
+from models import belcour
+from models.belcour import variance_to_roughness
 from models.inverse import (FORWARD_RTOL, SIGMA_RES, CaseResult, Inversion, LobeCheck, OneLayerDielectricClass,
                             TwoLayerClass, conductor_point, fgd_for, jsonable, lobe_albedo, lobe_ring_fractions,
                             validation_json)

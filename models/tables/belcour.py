@@ -1,94 +1,21 @@
 """FGD and TIR tables for Belcour 2018's layered model, computed by our own numerics.
 
-Definitions (belcour2018.md sections 4 and 5)
----------------------------------------------
-* ``FGD(mu, alpha, eta, kappa)`` -- the directional albedo of one isotropic GGX interface seen
-  from above: ``Int_{H+} F(wi.h; eta + i kappa) D(h) G(wi, wo) / (4 mu) dwo`` with ``mu = cos theta_i``,
-  the exact unpolarised Fresnel reflectance of a complex *relative* index
-  (:func:`goniometer.optics.fresnel_conductor`; ``kappa = 0`` is a dielectric, total internal
-  reflection included; ``eta = 1, kappa = 0`` gives 0; ``eta = kappa = 0`` reflects everything) and
-  single-scattering Smith G (separable ``G1(wi) G1(wo)`` by default, height-correlated on request).
-  A fraction, no units.
-* ``TIR(mu, alpha, eta_up)`` -- the fraction of a single-scattering GGX reflection lobe (F = 1,
-  same Smith G, normalised by the lobe's own energy, incidence ``mu`` in the current medium) whose
-  outgoing directions satisfy ``sin theta_o <= eta_up``, i.e. that can *escape* through an
-  interface of relative index ``eta_up = n_above / n_current`` above (``1 - TIR`` is trapped).
-  ``eta_up >= 1`` gives 1; ``alpha = 0`` gives the step ``1[sin theta_i <= eta_up]``. Computed
-  without Fresnel (belcour2018.md section 5 UNCERTAIN: the C6 table matches this to 0.003).
+* ``FGD(mu, alpha, eta, kappa)``: the directional albedo of one isotropic GGX interface seen from
+  above (exact unpolarised Fresnel of the complex *relative* index ``eta + i kappa``,
+  single-scattering Smith G, separable or height-correlated), ``mu = cos theta_i``. A fraction.
+* ``TIR(mu, alpha, eta_up)``: the fraction of a single-scattering GGX reflection lobe (F = 1) that
+  can escape through an interface of relative index ``eta_up = n_above / n_current`` above.
 
-Numerics
---------
-Both are moments of one angular quadrature: the microfacet normal ``m`` is drawn from the GGX
-visible-normal distribution of ``wi`` (:func:`goniometer.optics.sample_vndf`), ``wo`` is the mirror
-of ``wi`` about ``m`` (:func:`goniometer.optics.reflect`) and the sample weight is ``G1(wo)``
-(separable) or ``(1 + L_i) / (1 + L_i + L_o)`` (height-correlated, ``L`` = Smith Lambda from
-:func:`goniometer.optics.ggx_lambda`), so that ``FGD = E[F(wi.m) w]``. The expectation over the
-VNDF parameter disc is a deterministic product rule: ``QUAD_R = 96`` Gauss-Legendre nodes in the
-disc radius (weights include the Jacobian ``2 r``) times ``QUAD_PHI = 192`` Gauss-Legendre nodes in
-the azimuth parameter (96 on each half, whose ends are where Heitz's disc warp is singular).
-Because F depends on a sample only through ``x = wi.m``, the quadrature stores the *angular
-kernel* ``W[mu, alpha, j] = E[w hat_j(x)]`` -- the weights projected onto linear hat functions of
-the ``N_X = 257`` nodes ``x_j = (j / 256)^2`` (hats linear in ``sqrt(x)``) -- and
-``FGD = sum_j W[..., j] F(x_j; eta, kappa)``: one quadrature serves every complex index, the 4D
-table is a matrix product, and a *material slice* (a 2D (mu, alpha) table for one fixed
-(eta, kappa), as Bati et al. 2019 precomputed per material) is exact in (eta, kappa). The
-``alpha = 0`` column is the exact Fresnel reflectance ``F(mu)`` (a Dirac at ``x = mu``); ``mu = 0``
-nodes are evaluated at ``MU_FLOOR = 1e-6``. Error of the quadrature itself (no interpolation)
-against an independent half-vector quadrature: <= 2e-4 absolute where F is smooth, <= 1.5e-3 at
-the kink of total internal reflection (eta < 1, kappa = 0, rough interfaces).
-
-Grids (nodes at k / (N - 1) of a mapped coordinate; multilinear interpolation in the mapped
-coordinates; inputs outside a range are clamped to it)
------------------------------------------------------------------------------------------------
-* ``mu = cos theta``: ``N_MU = 64`` nodes uniform in ``u = sqrt(mu)`` (dense at grazing angles).
-* ``alpha``: ``N_ALPHA = 64`` nodes uniform in ``a = sqrt(alpha)``, alpha in [0, 1].
-* ``eta`` (real part of the relative index): ``N_ETA = 65`` nodes uniform on [0, ETA_MAX = 4]
-  (spacing 1/16).
-* ``kappa`` (imaginary part): ``N_KAPPA = 65`` nodes uniform on [0, KAPPA_MAX = 8] (spacing 1/8).
-* ``eta_up`` (TIR): ``N_ETA_UP = 65`` nodes uniform on [0, 1] (spacing 1/64).
-
-Axis order (C order, last axis fastest): ``fgd[mu, alpha, eta, kappa]`` (float32),
-``tir[mu, alpha, eta_up]`` (float64), ``kernel[mu, alpha, x]`` (float64).
-
-Measured error of the 4D FGD table's quadrilinear lookups (absolute, at random off-grid points;
-bounds tested in ``tests/models/test_tables.py``): where Fresnel has no critical angle
-(``eta >= 1.2`` or ``kappa >= 0.5``) <= 3e-3 for ``mu >= 0.05`` (99 % of points below 1e-3) and
-<= 4e-3 for ``mu >= 0.01``. Near ``eta = 1`` at grazing angles, and for ``eta < 1`` with small
-kappa, the critical angle moves through the cells and errors reach 0.3 (inherent to a uniform
-grid); below ``mu = 0.01`` (theta > 89.4 deg) the corner cells err by up to 0.07. The TIR table
-and slices: <= :data:`TIR_ERROR` = 6e-3 for ``alpha >= 0.1`` and ``mu >= 0.05``, 99 % of points
-below 3e-3 (against an independent integration over outgoing directions, 700 random points: max
-5.0e-3 for the table, 5.7e-3 for slices; the error is mostly the indicator quadrature's own, up to
-5.2e-3: the escape indicator is discontinuous on the VNDF disc), the exact step at ``alpha = 0``,
-a step smeared over one mu cell in between. Hence the models use **material slices** by default.
-
-Material slices
----------------
-:func:`fgd_slice` returns a 2D (mu, alpha) table for one (eta, kappa), exact in (eta, kappa). When
-F has a critical angle (``eta < 1`` and ``kappa < SPLIT_KAPPA = 0.25``) that the caller can reach
-(the critical cosine ``mu_s = sqrt(1 - eta^2 + kappa^2)`` is at least the smallest cosine looked
-up, ``mu_min``, minus ``SPLIT_MARGIN = 0.05``), its mu axis is split at ``mu_s``: a lower piece on
-[0, mu_s] (``N_MU_LOWER = 40`` nodes, dense at both ends: ``mu = mu_s s(t)``, ``s = 2 t^2`` for
-t <= 1/2, ``1 - 2 (1 - t)^2`` above) and an upper piece on [mu_s, 1] (``N_MU_UPPER = 64`` nodes,
-``mu = mu_s + (1 - mu_s) t^2``, so that the square-root kink of Fresnel is linear in t); the x
-nodes are split at the same point (:func:`split_x_nodes`). Otherwise the slice uses the universal
-mu nodes (``mu_s = 0``, upper piece only) and the stored kernel. A split slice needs its own
-angular kernel: computed on first use (about 1-2 s on 2 cores) and memoised in memory.
-:func:`tir_slice` does the same for the TIR at one ``eta_up`` (split at its critical cosine
-``sqrt(1 - eta_up^2)``, where the alpha -> 0 limit is a step). Measured error of slices: <= 1.5e-3
-for ``mu >= 0.05`` where F is smooth, <= 2e-3 (mu >= 0.05) and <= 3.5e-3 (mu >= 0.01) in general,
-<= 5e-3 within 1e-3 of a critical cosine at small alpha.
-
-Cache
------
-Tables live in :func:`default_cache_dir` (``$GONIOMETER_CACHE`` if set, else
-``~/.cache/goniometer``) as ``belcour-fgd-<masking>.npz`` (kernel + 4D table + grids, ~78 MB) and
-``belcour-tir-<masking>.npz`` (~2 MB), written atomically (temporary file + rename) with
-:data:`TABLE_VERSION` and the grid signature inside. A file whose version or grid differs is
-rebuilt, never reused (the file handling is :mod:`models.tables.cache`). :func:`load_tables`
-builds on first use (a few seconds on 2 cores, plus numba compilation) and memoises the loaded
-tables in an ``lru_cache`` (cleared by :func:`build_tables`); the slice functions are
-``lru_cache``'d too. These caches are the module's only state.
+Both are moments of one angular quadrature (the *angular kernel* ``kernel[mu, alpha, x]`` over
+``x = wi.m``), so a *material slice* -- a (mu, alpha) table for one (eta, kappa), :func:`fgd_slice`,
+:func:`tir_slice` -- is exact in (eta, kappa). Grids: ``mu`` uniform in ``sqrt(mu)``, ``alpha``
+uniform in ``sqrt(alpha)``, ``eta`` on [0, ETA_MAX], ``kappa`` on [0, KAPPA_MAX], ``eta_up`` on [0, 1];
+axis order ``fgd[mu, alpha, eta, kappa]`` (float32), ``tir[mu, alpha, eta_up]``,
+``kernel[mu, alpha, x]`` (float64); inputs outside a range are clamped. Stated lookup errors:
+:data:`FGD_ERROR`, :data:`TIR_ERROR`. Files ``belcour-fgd-<masking>.npz`` and
+``belcour-tir-<masking>.npz`` in the cache directory (:mod:`models.tables.cache`), built on first
+use and memoised in ``lru_cache``s (the module's only state). Definitions, numerics, grids, measured
+errors and the split slices: ``docs/tables.md``.
 """
 
 from __future__ import annotations
@@ -110,6 +37,9 @@ from models.tables import cache as table_cache
 
 #: bump whenever the definition, numerics or layout of a table changes
 TABLE_VERSION = 2
+#: stated absolute error of 4D FGD table lookups where Fresnel has no critical angle (eta >= 1.2 or
+#: kappa >= 0.5) for mu >= 0.05
+FGD_ERROR = 3e-3
 #: stated absolute error of TIR lookups (table and slices) for alpha >= 0.1, mu >= 0.05
 TIR_ERROR = 6e-3
 
@@ -458,7 +388,7 @@ def tir_lookup(tir: np.ndarray, mu: float, alpha: float, eta_up: float) -> float
 # --------------------------------------------------------------------------- tables and cache
 
 @dataclass(frozen=True)
-class Tables:
+class BelcourTables:
     """The loaded tables of one masking model (read-only arrays; grids as in the module docstring)."""
 
     height_correlated: bool
@@ -522,7 +452,7 @@ def compute_tables(height_correlated: bool = False, progress: Progress | None = 
     return {"kernel": kernel, "fgd": fgd, "tir": np.clip(tir, 0.0, 1.0)}
 
 
-def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None,
+def build_belcour_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None,
                  height_correlated: bool = False) -> dict[str, Path]:
     """(Re)build the FGD and TIR tables of one masking model and write them atomically.
 
@@ -540,27 +470,29 @@ def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress 
     return paths
 
 
-def _read_if_current(path: Path, height_correlated: bool, keys: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+def read_if_current(path: Path, height_correlated: bool, keys: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+    """The arrays ``keys`` of the table file ``path`` if it holds tables of the current version and
+    grid for this masking model, else None (missing, stale or unreadable)."""
     return table_cache.read_current(path, TABLE_VERSION, _grid_signature(height_correlated), keys)
 
 
 @lru_cache(maxsize=8)
-def _load_cached(cache_dir: str, height_correlated: bool) -> Tables:
+def _load_cached(cache_dir: str, height_correlated: bool) -> BelcourTables:
     paths = table_paths(cache_dir, height_correlated)
 
     def read() -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
-        a = _read_if_current(paths["fgd"], height_correlated, ("kernel", "fgd"))
-        b = _read_if_current(paths["tir"], height_correlated, ("tir",))
+        a = read_if_current(paths["fgd"], height_correlated, ("kernel", "fgd"))
+        b = read_if_current(paths["tir"], height_correlated, ("tir",))
         return None if a is None or b is None else (a, b)
 
-    a, b = table_cache.load_or_build(read, lambda: build_tables(cache_dir, None, height_correlated),
+    a, b = table_cache.load_or_build(read, lambda: build_belcour_tables(cache_dir, None, height_correlated),
                                      f"the Belcour tables in {cache_dir}")
     for arr in (a["kernel"], a["fgd"], b["tir"]):
         arr.setflags(write=False)
-    return Tables(height_correlated, a["kernel"], a["fgd"], b["tir"])
+    return BelcourTables(height_correlated, a["kernel"], a["fgd"], b["tir"])
 
 
-def load_tables(cache_dir: str | os.PathLike | None = None, height_correlated: bool = False) -> Tables:
+def load_belcour_tables(cache_dir: str | os.PathLike | None = None, height_correlated: bool = False) -> BelcourTables:
     """The tables of one masking model, built (and cached on disk) on first use.
 
     A file with another version or grid is rebuilt. The result is memoised per
@@ -656,7 +588,7 @@ def _fgd_slice_cached(eta: float, kappa: float, height_correlated: bool, cache_d
         xs = split_x_nodes(mu_split)
         return TableSlice(mu_split, _fgd_from_kernel(w_lo, xs, lo, eta, kappa),
                           _fgd_from_kernel(w_hi, xs, hi, eta, kappa))
-    kernel = load_tables(cache_dir, height_correlated).kernel
+    kernel = load_belcour_tables(cache_dir, height_correlated).kernel
     return TableSlice(0.0, _freeze(np.zeros((2, N_ALPHA))),
                       _fgd_from_kernel(kernel, x_nodes(), _eval_mu(mu_nodes()), eta, kappa))
 
@@ -675,7 +607,7 @@ def fgd_slice(eta: float, kappa: float = 0.0, height_correlated: bool = False,
                              None if cache_dir is None else str(cache_dir), split)
 
 
-def fgd_slice_from_table(tables: Tables, eta: float, kappa: float = 0.0) -> TableSlice:
+def fgd_slice_from_table(tables: BelcourTables, eta: float, kappa: float = 0.0) -> TableSlice:
     """The 4D table interpolated at (eta, kappa): identical to quadrilinear lookups."""
     k, fk = _axis_py(eta / ETA_MAX, N_ETA)
     m, fm = _axis_py(kappa / KAPPA_MAX, N_KAPPA)
@@ -709,11 +641,11 @@ def tir_slice(eta_up: float, height_correlated: bool = False, cache_dir: str | o
     if eta_up >= 1.0:
         return TableSlice(0.0, _freeze(np.ones((2, N_ALPHA))), _freeze(np.ones((2, N_ALPHA))))
     if math.sqrt(1.0 - eta_up * eta_up) < mu_min - SPLIT_MARGIN:
-        return tir_slice_from_table(load_tables(cache_dir, height_correlated), eta_up)
+        return tir_slice_from_table(load_belcour_tables(cache_dir, height_correlated), eta_up)
     return _tir_slice_cached(eta_up, bool(height_correlated))
 
 
-def tir_slice_from_table(tables: Tables, eta_up: float) -> TableSlice:
+def tir_slice_from_table(tables: BelcourTables, eta_up: float) -> TableSlice:
     """The 3D TIR table interpolated at ``eta_up`` (identical to trilinear lookups)."""
     if eta_up >= 1.0:
         return TableSlice(0.0, _freeze(np.ones((2, N_ALPHA))), _freeze(np.ones((2, N_ALPHA))))

@@ -1,12 +1,13 @@
-"""Show, build and check the models' precomputed tables (what ``gonio tables`` runs).
+"""Show, build and check the models' precomputed tables (:func:`check_tables`: what ``gonio tables`` runs).
 
 The tables are the Belcour FGD/TIR tables (:mod:`models.tables.belcour`, one pair per masking model) and
 the multilayer-lut mean-transmission tables (:mod:`models.tables.multilayer`). Each lives in the
-cache directory (``$GONIOMETER_CACHE``, default ``~/.cache/goniometer``, or ``--cache-dir``) with a
-version stamp; the models build a missing or stale one on first use, this command does it ahead of
-time (``--rebuild`` rebuilds current ones too) and, with ``--check N``, compares N random off-grid
-lookups with the quadrature itself in the regions where each module states an error bound.
-Exit status: 0, or 1 if a check exceeds its stated bound.
+cache directory (``$GONIOMETER_CACHE``, default ``~/.cache/goniometer``) with a version stamp; the
+models build a missing or stale one on first use, :func:`check_tables` does it ahead of time
+(``rebuild=True`` rebuilds current ones too) and, with ``check_points=N``, compares N random off-grid
+lookups with the quadrature itself in the regions where each module states an error bound
+(:data:`FGD_BOUND`, :data:`TIR_BOUND`, the ``ERROR_*`` bounds of :mod:`models.tables.multilayer`). A
+:class:`Check` is ``ok`` when its largest error is within its bound. ``docs/tables.md``.
 """
 
 from __future__ import annotations
@@ -18,15 +19,12 @@ from typing import Callable
 import numpy as np
 
 from models.tables import belcour as tables
-
-from models.tables import cache as table_cache
-
 from models.tables import multilayer as multilayer_tables
 
 MASKINGS = ("separable", "height-correlated")
 
 #: stated bound of the Belcour 4D FGD table where Fresnel has no critical angle (mu >= 0.05)
-FGD_BOUND = 3e-3
+FGD_BOUND = tables.FGD_ERROR
 #: TIR lookups are compared with the table's own quadrature at the point, which errs by up to
 #: ``tables.TIR_ERROR`` as the table does (the indicator quadrature is not smooth between nodes):
 #: their difference is bounded by twice the stated error
@@ -87,11 +85,11 @@ def _belcour_set(cache_dir: Path, masking: str) -> _TableSet:
     paths = tables.table_paths(cache_dir, hc)
 
     def current() -> bool:
-        return (tables._read_if_current(paths["fgd"], hc, ("fgd",)) is not None
-                and tables._read_if_current(paths["tir"], hc, ("tir",)) is not None)
+        return (tables.read_if_current(paths["fgd"], hc, ("fgd",)) is not None
+                and tables.read_if_current(paths["tir"], hc, ("tir",)) is not None)
 
     def check(n: int, rng: np.random.Generator) -> list[tuple[int, Check]]:
-        t = tables.load_tables(cache_dir, hc)
+        t = tables.load_belcour_tables(cache_dir, hc)
         mu = 0.05 + 0.95 * rng.random(n)
         alpha = rng.random(n) ** 2
         eta = 1.2 + 2.8 * rng.random(n)
@@ -107,7 +105,7 @@ def _belcour_set(cache_dir: Path, masking: str) -> _TableSet:
                 (1, Check("TIR", "alpha >= 0.1, mu >= 0.05", n, float(max(err_t)), TIR_BOUND))]
 
     return _TableSet((f"belcour-fgd-{masking}", f"belcour-tir-{masking}"), (paths["fgd"], paths["tir"]), current,
-                     lambda progress: tables.build_tables(cache_dir, progress, hc), check)
+                     lambda progress: tables.build_belcour_tables(cache_dir, progress, hc), check)
 
 
 def _multilayer_set(cache_dir: Path) -> _TableSet:
@@ -115,7 +113,7 @@ def _multilayer_set(cache_dir: Path) -> _TableSet:
     mt = multilayer_tables
 
     def check(n: int, rng: np.random.Generator) -> list[tuple[int, Check]]:
-        t = mt.load_tables(cache_dir)
+        t = mt.load_multilayer_tables(cache_dir)
         mu = 0.1 + 0.9 * rng.random(n) ** 1.5
         alpha = rng.random(n) ** 2
         eta = 1.02 + (mt.ETA_MAX - 1.02) * rng.random(n)
@@ -127,7 +125,7 @@ def _multilayer_set(cache_dir: Path) -> _TableSet:
                           float((ref[:, 0] * np.abs(C - ref[:, 1])).max()), mt.ERROR_TC))]
 
     return _TableSet(("multilayer-lut",), (path,), lambda: mt.read_if_current(path) is not None,
-                     lambda progress: mt.build_tables(cache_dir, progress), check)
+                     lambda progress: mt.build_multilayer_tables(cache_dir, progress), check)
 
 
 def table_sets(cache_dir: Path, maskings: tuple[str, ...] = ("separable",)) -> list[_TableSet]:
@@ -135,7 +133,7 @@ def table_sets(cache_dir: Path, maskings: tuple[str, ...] = ("separable",)) -> l
     return [_belcour_set(cache_dir, m) for m in maskings] + [_multilayer_set(cache_dir)]
 
 
-def run(cache_dir: Path, maskings: tuple[str, ...] = ("separable",), build: bool = True, rebuild: bool = False,
+def check_tables(cache_dir: Path, maskings: tuple[str, ...] = ("separable",), build: bool = True, rebuild: bool = False,
         check_points: int = 0, seed: int = 1,
         progress: Callable[[str], Callable[[str, float], None] | None] | None = None) -> list[TableEntry]:
     """Status of every table; build missing/stale ones (``build``) or all (``rebuild``); check them.

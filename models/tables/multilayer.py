@@ -1,129 +1,22 @@
-"""Mean-transmission and mean-refraction tables of a rough GGX dielectric interface.
+"""Mean-transmission and mean-refraction tables of a rough GGX dielectric interface: the two look-up
+tables of the real-time multi-layered microfacet model (S. Steinberg 2016, "Light transport through
+a microfacet layer"), computed by our own deterministic quadrature instead of the article's curve
+fits; used by :mod:`models.multilayer_lut`.
 
-These are the two look-up tables of the real-time multi-layered microfacet model
-(``multilayer-microfacet-realtime-blog.txt``, "Light transport through a microfacet layer"),
-computed by our own deterministic quadrature instead of the article's curve fits. They are used by
-:mod:`models.multilayer_lut`.
+Light arrives from ``v`` (unit, pointing away from the interface, ``mu = v_z > 0``, z the macro
+normal) onto an isotropic GGX interface of roughness ``alpha`` and *relative* index
+``eta = n_far / n_near``; facets are weighted by the GGX visible normal distribution ``D_v`` of ``v``:
 
-Definitions
------------
-Light arrives from the direction ``v`` (unit, pointing away from the interface, ``mu = v_z =
-cos theta > 0``, local frame with z the macro normal) onto an isotropic GGX interface of roughness
-``alpha`` separating the medium of ``v`` from a medium of *relative* index ``eta = n_far / n_near``.
-Facets are weighted by the GGX **visible normal distribution** of ``v``,
-``D_v(m) = G1(v) max(0, v.m) D(m) / v_z`` (Heitz 2014; it integrates to 1), i.e. by the projected
-area that a beam from ``v`` actually hits:
+* ``T(mu, alpha, eta) = Int D_v(m) (1 - F(v.m, eta)) dm``, the mean Fresnel transmission;
+* ``C(mu, alpha, eta)``, the cosine (to the macro normal) of the mean refracted direction, weighted
+  by the transmitted energy; stored as the residual ``dC = C - C0`` from Snell's cosine ``C0``.
 
-* ``T(mu, alpha, eta) = Int D_v(m) (1 - F(v.m, eta)) dm`` -- the visible-microfacet-averaged
-  Fresnel transmission (the article's ``t(v, nu, eta)``). ``F`` is the exact unpolarised
-  dielectric Fresnel reflectance with total internal reflection
-  (:func:`goniometer.optics.fresnel_dielectric`).
-* ``C(mu, alpha, eta) = -tbar_z / |tbar|`` with ``tbar = Int D_v(m) (1 - F(v.m)) O(t(m)) dm`` --
-  the cosine (to the macro normal) of the mean refracted direction (the article's
-  ``r(v, n, nu, eta)``, normalised). ``t(m)`` is ``v`` refracted through the facet ``m``
-  (:func:`goniometer.optics.refract`) and ``O`` keeps only refracted directions that point into the
-  far medium (``t_z < 0``; total internal reflection gives no direction). By symmetry ``tbar`` lies
-  in the plane of incidence and points *forward* (its horizontal part is along ``-v_xy``; the build
-  verified this on every node), so the cosine determines it.
-
-Choices where the article is vague (and why)
---------------------------------------------
-* Weights: the article normalises ``D(m) cos(theta_m)`` over front-facing facets
-  (``v.m > 0``). We use the visible normal distribution ``D_v`` instead, the distribution of the
-  facets a beam from ``v`` really hits (the simulator samples exactly this,
-  :func:`goniometer.optics.sample_vndf`); both agree as ``alpha -> 0``.
-* ``T`` does not apply ``O`` (as in the article): light refracted upwards by a steep facet would
-  scatter again on the microsurface, which the model ignores; it is counted as transmitted.
-* Mean direction: weighted by the transmitted energy ``D_v (1 - F)`` (the article weights by
-  ``D cos theta_m`` alone), so that the direction is the mean direction of the *transmitted light*;
-  it is what the absorption path length and the next layer see. Masking of the refracted ray is
-  not included here: the model applies it as the layer's ``G`` (see :mod:`models.multilayer_lut`).
-* Where no light is transmitted at all (total internal reflection on every facet) ``C`` is
-  the smooth limit ``C0`` below (0 under total internal reflection) -- it is irrelevant there since
-  ``T = 0``.
-
-Smooth limits (exact)
----------------------
-``alpha -> 0``: ``T0 = 1 - F(mu, eta)`` and ``C0`` = Snell's cosine ``sqrt(1 - (1 - mu^2)/eta^2)``
-(0 beyond the critical angle). ``eta = 1``: ``T = 1`` and ``C = mu`` (no deviation). The tables
-store ``T`` itself, except that its ``alpha = 0`` nodes hold 0 and :func:`lookup` blends in the
-exact ``T0`` *of the query point* with the weight of those nodes; and the **residual**
-``dC = C - C0`` (zero at ``alpha = 0``), to which :func:`lookup` adds the analytic ``C0`` of the
-query. Both limits are therefore reproduced exactly (``alpha = 0``: ``T0`` and ``C0``; ``eta = 1``:
-the quadrature gives ``T = 1`` and ``dC = 0`` to rounding), and the smooth Fresnel's kinks at
-``alpha = 0`` never enter an interpolation. (Storing ``T - T0`` instead would import the
-singularity of the smooth Fresnel at grazing angles next to ``eta = 1`` into every roughness.)
-
-Quadrature
-----------
-Deterministic product rule over the parameter square of :func:`goniometer.optics.sample_vndf`
-(which maps ``(u1, u2)`` uniform on [0, 1)^2 onto exactly ``D_v``): ``u2`` (the height on the
-spherical cap) by ``QUAD_Z`` Gauss-Legendre nodes, ``u1`` (the azimuth, periodic and even about the
-plane of incidence) by ``QUAD_PHI`` midpoint nodes on the half period [0, 1/2]. Measured accuracy of
-the rule at 3 000 random points, against the same rule with 256 x 512 nodes: ``|dT| <= 1.3e-4``
-and ``T |dC| <= 7e-5`` for ``eta >= 1``; ``|dT| <= 1.6e-3`` and ``T |dC| <= 7.5e-4`` for ``eta < 1``
-(the total-internal-reflection edge cuts through the facet distribution). The direction is only
-as good as ``T`` is large: where almost everything is totally reflected, the mean direction of the
-few transmitted rays is ill-determined -- and irrelevant, being weighted by ``T``. The tests also
-check the rule against an independent quadrature over the microfacet normal in spherical
-coordinates.
-
-Grid (nodes at k / (N - 1) of a mapped coordinate in [0, 1]; trilinear interpolation in the mapped
-coordinates; inputs outside a range are clamped to it)
----------------------------------------------------------------------------------------------------
-* ``alpha``: ``N_ALPHA`` nodes uniform in ``sqrt(alpha)``, alpha in [0, 1].
-* ``eta >= 1`` -- table ``up[mu, alpha, eta, q]``: ``N_MU_UP`` nodes uniform in ``sqrt(mu)``,
-  mu in [0, 1] (dense at grazing angles); ``N_ETA_UP`` nodes ``eta = 1 + (ETA_MAX - 1) t^2``,
-  t uniform in [0, 1] (dense next to eta = 1, where transmission at grazing angles changes fastest).
-* ``eta < 1`` -- table ``down[mu, alpha, eta, q]``: ``N_ETA_DOWN`` nodes
-  ``eta = 1 - (1 - ETA_MIN) (1 - t)^1.5``, t uniform. Each eta column has its own mu nodes, split at
-  the critical cosine ``mu_c = sqrt(1 - eta^2)`` where the smooth transmission has its square-root
-  kink: ``N_MU_LOWER`` nodes on [0, mu_c] (``mu = mu_c (1 - (1 - t)^2)``: dense at the kink) and
-  ``N_MU_UPPER`` nodes on [mu_c, 1] (``mu = mu_c + (1 - mu_c) t^2``: the kink ``sqrt(mu - mu_c)``
-  becomes linear in t); the node at ``mu_c`` is shared, ``N_MU_DOWN = N_MU_LOWER + N_MU_UPPER - 1``,
-  and the mapped coordinate of a mu is ``split t`` below ``mu_c`` and ``split + (1 - split) t``
-  above, ``split = (N_MU_LOWER - 1) / (N_MU_DOWN - 1)``. A query is mapped with *its own* ``mu_c``,
-  so the kink stays on a node line while interpolating in eta.
-* Sizes: ``N_ALPHA = 40``, ``N_MU_UP = 48``, ``N_ETA_UP = 33``, ``N_ETA_DOWN = 41``,
-  ``N_MU_LOWER = 24``, ``N_MU_UPPER = 40``; ``ETA_MIN = 1/3``, ``ETA_MAX = 3``.
-* ``q`` (last axis): 0 = ``T`` (0 at the alpha = 0 nodes), 1 = ``dC``. Arrays are C-ordered
-  float64, axis order ``[mu, alpha, eta, q]``. ``mu = 0`` nodes are evaluated at ``MU_FLOOR``.
-
-Interpolation error (table lookup against the quadrature at the same point, absolute; measured at
-60 000 random off-grid points with mu ~ U^1.5, alpha ~ U^2, eta uniform on each side; tested on
-4 000 others in ``tests/models/test_multilayer_lut.py``). The *corner* is ``|eta - 1| < 0.02`` with
-``mu < 0.1``; the *kink band* is ``eta < 1`` with ``|mu - mu_c| < 0.01``.
-
-==============================================  ==========  =========  ===============
-where                                           stated      max seen   99th percentile
-==============================================  ==========  =========  ===============
-``|dT|``, eta >= 1, outside the corner          6e-3        5.0e-3     1.2e-3
-``|dT|``, eta < 1, outside corner and kink      1.2e-2      9.5e-3     2.6e-3
-``|dT|``, kink band                             2.5e-2      1.8e-2     1.0e-2
-``T |dC|``, outside the corner                  3e-3        2.4e-3     5.7e-4
-``|dT|``, corner                                (none)      0.32       7e-2
-==============================================  ==========  =========  ===============
-
-At the database's coat index (eta = 1.5) ``|dT|`` and ``|dC|`` stay below 3e-3 for mu >= 0.01
-(max seen 2.7e-3 over 20 000 points; tested); closer to grazing with alpha < 0.01 they reach 5e-3
-and 1.3e-2. In the corner the
-smooth Fresnel reflectance jumps from 0 (eta = 1) to 1 (grazing) within ``mu ~ sqrt(2 |eta - 1|)``
-and, for alpha below about 0.01, the rough transmission inherits that singularity, which no
-fixed grid resolves; errors there are large only for such tiny roughness (an index step of under
-2 % seen within 6 degrees of grazing). Near the critical cosine the roughness smooths the kink
-over a width of order alpha, hence the kink band. The quadrature error adds to these
-(see Quadrature).
-
-Cache
------
-One file ``multilayer-lut.npz`` in ``$GONIOMETER_CACHE`` (default ``~/.cache/goniometer``, see
-:func:`goniometer.cache.cache_root`), written atomically (temporary file + rename) with
-:data:`TABLE_VERSION` and the grid signature inside; a file whose version or grid differs is
-rebuilt, never reused (the file handling is :mod:`models.tables.cache`). :func:`load_tables`
-builds on first use and memoises the loaded tables in an ``lru_cache`` (cleared by
-:func:`build_tables`), the module's only state. Build: 166 000 nodes x 2 048 quadrature points,
-about 10 s of CPU time (5 s on 2 idle cores with numba ``parallel=True``), plus 2-4 s of
-compilation the first time.
+Tables ``up[mu, alpha, eta, q]`` (``eta >= 1``) and ``down[mu, alpha, eta, q]`` (``eta < 1``, mu
+split at the critical cosine), ``q`` = 0: ``T``, 1: ``dC``; float64, trilinear in mapped
+coordinates, inputs clamped to [ETA_MIN, ETA_MAX]. Stated lookup errors: ``ERROR_*`` below. One file
+``multilayer-lut.npz`` in the cache directory (:mod:`models.tables.cache`), built on first use and
+memoised in an ``lru_cache`` (the module's only state). Definitions, choices, smooth limits,
+quadrature, grids and measured errors: ``docs/tables.md``.
 """
 
 from __future__ import annotations
@@ -159,7 +52,7 @@ QUAD_Z = 32
 QUAD_PHI = 64
 MU_FLOOR = 1e-6
 
-#: stated interpolation error bounds (see the module docstring for where each holds)
+#: stated interpolation error bounds (where each holds: ``docs/tables.md``)
 ERROR_T_UP = 6e-3
 ERROR_T_DOWN = 1.2e-2
 ERROR_T_KINK = 2.5e-2
@@ -414,7 +307,7 @@ def direct(mu, alpha, eta, n_z: int = QUAD_Z, n_phi: int = QUAD_PHI) -> np.ndarr
 # --------------------------------------------------------------------------- tables and cache
 
 @dataclass(frozen=True)
-class Tables:
+class MultilayerTables:
     """The loaded tables (read-only; grids, axis order and contents in the module docstring)."""
 
     up: np.ndarray      # (N_MU_UP, N_ALPHA, N_ETA_UP, 2) float64
@@ -478,7 +371,7 @@ def compute_tables(progress: Progress | None = None) -> dict[str, np.ndarray]:
     return out
 
 
-def build_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None) -> Path:
+def build_multilayer_tables(cache_dir: str | os.PathLike | None = None, progress: Progress | None = None) -> Path:
     """(Re)build the tables and write them atomically; returns the file's path.
 
     ``progress(stage, fraction)`` is called as the build advances. Clears the loader's memo.
@@ -503,16 +396,16 @@ def read_if_current(path: Path) -> dict[str, np.ndarray] | None:
 
 
 @lru_cache(maxsize=4)
-def _load_cached(cache_dir: str) -> Tables:
+def _load_cached(cache_dir: str) -> MultilayerTables:
     path = table_path(cache_dir)
-    t = table_cache.load_or_build(lambda: read_if_current(path), lambda: build_tables(cache_dir),
+    t = table_cache.load_or_build(lambda: read_if_current(path), lambda: build_multilayer_tables(cache_dir),
                                   f"the multilayer tables at {path}")
     for a in t.values():
         a.setflags(write=False)
-    return Tables(t["up"], t["down"], c_split())
+    return MultilayerTables(t["up"], t["down"], c_split())
 
 
-def load_tables(cache_dir: str | os.PathLike | None = None) -> Tables:
+def load_multilayer_tables(cache_dir: str | os.PathLike | None = None) -> MultilayerTables:
     """The tables, built (and cached on disk) on first use; a stale file is rebuilt.
 
     Memoised per cache directory in an ``lru_cache``.

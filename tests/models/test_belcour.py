@@ -1,4 +1,4 @@
-"""Belcour 2018's layered model (models/belcour.py): limits, closed forms, symmetries, robustness.
+"""Belcour 2018's layered model (models/belcour/): limits, closed forms, symmetries, robustness.
 
 The tables come from the default cache ($GONIOMETER_CACHE or ~/.cache/goniometer), built on first
 use. Smooth-limit tolerances are derived, not guessed:
@@ -23,10 +23,10 @@ import pytest
 
 from goniometer import optics, smooth
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from models.belcour import model as belcour
+from models import belcour
 from models.tables import belcour as tables
 from models.base import ModelError
-from models.belcour.model import (BelcourBati19, BelcourBTDF, BelcourForward, BelcourOptions, BelcourSymmetric,
+from models.belcour import (BelcourBati19, BelcourBTDF, BelcourForward, BelcourOptions, BelcourSymmetric,
                             roughness_to_variance, variance_to_roughness)
 
 ALL_MODELS = (BelcourForward, BelcourSymmetric, BelcourBati19, BelcourBTDF)

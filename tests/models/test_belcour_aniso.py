@@ -28,12 +28,10 @@ from goniometer.run import simulate
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.tables import belcour as tables
 from models.base import ModelError
-from models.belcour.model import (KIND_MEDIUM, BelcourForward, pack_stack, roughness_to_variance, unsupported_reason,
-                            variance_to_roughness)
-from models.belcour.aniso import (BelcourAniso, aniso_statistics, interface_covariance, isotropic_proxy,
-                                  pack_aniso)
-from models.compare.errors import compare
-from models.compare.integrate import integrate
+from models.belcour import (BelcourAniso, BelcourForward, aniso_statistics, interface_covariance, isotropic_proxy,
+                            pack_aniso, pack_stack, roughness_to_variance, unsupported_reason, variance_to_roughness)
+from models.belcour.packing import KIND_MEDIUM
+from models.compare import compare, integrate
 
 KAPPA1 = (1.0, 0.01, 0.01)
 
@@ -145,7 +143,7 @@ def test_isotropic_stacks_equal_belcour_fwd(opts):
 
 
 def test_isotropic_statistics_equal_belcour_statistics():
-    from models.belcour.model import stack_statistics
+    from models.belcour import stack_statistics
     for st in database_stacks() + other_isotropic_stacks():
         for th in (0.0, 60.0):
             s = aniso_statistics(st, light(th, 10.0), use_tir=True)

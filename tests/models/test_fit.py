@@ -1,4 +1,4 @@
-"""models.fitted.fit: the HP15 distribution and shadowing, the fitted families, and the fits themselves."""
+"""models.fitted: the HP15 distribution and shadowing, the fitted families, and the fits themselves."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ from goniometer.settings import SimulationSettings
 from goniometer.run import simulate
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from models.fitted import fit as F
+from models import fitted as F
 from models.base import ModelError
-from models.compare.errors import rmse
-from models.compare.integrate import integrate_slice
+from models.compare import integrate_slice, rmse
+from models.fitted import fitting, hp15
 from tests.conftest import P_FALSE_ALARM, Z_TOL
 
 STACK = Stack("synthetic", (Interface(0.1, (1.5,) * 3), Lambertian((0.5,) * 3)), "plastic")
@@ -28,7 +28,7 @@ Z_PARAM = 5.0
 
 
 def lam_direct(a: float, p: float) -> float:
-    return F.hp_lambda(a, p, F._QUAD_NODES, F._QUAD_WEIGHTS, F._QUAD_PANELS)
+    return F.hp_lambda(a, p, hp15._QUAD_NODES, hp15._QUAD_WEIGHTS, hp15._QUAD_PANELS)
 
 
 # ----------------------------------------------------------------------------- HP15 physics
@@ -271,7 +271,7 @@ def test_fit_recovers_known_parameters(index):
     assert stats.chi2.ppf(P_FALSE_ALARM / 2, dof) < chi2 < stats.chi2.isf(P_FALSE_ALARM / 2, dof)
     # the optimiser found the global minimum: its cost is not above the true parameters' cost
     family = F.FAMILIES[kind]()
-    true_cost = F._Problem(family, F.fit_data(ref)).cost(family.to_internal(truth.x))
+    true_cost = fitting._Problem(family, F.fit_data(ref)).cost(family.to_internal(truth.x))
     assert result.cost <= true_cost * (1 + 1e-9)
     assert result.errors["internal"] == result.errors["total"]
     e_true = rmse(sd.value, clean, sd.proj_solid_angle, sd.mask)

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from goniometer.stack import Interface, Medium, Stack, load_toml
-from models.belcour import model as belcour
+from models import belcour
 from models import inverse as I
 from models.inverse import equations, kernels
 from models.tables import belcour as tables

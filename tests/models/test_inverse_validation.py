@@ -21,7 +21,7 @@ from scipy import integrate
 from goniometer import atomic
 from goniometer import cli, optics
 from goniometer.stack import Interface, Stack, load_toml
-from models.belcour import model as belcour
+from models import belcour
 from models import inverse as I
 from models import inverse as V
 from models.report import inverse as report_inverse

@@ -72,7 +72,7 @@ def table_dir(tmp_path_factory):
     """Tables built from scratch into a fresh cache directory (the build is part of the test)."""
     d = tmp_path_factory.mktemp("multilayer-cache")
     calls = []
-    mt.build_tables(d, progress=lambda stage, frac: calls.append((stage, frac)))
+    mt.build_multilayer_tables(d, progress=lambda stage, frac: calls.append((stage, frac)))
     assert calls and calls[-1][1] == 1.0
     fr = [c[1] for c in calls]
     assert all(0.0 <= a <= b <= 1.0 for a, b in zip(fr, fr[1:]))
@@ -80,8 +80,8 @@ def table_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def tables(table_dir) -> mt.Tables:
-    return mt.load_tables(table_dir)
+def tables(table_dir) -> mt.MultilayerTables:
+    return mt.load_multilayer_tables(table_dir)
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +99,7 @@ def conductor(alpha1=0.2, eta1=1.45, kappa1=(1.0, 0.01, 0.01)) -> Interface:
 
 
 def database_stacks() -> list[Stack]:
-    """The 48 BRDF materials of DATABASE.md (plastics and metals)."""
+    """The 48 BRDF materials of docs/database-format.md (plastics and metals)."""
     out = []
     for a0 in (0.001, 0.05, 0.2):
         for tau in ((0.2,) * 3, (0.05, 0.1, 0.4)):
@@ -238,7 +238,7 @@ def test_mean_direction_points_forward_and_values_are_bounded(tables):
 # ---------------------------------------------------------------------- cache
 
 def test_cache_file_is_versioned_and_written_atomically(tmp_path, tiny_multilayer_grid):
-    path = mt.build_tables(tmp_path)
+    path = mt.build_multilayer_tables(tmp_path)
     assert path == tmp_path / mt.FILE_NAME and path.exists()
     assert [p.name for p in tmp_path.iterdir()] == [mt.FILE_NAME]  # no temporary left behind
     with np.load(path) as z:
@@ -247,22 +247,22 @@ def test_cache_file_is_versioned_and_written_atomically(tmp_path, tiny_multilaye
 
 
 def test_stale_version_is_rebuilt_not_reused(tmp_path, tiny_multilayer_grid, monkeypatch):
-    path = mt.build_tables(tmp_path)
+    path = mt.build_multilayer_tables(tmp_path)
     monkeypatch.setattr(mt, "TABLE_VERSION", mt.TABLE_VERSION + 1)
     assert mt.read_if_current(path) is None
-    mt.load_tables(tmp_path)
+    mt.load_multilayer_tables(tmp_path)
     with np.load(path) as z:
         assert int(z["version"]) == mt.TABLE_VERSION
 
 
 def test_other_grid_or_corrupt_file_is_rebuilt(tmp_path, tiny_multilayer_grid, monkeypatch):
-    path = mt.build_tables(tmp_path)
+    path = mt.build_multilayer_tables(tmp_path)
     monkeypatch.setattr(mt, "N_ALPHA", 4)
     assert mt.read_if_current(path) is None
-    assert mt.load_tables(tmp_path).up.shape[1] == 4
+    assert mt.load_multilayer_tables(tmp_path).up.shape[1] == 4
     path.write_bytes(b"not a table")
     mt._load_cached.cache_clear()
-    assert mt.load_tables(tmp_path).up.shape[1] == 4
+    assert mt.load_multilayer_tables(tmp_path).up.shape[1] == 4
     assert mt.read_if_current(path) is not None
 
 

@@ -84,10 +84,10 @@ def tir_reference(mu: float, alpha: float, eta_up: float, n: int = 300) -> float
 
 @pytest.fixture(scope="session")
 def built(tmp_path_factory):
-    """Tables built from scratch into a fresh directory (exercises build_tables)."""
+    """Tables built from scratch into a fresh directory (exercises build_belcour_tables)."""
     d = tmp_path_factory.mktemp("belcour-tables")
     stages = []
-    paths = tables.build_tables(d, progress=lambda stage, frac: stages.append((stage, frac)))
+    paths = tables.build_belcour_tables(d, progress=lambda stage, frac: stages.append((stage, frac)))
     return d, paths, stages
 
 
@@ -97,8 +97,8 @@ def cdir(built) -> str:
 
 
 @pytest.fixture(scope="session")
-def tabs(cdir) -> tables.Tables:
-    return tables.load_tables(cdir)
+def tabs(cdir) -> tables.BelcourTables:
+    return tables.load_belcour_tables(cdir)
 
 
 # -------------------------------------------------------------------------- cache and files
@@ -119,7 +119,7 @@ def test_build_writes_versioned_atomic_files(built, tabs):
     assert tabs.tir.shape == (tables.N_MU, tables.N_ALPHA, tables.N_ETA_UP)
     assert tabs.kernel.shape == (tables.N_MU, tables.N_ALPHA, tables.N_X)
     # the loader is memoised per directory
-    assert tables.load_tables(d) is tabs
+    assert tables.load_belcour_tables(d) is tabs
 
 
 def test_stale_version_is_rebuilt_not_reused(built, tmp_path, monkeypatch):
@@ -132,7 +132,7 @@ def test_stale_version_is_rebuilt_not_reused(built, tmp_path, monkeypatch):
         content = {k: z[k] for k in z.files}
     content["version"] = np.int64(tables.TABLE_VERSION - 1)
     np.savez(stale, **content)
-    assert tables._read_if_current(stale, False, ("fgd",)) is None
+    assert tables.read_if_current(stale, False, ("fgd",)) is None
     calls = []
 
     def fake_build(cache_dir=None, progress=None, height_correlated=False):
@@ -141,9 +141,9 @@ def test_stale_version_is_rebuilt_not_reused(built, tmp_path, monkeypatch):
             shutil.copy(p, tmp_path / p.name)
         return tables.table_paths(cache_dir, height_correlated)
 
-    monkeypatch.setattr(tables, "build_tables", fake_build)
+    monkeypatch.setattr(tables, "build_belcour_tables", fake_build)
     tables._load_cached.cache_clear()
-    t = tables.load_tables(tmp_path)
+    t = tables.load_belcour_tables(tmp_path)
     assert len(calls) == 1
     assert t.fgd.shape[0] == tables.N_MU
     tables._load_cached.cache_clear()

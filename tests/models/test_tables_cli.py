@@ -37,7 +37,7 @@ def test_build_check_and_rebuild(tmp_path, capsys, tiny_multilayer_grid):
     for t in by_name.values():
         assert t["status"] == "current" and t["built"] and t["bytes"] > 0
     # the files are those the models read
-    assert tables._read_if_current(tables.table_paths(tmp_path)["fgd"], False, ("fgd",)) is not None
+    assert tables.read_if_current(tables.table_paths(tmp_path)["fgd"], False, ("fgd",)) is not None
     assert mt.read_if_current(mt.table_path(tmp_path)) is not None
     # the real Belcour tables meet their stated bounds; the 2x2-node multilayer grid cannot
     belcour_checks = by_name["belcour-fgd-separable"]["checks"] + by_name["belcour-tir-separable"]["checks"]
@@ -86,4 +86,4 @@ def test_bad_arguments(tmp_path, capsys):
         main(["tables", "--masking", "gaussian"])
     assert e.value.code == 2
     with pytest.raises(ValueError, match="masking"):
-        tables_cli.run(tmp_path, ("gaussian",))
+        tables_cli.check_tables(tmp_path, ("gaussian",))
