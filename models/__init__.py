@@ -26,7 +26,7 @@ _EXPORTS = {
     "list_models": ("models.registry", "catalogue"), "get_model": ("models.registry", "get"),
     "FITTED": ("models.registry", "FITTED"),
     # the comparison harness
-    "evaluate": ("models.compare.evaluate", "evaluate"), "Evaluation": ("models.compare.evaluate", "Evaluation"),
+    "evaluate": ("models.evaluation", "evaluate"), "Evaluation": ("models.evaluation", "Evaluation"),
     "integrate": ("models.compare.integrate", "integrate"),
     # fitted models
     "fit": ("models.fitted.fit", "fit"),

@@ -102,7 +102,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
-    from models.compare import evaluate, save_slices
+    from models.evaluation import evaluate, save_slices
 
     try:
         if args.save_slices:

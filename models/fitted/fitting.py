@@ -18,10 +18,7 @@ from scipy.optimize import least_squares, lsq_linear
 from goniometer.results import SimulationResult, SliceData
 from models._jit import njit
 from models.base import ModelError
-# the comparison's building blocks, not the models.compare face: the harness (models.compare.evaluate)
-# fits through this package, so importing the face would close a circle
-from models.compare.errors import compare
-from models.compare.integrate import integrate
+from models.compare import compare, integrate
 from models.fitted.data import FitData, fit_data
 from models.fitted.family import Family
 from models.fitted.ggx import GGXFamily

@@ -3,7 +3,7 @@
 4.2 and a static HTML browser).
 
 Every finished material is evaluated with the models of :mod:`models.registry` (whatever
-:func:`models.compare.evaluate.evaluate` applies to it); evaluations and figures are cached in the
+:func:`models.evaluation.evaluate` applies to it); evaluations and figures are cached in the
 report directory, so a rerun only redoes what changed. What the directory holds, its keys and the
 caching rules: ``docs/report.md``.
 """

@@ -23,7 +23,7 @@ from goniometer.results import SimulationResult
 from models import registry
 from models._jit import models_key
 from models.base import ModelError
-from models.compare import comparison_side, evaluate
+from models.evaluation import comparison_side, evaluate
 from models.report.files import material_dir, read_json, write_json
 from models.report.results import MaterialResult, ReportError, ReportMaterial
 

@@ -20,7 +20,7 @@ import numpy as np
 from goniometer.results import SimulationResult, SliceData
 from goniometer.slices import SliceGrid, light_direction
 from models.compare.errors import luminance
-from models.compare import comparison_side, evaluate
+from models.evaluation import comparison_side, evaluate
 from models.report.evaluation import cache_paths, judged_side, load_slices, read_reference
 from models.report.files import material_dir, read_json, safe_part, write_json
 from models.report.geometry import exposure, pixel_map, plane_cells, remap

@@ -261,7 +261,7 @@ def test_evaluate_json_contract(simulated, capsys, tmp_path):
             assert all(x >= 0 for x in E["rmse"])
     for name, reason in d["skipped"].items():
         assert isinstance(reason, str) and reason
-    from models.compare.evaluate import read_slices
+    from models.evaluation import read_slices
     sl = read_slices(out, "ww-bati19", "brdf")
     assert sl["value"].shape == (2, 3, 18, 36)
     np.testing.assert_allclose(sl["value"], sl["top"] + sl["internal"])

@@ -21,7 +21,7 @@ from goniometer import store
 from goniometer.database import load_database, simulate_database
 from goniometer.slices import SliceGrid, light_direction
 import models.report.build as report_module
-from models.compare.evaluate import evaluate
+from models.evaluation import evaluate
 from models.report import ReportError, build_report, model_style, open_results
 from models.report.evaluation import round_mantissa
 from models.report.figures import PAPER_COLOURS

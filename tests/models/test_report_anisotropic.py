@@ -10,7 +10,7 @@ import pytest
 
 from goniometer.database import load_database, simulate_database
 from models.base import ModelError
-from models.compare.evaluate import evaluate, isotropized
+from models.evaluation import evaluate, isotropized
 from models.report import build_report
 from goniometer import store
 from goniometer.database import material_path
