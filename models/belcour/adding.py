@@ -75,7 +75,7 @@ def workspace(n_lobes: int, nq: int) -> tuple:
 
 
 @njit(cache=True)
-def adding_doubling(c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc):
+def adding_doubling(c_in, dx, dy, stack, per_channel, use_tir, angular_s, consistent_j, E, C, st, cs, wk, wc):
     """The statistics of §6 for incidence cosine ``c_in`` (in the top medium) and unit incidence
     azimuth ``(dx, dy)`` (seen by anisotropic covariances only) through ``stack`` (the arrays of
     :meth:`BelcourPackedStack.kernel_args`), with ``nq`` = 1 or 3 entries per (co)variance.
@@ -90,13 +90,13 @@ def adding_doubling(c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, 
     """
     # one body, inlined with a constant nq each (the entry loops unroll)
     if kernel_n_cov(stack) == 1:
-        _adding_doubling(1, c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc)
+        _adding_doubling(1, c_in, dx, dy, stack, per_channel, use_tir, angular_s, consistent_j, E, C, st, cs, wk, wc)
     else:
-        _adding_doubling(3, c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc)
+        _adding_doubling(3, c_in, dx, dy, stack, per_channel, use_tir, angular_s, consistent_j, E, C, st, cs, wk, wc)
 
 
 @njit(cache=True, inline="always")
-def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc):
+def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, consistent_j, E, C, st, cs, wk, wc):
     """:func:`adding_doubling` for ``nq`` (a constant where inlined). Every update of a (co)variance is
     the scalar one of §6 applied to each entry, in the same floating-point order."""
     (kind, alpha, alpha_y, rot, iso, cov_r, cov_t_down, cov_t_up, n_mean, tau, eta_up, achromatic, fgd_split,
@@ -239,7 +239,12 @@ def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, E
                 vtu = _pick(q, u0, u1, u2)
                 vri = cs[_C_RI, ch, q]
                 new_vR0 = (wR0 * cs[_C_R0, ch, q] + wE * wc[ch, q]) / wsum_r if wsum_r > 0.0 else 0.0
-                new_vT0 = jd * cs[_C_T0, ch, q] + vtd + jd * (vr + vri) * m
+                if consistent_j:
+                    # variances carried down into the next medium shrink by 1 / j (the inverse of
+                    # the J0i that brings them back up): docs/belcour.md, "Jacobian bookkeeping"
+                    new_vT0 = (cs[_C_T0, ch, q] + (vr + vri) * m) / jd + vtd
+                else:
+                    new_vT0 = jd * cs[_C_T0, ch, q] + vtd + jd * (vr + vri) * m
                 new_vRi = ((wRup * vr + wRup2 * (vtd + jd * (vtu + vri + m * (vr + vri)))) / wsum_u
                            if wsum_u > 0.0 else 0.0)
                 new_vTi = Ji * vtu + cs[_C_TI, ch, q] + Ji * (vr + vri) * m
@@ -297,7 +302,8 @@ def run_adding_doubling(packed: BelcourPackedStack, cos_theta: float, options: B
     ``azimuth`` (which only anisotropic covariances see), with the switches of ``options``."""
     E, C, st, cs, wk, wc = workspace(packed.n_lobes, packed.n_cov)
     adding_doubling(float(cos_theta), float(azimuth[0]), float(azimuth[1]), packed.kernel_args(), options.per_channel,
-                    options.use_tir, options.transmission_scale == "angular", E, C, st, cs, wk, wc)
+                    options.use_tir, options.transmission_scale == "angular",
+                    options.transmitted_jacobian == "consistent", E, C, st, cs, wk, wc)
     return AddingDoubling(E, C, st[_S_R0].copy(), st[_S_T0].copy(), st[_S_RI].copy(), st[_S_TI].copy(),
                           cs[_C_R0].copy(), cs[_C_T0].copy(), cs[_C_RI].copy(), cs[_C_TI].copy(),
                           float(st[_S_MISC, 0]), float(st[_S_MISC, 1]), float(st[_S_MISC, 2]))

@@ -182,7 +182,8 @@ def eval_fixed(l, v, z_sign, E, P, height_correlated, top_exact, top_alpha, top_
 
 
 @njit(parallel=True, cache=True)
-def eval_dynamic(l, v, mode, n_lobes, stack, per_channel, use_tir, angular_s, height_correlated, top_exact, top_alpha,
+def eval_dynamic(l, v, mode, n_lobes, stack, per_channel, use_tir, angular_s, consistent_j, height_correlated, top_exact,
+                 top_alpha,
                  top_eta, top_kappa, out_top, out_int):
     """Statistics recomputed per direction: ``mode`` MODE_VIEW (c = v_z) or MODE_HALF (c = |l.h|);
     the incidence azimuth is that of ``v``."""
@@ -200,7 +201,7 @@ def eval_dynamic(l, v, mode, n_lobes, stack, per_channel, use_tir, angular_s, he
                 continue
             c = _statistics_cosine(mode, lx, ly, lz, vx, vy, vz)
             dx, dy = unit_azimuth(vx, vy) if nq == 3 else (1.0, 0.0)
-            adding_doubling(c, dx, dy, stack, per_channel, use_tir, angular_s, E, C, st, cs, wk, wc)
+            adding_doubling(c, dx, dy, stack, per_channel, use_tir, angular_s, consistent_j, E, C, st, cs, wk, wc)
             lobe_params(E, C, P, lx, ly, lz, k0)
             _sum_lobes(lx, ly, lz, vx, vy, vz, E, P, k0, height_correlated, out_top, out_int, n)
             if top_exact:
@@ -208,7 +209,7 @@ def eval_dynamic(l, v, mode, n_lobes, stack, per_channel, use_tir, angular_s, he
 
 
 @njit(parallel=True, cache=True)
-def stats_grid(n_nodes, n_phi, n_lobes, stack, per_channel, use_tir, angular_s):
+def stats_grid(n_nodes, n_phi, n_lobes, stack, per_channel, use_tir, angular_s, consistent_j):
     """Statistics table ``G[i, j, k, ch, :]`` = (lobe energy, clamped roughness ``a`` (scalar
     variances) or roughness matrix ``a_1 e_1 e_1^T + a_2 e_2 e_2^T`` as ``(xx, xy, yy)`` (covariances))
     at the azimuths ``phi_i = i pi / n_phi`` and cosines ``c_j = (j / (n_nodes - 1))^2``.
@@ -223,8 +224,8 @@ def stats_grid(n_nodes, n_phi, n_lobes, stack, per_channel, use_tir, angular_s):
             t = j / (n_nodes - 1)
             for i in range(n_phi):
                 phi = i * math.pi / n_phi
-                adding_doubling(t * t, math.cos(phi), math.sin(phi), stack, per_channel, use_tir, angular_s, E, C, st,
-                                cs, wk, wc)
+                adding_doubling(t * t, math.cos(phi), math.sin(phi), stack, per_channel, use_tir, angular_s, consistent_j,
+                                E, C, st, cs, wk, wc)
                 for k in range(n_lobes):
                     for ch in range(3):
                         P[k, ch, _P_A1] = ALPHA_EVAL_MIN

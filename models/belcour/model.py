@@ -64,7 +64,7 @@ class BelcourModel(Model):
             p = self.packed(stack)
             o = self.options
             g = stats_grid(o.direction_grid, self.azimuth_nodes(p), p.n_lobes, p.kernel_args(), o.per_channel,
-                           o.use_tir, o.transmission_scale == "angular")
+                           o.use_tir, o.transmission_scale == "angular", o.transmitted_jacobian == "consistent")
             self._grids[stack] = g
         return g
 
@@ -91,7 +91,7 @@ class BelcourModel(Model):
                       p.top_kappa, top, internal)
         else:
             eval_dynamic(l, vv, mode, p.n_lobes, p.kernel_args(), o.per_channel, o.use_tir,
-                         o.transmission_scale == "angular", o.height_correlated, top_exact, top_alpha,
+                         o.transmission_scale == "angular", o.transmitted_jacobian == "consistent", o.height_correlated, top_exact, top_alpha,
                          p.top_eta, p.top_kappa, top, internal)
         return ModelValue(top.reshape(shape + (3,)), internal.reshape(shape + (3,)))
 
@@ -113,10 +113,12 @@ class _ForwardBase(_BelcourBase):
 
     def __init__(self, incident: str = "light", use_tir: bool = False, transmission_scale: str = "normal",
                  per_channel: bool = True, height_correlated: bool = False, fgd_source: str = "material",
+                 transmitted_jacobian: str = "reference",
                  cache_dir: str | os.PathLike | None = None, direction_grid: int = DIRECTION_GRID) -> None:
         super().__init__(incident=incident, use_tir=use_tir, transmission_scale=transmission_scale,
                          per_channel=per_channel, height_correlated=height_correlated, fgd_source=fgd_source,
-                         cache_dir=cache_dir, direction_grid=direction_grid)
+                         transmitted_jacobian=transmitted_jacobian, cache_dir=cache_dir,
+                         direction_grid=direction_grid)
 
 
 class BelcourForward(_ForwardBase):
@@ -155,7 +157,12 @@ class BelcourBati19(_ForwardBase):
 
 
 class BelcourBTDF(_BelcourBase):
-    """Belcour 2018 forward BTDF of slabs (``layered_dielectric``): one transmission lobe."""
+    """Belcour 2018 forward BTDF of slabs (``layered_dielectric``): one transmission lobe.
+
+    The transmitted variance is carried down with the inverse of the Jacobian that brings
+    reflected variances back up (``transmitted_jacobian="consistent"``, the default here): the
+    published adding code multiplies by it both ways, which shrinks a lobe leaving glass into air
+    instead of widening it (``docs/belcour.md``, "Jacobian bookkeeping"; ``"reference"`` restores it)."""
 
     name = "belcour-btdf"
     description = "Belcour 2018 forward BTDF for slabs: one GGX lobe about the Snell direction"
@@ -163,9 +170,11 @@ class BelcourBTDF(_BelcourBase):
 
     def __init__(self, use_tir: bool = False, transmission_scale: str = "normal", per_channel: bool = True,
                  height_correlated: bool = False, fgd_source: str = "material",
+                 transmitted_jacobian: str = "consistent",
                  cache_dir: str | os.PathLike | None = None) -> None:
         super().__init__(use_tir=use_tir, transmission_scale=transmission_scale, per_channel=per_channel,
-                         height_correlated=height_correlated, fgd_source=fgd_source, cache_dir=cache_dir)
+                         height_correlated=height_correlated, fgd_source=fgd_source,
+                         transmitted_jacobian=transmitted_jacobian, cache_dir=cache_dir)
 
     def support_reason(self, stack: Stack) -> str | None:
         reason = unsupported_reason(stack)

@@ -19,6 +19,7 @@ class BelcourOptions:
     per_channel: bool = True
     height_correlated: bool = False
     fgd_source: str = "material"
+    transmitted_jacobian: str = "reference"
     cache_dir: str | None = None
     direction_grid: int = DIRECTION_GRID
 
@@ -29,6 +30,9 @@ class BelcourOptions:
             raise ValueError(f"transmission_scale must be 'normal' or 'angular', got {self.transmission_scale!r}")
         if self.direction_grid != 0 and self.direction_grid < 2:
             raise ValueError(f"direction_grid must be 0 or >= 2, got {self.direction_grid!r}")
+        if self.transmitted_jacobian not in ("reference", "consistent"):
+            raise ValueError(f"transmitted_jacobian must be 'reference' or 'consistent', "
+                             f"got {self.transmitted_jacobian!r}")
         if self.fgd_source not in ("material", "table"):
             raise ValueError(f"fgd_source must be 'material' or 'table', got {self.fgd_source!r}")
 

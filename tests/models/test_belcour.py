@@ -494,3 +494,45 @@ def test_options_object_and_keywords_agree():
     for (ea, aa), (eb, ab) in zip(a, b):
         np.testing.assert_array_equal(ea, eb)
         np.testing.assert_array_equal(aa, ab)
+
+
+@pytest.mark.parametrize("theta_deg", [0.0, 60.0, 80.0])
+def test_btdf_transmitted_variance_by_hand(theta_deg):
+    # Slab S2 of Bati 2019 with an absorbing core (tau = 3, so the inter-reflection factor m is
+    # below 1e-5 and drops out): the transmission lobe's variance is the top interface's
+    # transmitted variance carried into the bottom medium plus the exit interface's own,
+    # v_T = v_d0 / j1 + v_d1 (consistent bookkeeping, docs/belcour.md) or j1 v_d0 + v_d1 (the
+    # published adding code), with v_d = f(alpha * |n - 1| / (2 n)) (normal-incidence s),
+    # j1 = n1 cos(theta_out) / cos(theta_glass) and f(a) = a^1.1 / (1 - a^1.1). By hand:
+    def f(a):
+        return a ** 1.1 / (1.0 - a ** 1.1)
+
+    a0 = a1 = 0.2
+    n0, n1 = 1.5, 1.0 / 1.5
+    stack = Stack("s2", (Interface(a0, (1.5,) * 3), Medium((3.0,) * 3), Interface(a1, (1.0,) * 3)), "slab")
+    c = math.cos(math.radians(theta_deg))
+    c_glass = math.sqrt(1.0 - (1.0 - c * c) / n0 ** 2)
+    c_out = math.sqrt(1.0 - (1.0 - c_glass ** 2) / n1 ** 2)
+    j1 = (c_out / c_glass) * n1
+    vd0 = f(a0 * abs(n0 - 1.0) / (2.0 * n0))
+    vd1 = f(a1 * abs(n1 - 1.0) / (2.0 * n1))
+    f_inv = variance_to_roughness
+    for jac, expect in (("consistent", vd0 / j1 + vd1), ("reference", j1 * vd0 + vd1)):
+        T, alpha, cos_n = BelcourBTDF(transmitted_jacobian=jac).transmission_lobe(stack, c)
+        assert cos_n == pytest.approx(c_out, rel=1e-12)
+        assert alpha == pytest.approx(np.full(3, f_inv(expect)), rel=1e-3)
+    # leaving glass widens the lobe with the consistent bookkeeping, narrows it with the published one
+    assert vd0 / j1 > vd0 > j1 * vd0
+
+
+def test_btdf_jacobian_changes_no_brdf_of_a_two_interface_stack():
+    # the transmitted-variance bookkeeping only reaches a BRDF lobe through a third interface
+    st = metal()
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(64, 3))
+    v[:, 2] = np.abs(v[:, 2])
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    l = np.array([math.sin(0.9), 0.0, math.cos(0.9)])
+    a = BelcourForward(transmitted_jacobian="reference", direction_grid=0).evaluate(st, l, v)
+    b = BelcourForward(transmitted_jacobian="consistent", direction_grid=0).evaluate(st, l, v)
+    assert np.array_equal(a.top, b.top) and np.array_equal(a.internal, b.internal)
