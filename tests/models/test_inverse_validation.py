@@ -9,7 +9,6 @@ probability 1e-6, tests/conftest.py), plus the FGD table's own error where FGD i
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from pathlib import Path
@@ -25,7 +24,6 @@ from models import belcour
 from models import inverse as I
 from models import inverse as V
 from models.report import inverse as report_inverse
-from models.commands import inverse as inverse_cli
 from tests.conftest import Z_TOL
 
 CASES = Path(__file__).resolve().parents[2] / "configs" / "inverse" / "cases.toml"
@@ -34,19 +32,8 @@ FGD_TABLE_RTOL = 5e-4
 
 
 @pytest.fixture
-def gonio(monkeypatch):
-    """Run ``gonio`` through goniometer.cli.main with the inverse sub-commands registered (the
-    lead adds ``inverse_cli.register(sub)`` to build_parser; until then this adds it)."""
-    original = cli.build_parser
-
-    def build():
-        parser = original()
-        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        if "invert" not in sub.choices:
-            inverse_cli.register(sub)
-        return parser
-
-    monkeypatch.setattr(cli, "build_parser", build)
+def gonio():
+    """``gonio`` through goniometer.cli.main (the models plugin registers invert and validate-inverse)."""
     return cli.main
 
 

@@ -1,4 +1,4 @@
-"""The report of a results directory (models/report.py): error records, tables, figures, cache,
+"""The report of a results directory (models/report/): error records, tables, figures, cache,
 bad input, reproduction checks, and the static HTML browser driven in a real headless Chromium."""
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """The FGD and TIR tables of Belcour's model against independent quadratures.
 
-The tables integrate over the visible-normal parameter disc (models/tables.py). The references
+The tables integrate over the visible-normal parameter disc (models/tables/belcour.py, docs/tables.md). The references
 here integrate differently -- the FGD over half vectors (GGX-importance mapping of theta_h, Gauss-
 Legendre, through ``optics.np_microfacet_reflection``) and the TIR over outgoing directions split
 at the critical angle -- so they share only the optics formulas with the code under test.
 
-Stated error bounds (absolute, tested below; see the module docstring of models/tables.py):
+Stated error bounds (absolute, tested below; see docs/tables.md):
 
 * material slices (``fgd_slice``): <= 2e-3 for mu >= 0.05 and <= 3.5e-3 for mu >= 0.01;
 * 4D table where Fresnel has no critical angle (eta >= 1.2 or kappa >= 0.5): <= 3e-3 for mu >= 0.05;
