@@ -49,7 +49,9 @@ def luminance(rgb: np.ndarray, axis: int = 1, keepdims: bool = True) -> np.ndarr
 
 def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, omega: np.ndarray,
                  mask: np.ndarray) -> dict:
-    """The JSON error object ``E`` of ``gonio evaluate --json``.
+    """The JSON error object ``E`` of ``gonio evaluate --json``. ``reference_norm`` is eq. 4 of the
+    reference against zero (per channel): the error of a model that predicts no light, the scale
+    against which an error is small or large.
 
     The luminance noise floor uses ``sum_c w_c stderr_c`` per cell, an upper bound on the
     standard error of the luminance (the channels of a simulation share their paths, so their
@@ -57,6 +59,7 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
     """
     e = rmse(ref, model, omega, mask)
     nf = noise_floor(ref_stderr, omega, mask)
+    size = rmse(ref, np.zeros_like(ref), omega, mask)
     lum = rmse(luminance(ref), luminance(model), omega, mask)[0]
     lum_se = luminance(ref_stderr)
     return {
@@ -66,6 +69,7 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
         "noise_floor": [float(x) for x in nf],
         "noise_floor_mean": float(np.mean(nf)),
         "noise_floor_luminance": float(noise_floor(lum_se, omega, mask)[0]),
+        "reference_norm": [float(x) for x in size],
     }
 
 

@@ -93,9 +93,17 @@ def _reproduction_html(checks: list[dict]) -> str:
         rows.append(f"<tr class=\"verdict-{_esc(c['verdict'].replace(' ', '-'))}\" data-check=\"{_esc(c['id'])}\">"
                     f"<td>{_esc(c['paper'])}<br><small>{_esc(c['source'])}</small></td>"
                     f"<td>{_esc(c['test'])}{details}</td><td class=\"num\">{agree}</td>"
-                    f"<td class=\"verdict\">{_esc(c['verdict'])}</td><td>{_esc(c['note'])}</td></tr>")
+                    f"<td class=\"verdict\">{_esc(c['verdict'])}</td><td>{_cause_html(c)}</td>"
+                    f"<td>{_esc(c['note'])}</td></tr>")
     return ("<table class=\"repro\"><thead><tr><th>finding (paper)</th><th>our test</th><th>agree</th>"
-            "<th>verdict</th><th>note</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>")
+            "<th>verdict</th><th>cause</th><th>note</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>")
+
+
+def _cause_html(c: dict) -> str:
+    if "cause_text" not in c:
+        return ""
+    head = f"<strong>{_esc(c['cause'])}</strong>: " if c.get("cause") else ""
+    return head + _esc(c["cause_text"])
 
 
 def _tables_html(tables: dict[str, dict[str, str]]) -> str:

@@ -72,3 +72,15 @@ def test_masked_cells_never_count():
     sd.mask[:, 2, 3] = True
     sd2 = errors.error_object(sd.value, sd.stderr, model, sd.proj_solid_angle, sd.mask)
     assert masked["rmse_mean"] < before["rmse_mean"] and before == sd2
+
+
+def test_reference_norm_is_the_error_of_a_model_that_predicts_nothing():
+    rng = np.random.default_rng(5)
+    ref = rng.random((2, 3, 4, 5))
+    omega = rng.random((2, 4, 5))
+    mask = rng.random((2, 4, 5)) > 0.3
+    e = errors.error_object(ref, 0.1 * ref, np.zeros_like(ref), omega, mask)
+    assert e["reference_norm"] == e["rmse"]
+    # by hand, channel 1: sqrt((1/M) sum f^2 Omega over valid cells)
+    by_hand = np.sqrt(sum((ref[m, 1] ** 2 * omega[m] * mask[m]).sum() for m in range(2)) / 2)
+    assert abs(e["reference_norm"][1] - by_hand) < 1e-12

@@ -1,0 +1,49 @@
+"""Why a reproduction finding does not fully hold: the cause of every check whose verdict is not
+"holds" or that has noise-limited comparisons (``reproduction.json`` keys ``cause`` and
+``cause_text``; ``docs/report.md``, reproduction).
+
+A cause is one of :data:`CAUSE_KINDS`: our ``"implementation"`` (found and fixed: the text says
+what changed), our ``"reading"`` of the paper's sentence (the text says what else it could mean
+and where that reading is tested), the ``"paper"`` (its own statement does not hold under its own
+model or data), or ``"noise"`` (the comparisons differ by less than the reference's noise floor).
+The investigated causes (:data:`INVESTIGATED`) are findings with their evidence, measured on the
+60-material database (quick quality, 4 M rays per slice) and, for the deciding materials, at the
+paper's quality (160 M rays per slice); they apply only while the check still needs a cause. A
+check that needs one and was not investigated gets ``"noise"`` when every disagreeing comparison
+is noise-limited, else ``cause: null`` with a note saying so.
+"""
+
+from __future__ import annotations
+
+CAUSE_KINDS = ("implementation", "reading", "paper", "noise")
+
+#: check id -> (cause, evidence)
+INVESTIGATED: dict[str, tuple[str, str]] = {
+}
+
+
+def needs_cause(check: dict) -> bool:
+    """A check needs a cause when it was testable and does not fully hold or is noise-limited."""
+    return check["n"] > 0 and (check["verdict"] != "holds" or check["noise_limited"] > 0)
+
+
+def attach_causes(checks: list[dict]) -> list[dict]:
+    """Add ``cause`` and ``cause_text`` to every check that needs them (in place; returns ``checks``)."""
+    for c in checks:
+        if not needs_cause(c):
+            continue
+        known = INVESTIGATED.get(c["id"])
+        disagree = c["n"] - c["agree"]
+        if known is not None:
+            cause, text = known
+        elif disagree == c.get("noise_limited_disagreeing", 0):
+            cause = "noise"
+            text = (f"{c['noise_limited']} of {c['n']} comparisons differ by less than the reference's noise floor"
+                    + (f", including every one of the {disagree} that disagree" if disagree else "")
+                    + ": a finer reference (more rays) decides them.")
+        else:
+            cause, text = None, "not investigated: no cause is known for this outcome."
+        assert cause is None or cause in CAUSE_KINDS
+        c["cause"] = cause
+        c["cause_text"] = text
+    return checks
