@@ -19,6 +19,21 @@ CAUSE_KINDS = ("implementation", "reading", "paper", "noise")
 
 #: check id -> (cause, evidence)
 INVESTIGATED: dict[str, tuple[str, str]] = {
+    "metal-a1-0.001-a0-0.2-elek-same": (
+        "paper",
+        "Both models follow the paper (Elek as Bati 2019 table 2, checked by hand at normal incidence; Belcour as "
+        "Belcour's reference code with the setup Bati states), yet Elek's error is 17-21 % lower (ratio 0.79-0.83; "
+        "0.74-0.83 under every stated or code-faithful option) because Belcour's internal lobe, exact up to "
+        "theta_l = 30 deg, is 4-15x too peaked and 1.7-3.4x too bright at 60-80 deg (92 % of its eq. 4 error). "
+        "Parity within 1.1 needs the TIR step plus statistics on the view side (1.05-1.08), which the paper does "
+        "not state; scoring only theta_l <= 60 deg would reverse the ranking (1.26-1.33)."),
+    "metal-belcour-best": (
+        "paper",
+        "Holds on the 24 metals with a smooth or paint-like coat (Belcour 2.2-9.2x better) and fails exactly on "
+        "the 12 frosted metals (alpha1 = 0.001, alpha0 >= 0.05; Elek / Belcour 0.79-0.90), for the reason of "
+        "metal-a1-0.001-a0-0.2-elek-same: Belcour's grazing-angle internal lobe dominates eq. 4 over incidences "
+        "0-80 deg. It would hold 30/36 with Belcour's TIR step and 36/36 if only theta_l <= 60 deg were scored; "
+        "the paper does not say which incidences it used."),
 }
 
 
