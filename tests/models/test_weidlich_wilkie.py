@@ -348,3 +348,20 @@ def test_finite_and_non_negative_on_the_database(name):
             for part in (out.top, out.internal):
                 assert np.all(np.isfinite(part)), (stack, tl)
                 assert np.all(part >= 0.0), (stack, tl)
+
+
+def test_elek_frosted_metal_at_normal_incidence_by_hand():
+    # Bati 2019 metal M4 (alpha0 = 0.2 coat over a smooth conductor, alpha1 = 0.001): Elek's rule
+    # alpha1 <- max(alpha0, alpha1) (Bati 2019 table 2) makes the base an alpha = 0.2 lobe, so at
+    # l = v = n the internal BRDF is T01 T10 exp(-2 tau) F_base D(alpha = 0.2) / 4 with G = 1, by hand:
+    # T = 1 - ((1.5 - 1) / (1.5 + 1))^2, D = 1 / (pi alpha^2), F the normal-incidence conductor
+    # reflectance of the relative index (1.45 + i kappa) / 1.5. Red: 0.96^2 e^-0.4 0.1033 7.958 / 4 = 0.12699.
+    st = Stack("M4", (Interface(0.2, (1.5,) * 3), Medium((0.2,) * 3),
+                      Interface(0.001, (1.45,) * 3, (1.0, 0.01, 0.01))), "metal")
+    r = Elek10().evaluate(st, np.array([0.0, 0.0, 1.0]), np.array([[0.0, 0.0, 1.0]]))
+    n, k = 1.45 / 1.5, np.array([1.0, 0.01, 0.01]) / 1.5
+    F = ((n - 1) ** 2 + k ** 2) / ((n + 1) ** 2 + k ** 2)
+    T = 1.0 - (0.5 / 2.5) ** 2
+    expect = T * T * np.exp(-0.4) * F / (np.pi * 0.2 ** 2) / 4.0
+    assert r.internal[0] == pytest.approx(expect, rel=1e-12)
+    assert expect[0] == pytest.approx(0.12699, abs=1e-5)
