@@ -376,11 +376,11 @@ def sample_hg_cos(g: float, u: float) -> float:
     The textbook inversion ``(1 + g^2 - ((1 - g^2) / (1 + g xi))^2) / (2 g)`` with
     ``xi = 2 u - 1`` is rewritten without the division by g (which cancels catastrophically as
     g -> 0): ``(xi + g) / (1 + g xi) + g (1 - g^2) (1 - xi^2) / (2 (1 + g xi)^2)``. At g = 0 it
-    is exactly ``xi``, the isotropic cosine; ``xi = +-1`` give exactly +-1.
+    is exactly ``xi``, the isotropic cosine; ``u = 0`` (``xi = -1``) gives exactly -1.
     """
     xi = 2.0 * u - 1.0
-    q = 1.0 / (1.0 + g * xi)
-    c = (xi + g) * q + 0.5 * g * (1.0 - g * g) * (1.0 - xi * xi) * q * q
+    den = 1.0 + g * xi
+    c = (xi + g) / den + 0.5 * g * (1.0 - g * g) * (1.0 - xi * xi) / (den * den)
     return min(1.0, max(-1.0, c))
 
 
