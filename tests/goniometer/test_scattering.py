@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -31,7 +33,8 @@ from goniometer.cli import main
 from goniometer.run import simulate
 from goniometer.settings import SimulationSettings
 from goniometer.slices import light_direction
-from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, pack, stack_from_dict
+from goniometer.stack import (Interface, Lambertian, Medium, Stack, StackError, load_toml, pack,
+                              stack_from_dict)
 from tests.conftest import Z_TOL, assert_cells_match, chi2_limit
 
 # ----------------------------------------------------------------------------- references
@@ -435,7 +438,8 @@ def test_chromatic_extinction_equals_one_channel_at_a_time():
     for c, t in enumerate(taus):
         one = simulate(stack((t,) * 3), SimulationSettings(seed=2 + c, **s))
         for k in ("reflected", "transmitted", "absorbed"):
-            z_close(chrom.energy[k][:, c], chrom.energy_stderr[k][:, c], one.energy[k][:, c], one.energy_stderr[k][:, c],
+            z_close(chrom.energy[k][:, c], chrom.energy_stderr[k][:, c],
+                    one.energy[k][:, c], one.energy_stderr[k][:, c],
                     extra=np.abs(chrom.roulette[:, c]) + np.abs(one.roulette[:, c]))
 
 
@@ -533,7 +537,8 @@ BAD = [
     (GOOD.replace("g = 0.6", 'g = "forward"'), "layers[1].g: 'forward' is not a number"),
     (GOOD.replace("g = 0.6", "g = [0.1, 0.2, 0.3]"), "layers[1].g: [0.1, 0.2, 0.3] is not a number"),
     (GOOD.replace("[0.5, 0.5, 0.9090909090909091]", "1.5"), "layers[1].scattering_albedo: 1.5 is outside [0.0, 1.0]"),
-    (GOOD.replace("[0.5, 0.5, 0.9090909090909091]", "[0.5, -0.1, 0.5]"), "layers[1].scattering_albedo: -0.1 is outside"),
+    (GOOD.replace("[0.5, 0.5, 0.9090909090909091]", "[0.5, -0.1, 0.5]"),
+     "layers[1].scattering_albedo: -0.1 is outside"),
     (GOOD.replace("ior = 1.0\n", "ior = 1.0\ng = 0.3\n"), "layers[0].g: only a medium layer takes g"),
     (GOOD.replace("extinction = [3.0, 0.0, 0.0]", "extinction = [3.0, 0.0, 0.0]\nscattering_albedo = 0.5"),
      "layers[2].scattering_albedo: only a medium layer takes scattering_albedo"),
@@ -549,6 +554,16 @@ def test_bad_scattering_input_is_one_line_exit_2(tmp_path, capsys, text, expecte
     err = capsys.readouterr().err.strip()
     assert err.startswith("gonio: error: ") and expected in err and "\n" not in err, err
     assert not out.exists()
+
+
+def test_the_example_is_appendix_e_at_d_2():
+    """configs/examples/scattering-metal.toml: sigma_s = (0.1, 0.1, 1.0), sigma_a = 0.1, d = 2."""
+    stack, _ = load_toml(Path(__file__).resolve().parents[2] / "configs" / "examples" / "scattering-metal.toml")
+    sigma_s, sigma_a, d = np.array([0.1, 0.1, 1.0]), 0.1, 2.0
+    medium = stack.layers[1]
+    np.testing.assert_allclose(medium.optical_depth, (sigma_s + sigma_a) * d, rtol=1e-15)
+    np.testing.assert_allclose(medium.scattering_albedo, sigma_s / (sigma_s + sigma_a), rtol=1e-15)
+    assert stack.layers[1:] == stack_from_dict(tomllib.loads(GOOD)).layers[1:]
 
 
 def test_the_file_records_the_scattering_medium(tmp_path, capsys):
