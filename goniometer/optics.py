@@ -1,4 +1,4 @@
-"""The single home of the project's microfacet and Fresnel physics.
+"""The single home of the project's microfacet, Fresnel and scattering-medium physics.
 
 Every function here is a scalar ``numba.njit`` function (usable from the tracer's
 kernel and from other njit code) unless its name starts with ``np_``, in which
@@ -355,7 +355,101 @@ def microfacet_transmission(
     return (1.0 - f) * d * g * abs(lh * vh) * eta * eta / (lz * abs(vz) * denom * denom)
 
 
+# --------------------------------------------------------------------------- scattering media
+
+_INV_4PI = 1.0 / (4.0 * math.pi)
+
+
+@numba.njit(cache=True)
+def hg_phase(cos_theta: float, g: float) -> float:
+    """Henyey-Greenstein phase function in 1/sr, normalised over the sphere:
+    ``(1 - g^2) / (4 pi (1 + g^2 - 2 g cos)^(3/2))``. ``cos_theta`` is the cosine between the
+    propagation directions before and after scattering (``g > 0``: forward scattering)."""
+    d = 1.0 + g * g - 2.0 * g * cos_theta
+    return (1.0 - g * g) * _INV_4PI / (d * math.sqrt(d))
+
+
+@numba.njit(cache=True)
+def sample_hg_cos(g: float, u: float) -> float:
+    """Cosine of the scattering angle drawn from the Henyey-Greenstein phase function, ``u`` in [0, 1).
+
+    The textbook inversion ``(1 + g^2 - ((1 - g^2) / (1 + g xi))^2) / (2 g)`` with
+    ``xi = 2 u - 1`` is rewritten without the division by g (which cancels catastrophically as
+    g -> 0): ``(xi + g) / (1 + g xi) + g (1 - g^2) (1 - xi^2) / (2 (1 + g xi)^2)``. At g = 0 it
+    is exactly ``xi``, the isotropic cosine; ``u = 0`` (``xi = -1``) gives exactly -1.
+    """
+    xi = 2.0 * u - 1.0
+    den = 1.0 + g * xi
+    c = (xi + g) / den + 0.5 * g * (1.0 - g * g) * (1.0 - xi * xi) / (den * den)
+    return min(1.0, max(-1.0, c))
+
+
+@numba.njit(cache=True)
+def hg_scatter(dx: float, dy: float, dz: float, g: float, u1: float, u2: float):
+    """New propagation direction after a Henyey-Greenstein scattering of the unit direction ``d``:
+    the scattering cosine from :func:`sample_hg_cos` (``u1``), the azimuth about ``d`` uniform
+    (``u2``), in the orthonormal frame of Duff et al. 2017 (branch-free, continuous but for
+    the sign of ``d_z``)."""
+    c = sample_hg_cos(g, u1)
+    st = math.sqrt(max(0.0, 1.0 - c * c))
+    cos_ph, sin_ph = cos_sin_2pi(u2)
+    sgn = 1.0 if dz >= 0.0 else -1.0
+    a = -1.0 / (sgn + dz)
+    b = dx * dy * a
+    # t1 = (1 + sgn dx^2 a, sgn b, -sgn dx), t2 = (b, sgn + dy^2 a, -dy): with d, an orthonormal frame
+    p = st * cos_ph
+    q = st * sin_ph
+    ox = p * (1.0 + sgn * dx * dx * a) + q * b + c * dx
+    oy = p * (sgn * b) + q * (sgn + dy * dy * a) + c * dy
+    oz = -p * (sgn * dx) - q * dy + c * dz
+    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+    return ox * inv, oy * inv, oz * inv
+
+
+@numba.njit(cache=True)
+def sample_free_flight(u1: float, u2: float, t0: float, t1: float, t2: float) -> float:
+    """Free-flight length drawn from the one-sample spectral MIS mixture of the three channels'
+    extinctions ``t_c`` (balance heuristic): density ``p(s) = mean_c t_c exp(-t_c s)``.
+    ``u1`` picks the channel (uniformly), ``u2`` the exponential length ``-log(1 - u2) / t_c``.
+    A channel with ``t_c = 0`` returns ``inf`` (no collision)."""
+    c = int(u1 * 3.0)
+    t = t0 if c == 0 else (t1 if c == 1 else t2)
+    if t <= 0.0:
+        return math.inf
+    return -math.log1p(-u2) / t
+
+
+@numba.njit(cache=True)
+def free_flight_pass_weights(s: float, t0: float, t1: float, t2: float):
+    """Channel weights of a flight of length ``s`` that reaches the boundary, under
+    :func:`sample_free_flight`: ``T_c(s) / P(S >= s)`` with ``T_c = exp(-t_c s)`` and
+    ``P(S >= s) = mean_c T_c``. Each is at most 3. ``s`` finite."""
+    e0 = math.exp(-t0 * s)
+    e1 = math.exp(-t1 * s)
+    e2 = math.exp(-t2 * s)
+    inv = 3.0 / (e0 + e1 + e2)
+    return e0 * inv, e1 * inv, e2 * inv
+
+
+@numba.njit(cache=True)
+def free_flight_collision_weights(s: float, t0: float, t1: float, t2: float):
+    """Channel weights of a collision at length ``s`` under :func:`sample_free_flight`:
+    ``t_c exp(-t_c s) / p(s)`` (multiply by the scattering albedo for the scattered weight).
+    Each is at most 3."""
+    f0 = t0 * math.exp(-t0 * s)
+    f1 = t1 * math.exp(-t1 * s)
+    f2 = t2 * math.exp(-t2 * s)
+    inv = 3.0 / (f0 + f1 + f2)
+    return f0 * inv, f1 * inv, f2 * inv
+
+
 # --------------------------------------------------------------------------- vectorised forms
+
+@numba.vectorize(["float64(float64, float64)"], cache=True)
+def np_hg_phase(cos_theta, g):
+    """Vectorised :func:`hg_phase`."""
+    return hg_phase(cos_theta, g)
+
 
 @numba.vectorize(["float64(float64, float64)"], cache=True)
 def np_fresnel_dielectric(cos_i, eta):

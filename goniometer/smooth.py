@@ -24,6 +24,11 @@ from goniometer import optics
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 
 
+def _refuse_scattering(stack: Stack, what: str) -> None:
+    if any(isinstance(x, Medium) and x.scatters for x in stack.layers):
+        raise ValueError(f"{what}: media must only absorb (this stack has a scattering medium)")
+
+
 def adding_energies(stack: Stack, theta_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Reflected and transmitted fractions (RGB) of a smooth stack lit at ``theta_deg`` from air.
 
@@ -32,6 +37,7 @@ def adding_energies(stack: Stack, theta_deg: float) -> tuple[np.ndarray, np.ndar
     """
     if isinstance(stack.layers[-1], Lambertian):
         raise ValueError("adding_energies: a Lambertian base is not a smooth stack")
+    _refuse_scattering(stack, "adding_energies")
     s0 = math.sin(math.radians(theta_deg))
     # regions: index and attenuation
     etas = [1.0]
@@ -111,6 +117,7 @@ def _coat_lambertian_parts(stack: Stack) -> tuple[float, np.ndarray, np.ndarray]
           and (len(layers) == 2 or (len(layers) == 3 and isinstance(layers[1], Medium))))
     if not ok:
         raise ValueError("coated Lambertian closed form: expected [interface, (medium), lambertian]")
+    _refuse_scattering(stack, "coated Lambertian closed form")
     eta = layers[0].ior[0]
     tau = np.asarray(layers[1].optical_depth if len(layers) == 3 else (0.0,) * 3, dtype=float)
     rho = np.asarray(layers[-1].albedo, dtype=float)

@@ -5,8 +5,10 @@ A stack is listed top first and starts in air (index 1). Layer kinds:
 * :class:`Interface` -- a GGX rough boundary; ``ior``/``extinction`` give the absolute complex
   index of the medium **below** it. ``extinction > 0`` in any channel makes a conductor
   (opaque, last layer). A dielectric's index is one real value for all channels.
-* :class:`Medium` -- Beer-Lambert absorption between two interfaces (or above a Lambertian base),
-  ``optical_depth`` tau at normal incidence (RGB), factor ``exp(-tau / |cos theta|)`` per traversal.
+* :class:`Medium` -- a homogeneous layer between two interfaces (or above a Lambertian base):
+  ``optical_depth`` tau, the extinction optical depth at normal incidence (RGB);
+  ``scattering_albedo`` (RGB, default 0) and the Henyey-Greenstein asymmetry ``g`` (default 0).
+  Without scattering it absorbs by Beer-Lambert, factor ``exp(-tau / |cos theta|)`` per traversal.
 * :class:`Lambertian` -- an opaque diffuse base of albedo ``rho`` (RGB), last layer.
 
 Every error is a :class:`StackError` whose message names the file, the layer index and the field.
@@ -68,9 +70,19 @@ class Interface:
 
 @dataclass(frozen=True)
 class Medium:
-    """Absorbing medium; ``optical_depth`` tau >= 0 at normal incidence (RGB)."""
+    """Homogeneous medium: ``optical_depth`` tau >= 0, the extinction (absorption + scattering)
+    optical depth at normal incidence (RGB); ``scattering_albedo`` in [0, 1] (RGB), the fraction of
+    extinction that scatters; ``g`` in (-1, 1), the Henyey-Greenstein asymmetry of the phase
+    function. The defaults (no scattering) make a purely absorbing (Beer-Lambert) medium."""
 
     optical_depth: RGB
+    scattering_albedo: RGB = (0.0, 0.0, 0.0)
+    g: float = 0.0
+
+    @property
+    def scatters(self) -> bool:
+        """True when light scatters in some channel (albedo > 0 where the optical depth is > 0)."""
+        return any(a > 0.0 and t > 0.0 for a, t in zip(self.scattering_albedo, self.optical_depth))
 
 
 @dataclass(frozen=True)
@@ -129,7 +141,13 @@ class Stack:
                     d["ior"] = x.ior[0]
                 layers.append(d)
             elif isinstance(x, Medium):
-                layers.append({"type": "medium", "optical_depth": list(x.optical_depth)})
+                d = {"type": "medium", "optical_depth": list(x.optical_depth)}
+                # keys at their defaults are omitted: a non-scattering medium keeps its old identity
+                if max(x.scattering_albedo) > 0.0:
+                    d["scattering_albedo"] = list(x.scattering_albedo)
+                if x.g != 0.0:
+                    d["g"] = x.g
+                layers.append(d)
             else:
                 layers.append({"type": "lambertian", "albedo": list(x.albedo)})
         return {"name": self.name, "category": self.category, "layers": layers}
@@ -161,8 +179,10 @@ class PackedStack:
     separates region k (above) from region k + 1 (below).
 
     ``if_alpha[k] = (alpha_x, alpha_y)``; ``if_rot[k] = (cos, sin)`` of the tangent-frame rotation;
-    ``region_eta[r]`` real index; ``region_tau[r]`` RGB optical depth (region 0 and a
-    semi-infinite bottom region have 0); ``cond[0:3]``/``cond[3:6]`` the conductor's complex index
+    ``region_eta[r]`` real index; ``region_tau[r]`` RGB extinction optical depth (region 0 and a
+    semi-infinite bottom region have 0); ``region_albedo[r]`` RGB scattering albedo and
+    ``region_g[r]`` Henyey-Greenstein asymmetry (both 0 where nothing scatters, see
+    :attr:`Medium.scatters`); ``cond[0:3]``/``cond[3:6]`` the conductor's complex index
     **relative** to the region above it; ``rho`` the Lambertian albedo; ``base_kind`` one of
     ``BASE_*``.
     """
@@ -174,10 +194,13 @@ class PackedStack:
     cond: np.ndarray
     rho: np.ndarray
     base_kind: int
+    region_albedo: np.ndarray
+    region_g: np.ndarray
 
     def as_tuple(self) -> tuple:
-        return (self.if_alpha, self.if_rot, self.region_eta, self.region_tau, self.cond, self.rho,
-                self.base_kind)
+        """The stack arguments of :func:`goniometer.tracer.trace_batch`, in order."""
+        return (self.if_alpha, self.if_rot, self.region_eta, self.region_tau, self.region_albedo, self.region_g,
+                self.cond, self.rho, self.base_kind)
 
 
 def pack(stack: Stack) -> PackedStack:
@@ -189,6 +212,8 @@ def pack(stack: Stack) -> PackedStack:
     if_rot[:, 0] = 1.0
     region_eta = np.ones(n + 1)
     region_tau = np.zeros((n + 1, 3))
+    region_albedo = np.zeros((n + 1, 3))
+    region_g = np.zeros(n + 1)
     cond = np.zeros(6)
     rho = np.zeros(3)
     region = 0
@@ -209,6 +234,9 @@ def pack(stack: Stack) -> PackedStack:
             k += 1
         elif isinstance(layer, Medium):
             region_tau[region] = layer.optical_depth
+            if layer.scatters:
+                region_albedo[region] = layer.scattering_albedo
+                region_g[region] = layer.g
         else:
             rho[:] = layer.albedo
     last = stack.layers[-1]
@@ -218,14 +246,14 @@ def pack(stack: Stack) -> PackedStack:
         base = BASE_CONDUCTOR
     else:
         base = BASE_TRANSMIT
-    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base)
+    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base, region_albedo, region_g)
 
 
 # ---------------------------------------------------------------------- loading
 
 _LAYER_KEYS = {
     "interface": {"type", "roughness", "ior", "extinction", "rotation_deg"},
-    "medium": {"type", "optical_depth"},
+    "medium": {"type", "optical_depth", "scattering_albedo", "g"},
     "lambertian": {"type", "albedo"},
 }
 _TOP_KEYS = {"name", "category", "layers", "simulation"}
@@ -292,6 +320,10 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
     if kind not in _LAYER_KEYS:
         raise StackError(f"{where}.type: {kind!r} is not one of interface, medium, lambertian")
     unknown = sorted(set(d) - _LAYER_KEYS[kind])
+    misplaced = [x for x in unknown if x in _LAYER_KEYS["medium"]]
+    if misplaced:
+        raise StackError(f"{where}.{misplaced[0]}: only a medium layer takes {misplaced[0]} "
+                         f"(this layer is {'an' if kind == 'interface' else 'a'} {kind})")
     if unknown:
         raise StackError(f"{where}.{unknown[0]}: unknown key for a {kind} layer "
                          f"(allowed: {', '.join(sorted(_LAYER_KEYS[kind]))})")
@@ -304,7 +336,10 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
                              f"(got {list(ior)}); an RGB index needs extinction > 0 (a conductor)")
         return Interface(roughness=rough, ior=ior, extinction=ext, roughness_y=rough_y, rotation_deg=rotation)
     if kind == "medium":
-        return Medium(optical_depth=_rgb(d, "optical_depth", where, lo=0.0))
+        albedo = _rgb(d, "scattering_albedo", where, lo=0.0, hi=1.0, default=0.0)
+        g = _number(d["g"], f"{where}.g") if "g" in d else 0.0
+        _check_g(g, f"{where}.g")
+        return Medium(optical_depth=_rgb(d, "optical_depth", where, lo=0.0), scattering_albedo=albedo, g=g)
     return Lambertian(albedo=_rgb(d, "albedo", where, lo=0.0, hi=1.0))
 
 
@@ -354,6 +389,11 @@ def _check_range(v: float, where: str, lo, hi, positive: bool) -> None:
         raise StackError(f"{where}: {v!r} is outside [{lo}, {hi}]")
 
 
+def _check_g(g: float, where: str) -> None:
+    if not -1.0 < g < 1.0:
+        raise StackError(f"{where}: {g!r} is outside (-1, 1) (the Henyey-Greenstein asymmetry)")
+
+
 def _scalar(d: dict, key: str, where: str, lo=None, hi=None) -> float:
     if key not in d:
         raise StackError(f"{where}.{key}: required")
@@ -396,6 +436,10 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
             if x.is_conductor and not last:
                 raise StackError(f"{where}.extinction: a conductor (extinction > 0) must be the last layer")
         elif isinstance(x, Medium):
+            for a in x.scattering_albedo:
+                if not 0.0 <= a <= 1.0:
+                    raise StackError(f"{where}.scattering_albedo: {a!r} is outside [0, 1]")
+            _check_g(x.g, f"{where}.g")
             if prev is None:
                 raise StackError(f"{where}.type: a medium cannot be the top layer (it must lie below an interface)")
             if isinstance(prev, Medium):

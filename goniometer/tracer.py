@@ -6,8 +6,10 @@ normals of the side the path comes from; a dielectric reflects with probability 
 Fresnel) and refracts otherwise, a conductor always reflects with weight *= F (RGB).
 The weight is then multiplied by the masking term (separable: ``G1(o)``; height-correlated:
 ``G2 / G1(i)``) and an outgoing direction on the wrong side of the macro-surface ends the path
-(``masking_loss``). Media attenuate deterministically (Beer-Lambert), Lambertian bases reflect
-with cosine sampling and weight *= rho. A path leaving the top upward is recorded in the BRDF
+(``masking_loss``). Absorbing media attenuate deterministically (Beer-Lambert); in a scattering
+medium the path makes free flights between collisions (:func:`_free_flight`: spectral-MIS
+distance sampling, Henyey-Greenstein directions). Lambertian bases reflect with cosine sampling
+and weight *= rho. A path leaving the top upward is recorded in the BRDF
 slice of its bounce order (number of events at the top layer); one leaving the bottom of a
 transmitting stack downward in the BTDF slice.
 
@@ -57,6 +59,8 @@ RR_START = 3
 RR_THRESHOLD = 0.05
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
+#: ``tau_mode`` of a scattering medium region with achromatic extinction (+ 1: chromatic)
+TAU_SCATTER = 3
 
 
 @intrinsic
@@ -120,7 +124,62 @@ def _deposit_pending(brdf, btdf, pend, i, j, o, max_order, w0, w1, w2):
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, state):
+    """One free flight of a path in a scattering medium region (``docs/material-format.md``, media).
+
+    The region is a slab of unit thickness whose extinction coefficients are the optical depths
+    ``t_c``; ``hpos`` is the height of the path in it (1 top, 0 bottom; < 0: entering, at the
+    boundary the direction leaves). The flight length is drawn from ``t0`` (achromatic
+    extinction: weights change only by the albedo at a collision) or from the spectral-MIS
+    mixture of the three channels (:func:`goniometer.optics.sample_free_flight`, weights from
+    the pass / collision ratios, each at most 3). A collision scatters with the albedo weights
+    and a Henyey-Greenstein direction; the weight each channel loses (or gains) is booked as
+    absorbed, which keeps the per-path bookkeeping exact.
+
+    Returns ``(scattered, hpos, d, w, absorbed)``: ``scattered`` False when the path reached the
+    boundary of the region (``hpos`` reset to -1); a path moving exactly horizontally that draws
+    no collision is lost (booked as absorbed, weights 0; measure zero).
+    """
+    h = hpos if hpos >= 0.0 else (1.0 if dz < 0.0 else 0.0)
+    if dz < 0.0:
+        smax = h / -dz
+    elif dz > 0.0:
+        smax = (1.0 - h) / dz
+    else:
+        smax = math.inf
+    if achromatic:
+        s = -math.log1p(-next_float(state)) / t0
+    else:
+        u1 = next_float(state)
+        s = optics.sample_free_flight(u1, next_float(state), t0, t1, t2)
+    if s >= smax:
+        if smax == math.inf:
+            return True, h, dx, dy, dz, 0.0, 0.0, 0.0, ab0 + w0, ab1 + w1, ab2 + w2
+        if achromatic:
+            return False, -1.0, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2
+        r0, r1, r2 = optics.free_flight_pass_weights(smax, t0, t1, t2)
+        return (False, -1.0, dx, dy, dz, w0 * r0, w1 * r1, w2 * r2,
+                ab0 + w0 * (1.0 - r0), ab1 + w1 * (1.0 - r1), ab2 + w2 * (1.0 - r2))
+    if achromatic:
+        r0 = a0
+        r1 = a1
+        r2 = a2
+    else:
+        c0, c1, c2 = optics.free_flight_collision_weights(s, t0, t1, t2)
+        r0 = a0 * c0
+        r1 = a1 * c1
+        r2 = a2 * c2
+    ab0 += w0 * (1.0 - r0)
+    ab1 += w1 * (1.0 - r1)
+    ab2 += w2 * (1.0 - r2)
+    h = min(1.0, max(0.0, h + s * dz))
+    u1 = next_float(state)
+    ox, oy, oz = optics.hg_scatter(dx, dy, dz, g, u1, next_float(state))
+    return True, h, ox, oy, oz, w0 * r0, w1 * r1, w2 * r2, ab0, ab1, ab2
+
+
+@numba.njit(cache=True, error_model='numpy')
+def trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
                 height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts):
     """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
@@ -139,12 +198,17 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
-    # per region: 0 no absorption, 1 achromatic (one exp), 2 chromatic
+    # per region: 0 no absorption, 1 achromatic (one exp), 2 chromatic; a scattering medium
+    # (albedo > 0 where tau > 0): TAU_SCATTER achromatic extinction, TAU_SCATTER + 1 chromatic
     tau_mode = np.zeros(n_if + 1, dtype=np.int64)
     for r in range(n_if + 1):
         t0 = region_tau[r, 0]
         if t0 > 0.0 or region_tau[r, 1] > 0.0 or region_tau[r, 2] > 0.0:
-            tau_mode[r] = 1 if (region_tau[r, 1] == t0 and region_tau[r, 2] == t0) else 2
+            achromatic = region_tau[r, 1] == t0 and region_tau[r, 2] == t0
+            tau_mode[r] = 1 if achromatic else 2
+            for c in range(3):
+                if region_albedo[r, c] > 0.0 and region_tau[r, c] > 0.0:
+                    tau_mode[r] = TAU_SCATTER if achromatic else TAU_SCATTER + 1
     # per interface: relative indices going down / up, tangent-frame rotation needed
     n_k = max(n_if, 1)
     eta_dn = np.ones(n_k)
@@ -183,6 +247,9 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
         mk2 = 0.0
         order = 0
         events = 0
+        # height in the current scattering region (0 bottom .. 1 top); < 0: at the boundary the
+        # direction leaves (entering a region)
+        hpos = -1.0
         while True:
             if events >= event_cap:
                 energy[E_CAPPED, 0] += w0
@@ -190,9 +257,15 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 energy[E_CAPPED, 2] += w2
                 counts[C_CAPPED] += 1
                 break
-            # ---- traverse the current region (Beer-Lambert)
+            # ---- traverse the current region (Beer-Lambert), or one free flight in a scattering medium
             tm = tau_mode[region]
-            if tm != 0:
+            scattered = False
+            if tm >= TAU_SCATTER:
+                scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2 = _free_flight(
+                    tm == TAU_SCATTER, region_tau[region, 0], region_tau[region, 1], region_tau[region, 2],
+                    region_albedo[region, 0], region_albedo[region, 1], region_albedo[region, 2], region_g[region],
+                    hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, state)
+            elif tm != 0:
                 inv_mu = 1.0 / abs(dz)
                 a0 = math.exp(-region_tau[region, 0] * inv_mu)
                 if tm == 1:
@@ -209,7 +282,15 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
                 w2 *= a2
             # ---- what lies at the end of this traversal
             at_interface = True
-            if dz > 0.0:
+            if scattered:
+                # a scattering event inside the medium (an event, not at the top layer)
+                at_interface = False
+                k = -1
+                from_above = True
+                events += 1
+                if w0 == 0.0 and w1 == 0.0 and w2 == 0.0:
+                    break
+            elif dz > 0.0:
                 if region == 0:
                     # leaves the stack upward: BRDF
                     i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
@@ -384,7 +465,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+def trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                brdf, btdf, energy, energy_sq, counts):
@@ -403,27 +484,27 @@ def trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind
     if n <= 0:
         return
     state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-    trace_chunk(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+    trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
                 height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+def trace_batch(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                 param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                 brdf, btdf, energy, energy_sq, counts):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch)."""
     for b in numba.prange(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                    param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                    brdf, btdf, energy, energy_sq, counts)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                        param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                        brdf, btdf, energy, energy_sq, counts):
@@ -433,7 +514,7 @@ def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, cond, rho, base
     default threading layer must not be entered by several threads at once.
     """
     for b in range(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, cond, rho, base_kind,
+        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                    param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                    brdf, btdf, energy, energy_sq, counts)

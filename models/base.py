@@ -53,15 +53,21 @@ class Model(ABC):
     sides: tuple[str, ...] = ("brdf",)
     #: whether the model handles anisotropic interfaces (roughness [alpha_x, alpha_y])
     anisotropic: bool = False
+    #: whether the model handles scattering media (``scattering_albedo > 0``)
+    scattering: bool = False
 
     @abstractmethod
     def support_reason(self, stack: Stack) -> str | None:
         """``None`` if the model can represent ``stack``, otherwise a one-line reason."""
 
     def reason(self, stack: Stack) -> str | None:
-        """:meth:`support_reason` preceded by the checks every model shares (anisotropy)."""
+        """:meth:`support_reason` preceded by the checks every model shares (anisotropy, scattering)."""
         if not self.anisotropic and any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers):
             return "isotropic interfaces only (this stack has an anisotropic roughness)"
+        if not self.scattering:
+            reason = scattering_reason(stack)
+            if reason is not None:
+                return reason
         return self.support_reason(stack)
 
     def supports(self, stack: Stack) -> bool:
@@ -83,6 +89,16 @@ class Model(ABC):
     @abstractmethod
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         """Evaluate for a supported stack (inputs already checked)."""
+
+
+def scattering_reason(stack: Stack) -> str | None:
+    """Why a model whose media only absorb cannot represent ``stack`` (None if no medium scatters):
+    the check every such model shares (:meth:`Model.reason`, Belcour's ``unsupported_reason``)."""
+    for i, x in enumerate(stack.layers):
+        if isinstance(x, Medium) and x.scatters:
+            return (f"purely absorbing media only (layers[{i}] is a scattering medium, "
+                    f"scattering_albedo = {list(x.scattering_albedo)})")
+    return None
 
 
 # ---------------------------------------------------------------------- stack descriptions

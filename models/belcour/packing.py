@@ -15,6 +15,7 @@ import numpy as np
 
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models._jit import njit
+from models.base import scattering_reason
 from models.belcour.covariance import lobe_covariance, transmission_roughness
 from models.belcour.options import BelcourOptions
 from models.tables import belcour as tables
@@ -110,7 +111,7 @@ def unsupported_reason(stack: Stack, anisotropic: bool = False) -> str | None:
         return "the stack has no interface"
     if not anisotropic and any(getattr(x, "is_anisotropic", False) for x in stack.interfaces):
         return "Belcour's model is isotropic: it cannot represent an anisotropic interface"
-    return None
+    return scattering_reason(stack)
 
 
 def _pad(a: np.ndarray, rows: int) -> np.ndarray:

@@ -55,7 +55,8 @@ def cmd_models(args: argparse.Namespace) -> int:
     models = catalogue()
     if args.json:
         print(json.dumps({n: {"description": m.description, "sides": list(m.sides), "fitted": n in FITTED,
-                              "anisotropic": bool(m.anisotropic)} for n, m in models.items()}, indent=2))
+                              "anisotropic": bool(m.anisotropic), "scattering": bool(m.scattering)}
+                          for n, m in models.items()}, indent=2))
         return 0
     width = max(len(n) for n in models)
     for name, m in models.items():

@@ -34,6 +34,8 @@ class FittedModel(Model):
     kind: str = ""
     #: a fit describes the file, whatever the stack: anisotropic materials are fitted like others
     anisotropic = True
+    #: likewise for scattering media: the fit never looks at the stack
+    scattering = True
 
     def __init__(self, x: Sequence[float] | np.ndarray) -> None:
         self.family = FAMILIES[self.kind]()
