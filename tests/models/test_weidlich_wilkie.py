@@ -8,6 +8,7 @@ tests/models/helpers.py), independently of goniometer.optics.
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import replace
 
@@ -365,3 +366,216 @@ def test_elek_frosted_metal_at_normal_incidence_by_hand():
     expect = T * T * np.exp(-0.4) * F / (np.pi * 0.2 ** 2) / 4.0
     assert r.internal[0] == pytest.approx(expect, rel=1e-12)
     assert expect[0] == pytest.approx(0.12699, abs=1e-5)
+
+
+# ---------------------------------------------------------------------- pinned values (issue 11)
+#
+# Source: Bati, Pacanowski, Barla 2019, "Numerical Analysis of Layered Materials Models"
+# (/work/shared/papers/bati2019-numerical-analysis-layered-models.txt):
+#   eq. 1   f_r(l, v) = D(h) G(l, v) F(l.h) / (4 |l.n| |v.n|)          (every microfacet lobe)
+#   eq. 2   f = f_r0(l0, v0) + T01 f_r1(l1, v1) a t,  a = exp(-tau (1/|n.l1| + 1/|n.v1|)),
+#           t = (1 - G) + T10 G                                          (ww09, elek10)
+#   table 2 ww09:   T01 about h0, (l1, v1) refracted about h0, f_r1 at (l0, v0), G = G(l1, v1)
+#           elek10: T01 about h0, (l1, v1) refracted about n,  f_r1 at (l1, v1), G = G(l0, v0)
+#   sec 3.1 Elek's rule alpha1 <- max(alpha0, alpha1)                    (elek10, ww-bati19)
+#   eq. 5   f = f_r0(l0, v0) + T01 f_r1(l1, v1) a T10 / eta^2,  T01, T10 and Snell about n,
+#           no t; appendix C: eta is the coat's index (J = eta_air^2 / eta_coat^2)  (ww-bati19)
+# Not fixed by the paper, our documented choices (models/weidlich_wilkie.py): T10 of ww09 and
+# elek10 about h0 (equal to T01); G separable Smith G1 G1 of the coat's alpha0; a conductor base
+# takes its index relative to the coat, (eta1 + i kappa1) / eta0.
+#
+# The numbers below were computed outside the project (a scratch script using only `math` and
+# `cmath`: Fresnel in Walter 2007's g-form (eq. 22) for the coat, the complex-amplitude form
+# r_s = (c - w)/(c + w), r_p = (N^2 c - w)/(N^2 c + w), w = sqrt(N^2 - sin^2) for the conductor,
+# GGX D = alpha^2 / (pi (1 + (alpha^2 - 1) cos^2)^2), Lambda = (sqrt(1 + alpha^2 tan^2) - 1) / 2,
+# refraction by Walter 2007 eq. 40), then checked against `expected_internal` above (angle forms)
+# to 1e-12. `_bati2019_by_hand` repeats that derivation here.
+
+def _fresnel_g(c: float, eta: float) -> float:
+    """Unpolarised dielectric Fresnel, Walter 2007 eq. 22 (g-form); 1 under total reflection."""
+    g2 = eta * eta - 1.0 + c * c
+    if g2 <= 0.0:
+        return 1.0
+    g = math.sqrt(g2)
+    return 0.5 * ((g - c) / (g + c)) ** 2 * (1.0 + ((c * (g + c) - 1.0) / (c * (g - c) + 1.0)) ** 2)
+
+
+def _fresnel_complex(c: float, n: float, k: float) -> float:
+    """Unpolarised conductor Fresnel from the complex amplitudes r_s, r_p of N = n + i k."""
+    big_n = complex(n, k)
+    w = cmath.sqrt(big_n * big_n - (1.0 - c * c))
+    rs = (c - w) / (c + w)
+    rp = (big_n * big_n * c - w) / (big_n * big_n * c + w)
+    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+
+
+def _g1_cos(c: float, alpha: float) -> float:
+    """Smith G1 = 1 / (1 + Lambda), Lambda = (sqrt(1 + alpha^2 tan^2) - 1) / 2, from the cosine."""
+    return 1.0 / (1.0 + 0.5 * (math.sqrt(1.0 + alpha * alpha * (1.0 - c * c) / (c * c)) - 1.0))
+
+
+def _eq1(l: np.ndarray, v: np.ndarray, alpha: float, fresnel) -> float:
+    """Bati 2019 eq. 1 with GGX D (cosine form) and separable Smith G = G1(l) G1(v)."""
+    h = (l + v) / np.linalg.norm(l + v)
+    d = alpha * alpha / (math.pi * (1.0 + (alpha * alpha - 1.0) * h[2] ** 2) ** 2)
+    return fresnel(float(l @ h)) * d * _g1_cos(l[2], alpha) * _g1_cos(v[2], alpha) / (4.0 * l[2] * v[2])
+
+
+def _inside(w: np.ndarray, m: np.ndarray, eta: float) -> np.ndarray:
+    """w refracted through a facet m into index eta (Walter 2007 eq. 40), flipped to point up."""
+    c = float(w @ m)
+    return w / eta - (c / eta - math.sqrt(1.0 - (1.0 - c * c) / eta ** 2)) * m
+
+
+def _bati2019_by_hand(name: str, stack: Stack, l: np.ndarray, v: np.ndarray) -> tuple[float, np.ndarray]:
+    """(top, internal RGB) of ww09 / elek10 / ww-bati19 from Bati 2019 eq. 1, 2, 5 and table 2."""
+    cb = coated_base(stack)
+    eta, a0, tau = cb.eta0, cb.alpha0, np.asarray(cb.tau)
+    n = np.array([0.0, 0.0, 1.0])
+    h0 = (l + v) / np.linalg.norm(l + v)
+
+    def f_r1(lb, vb, alpha1):
+        if cb.base == "lambertian":
+            return np.asarray(cb.rho) / math.pi
+        return np.array([_eq1(lb, vb, alpha1, lambda c, i=i: _fresnel_complex(c, cb.eta1[i] / eta, cb.kappa1[i] / eta))
+                         for i in range(3)])
+
+    top = _eq1(l, v, a0, lambda c: _fresnel_g(c, eta))                     # f_r0, eq. 1
+    if name == "ww09":                                                     # eq. 2, table 2 row 1
+        t01 = 1.0 - _fresnel_g(float(l @ h0), eta)
+        t10 = 1.0 - _fresnel_g(float(v @ h0), eta)
+        l1, v1 = _inside(l, h0, eta), _inside(v, h0, eta)
+        g = _g1_cos(l1[2], a0) * _g1_cos(v1[2], a0)
+        x = (1.0 - g) + t10 * g
+        fr1 = f_r1(l, v, cb.alpha1)                                        # at (l0, v0): the bug
+    elif name == "elek10":                                                 # eq. 2, table 2 row 2
+        t01 = 1.0 - _fresnel_g(float(l @ h0), eta)
+        t10 = 1.0 - _fresnel_g(float(v @ h0), eta)
+        l1, v1 = _inside(l, n, eta), _inside(v, n, eta)
+        g = _g1_cos(l[2], a0) * _g1_cos(v[2], a0)
+        x = (1.0 - g) + t10 * g
+        fr1 = f_r1(l1, v1, max(a0, cb.alpha1) if cb.alpha1 is not None else None)
+    else:                                                                  # eq. 5
+        t01 = 1.0 - _fresnel_g(l[2], eta)
+        t10 = 1.0 - _fresnel_g(v[2], eta)
+        l1, v1 = _inside(l, n, eta), _inside(v, n, eta)
+        x = t10 / eta ** 2
+        fr1 = f_r1(l1, v1, max(a0, cb.alpha1) if cb.alpha1 is not None else None)
+    a = np.exp(-tau * (1.0 / l1[2] + 1.0 / v1[2]))                         # eq. 2, a
+    return top, t01 * fr1 * a * x
+
+
+def _database_stack(name: str) -> Stack:
+    """The Bati 2019 database materials used by the pins (configs/bati2019.toml)."""
+    coat = {"plastic/P1-a0_0.2": 0.2, "metal/M2-a0_0.05-a1_0.2": 0.05, "metal/M4-a0_0.2-a1_0.001": 0.2}[name]
+    if name.startswith("plastic/P1"):  # tau C, rho C
+        return plastic_stack(alpha0=coat, tau=(0.05, 0.1, 0.4), rho=(0.2, 0.5, 0.8))
+    if name.startswith("metal/M2"):    # tau C, eta1 = 1.45
+        return metal_stack(alpha0=coat, tau=(0.05, 0.1, 0.4), eta1=1.45, alpha1=0.2)
+    return metal_stack(alpha0=coat, tau=(0.2, 0.2, 0.2), eta1=1.45, alpha1=0.001)  # M4: tau A
+
+
+#: (theta_l, phi_l), (theta_v, phi_v) in degrees
+PIN_POINTS = {
+    "N0": ((0.0, 0.0), (0.0, 0.0)),        # normal incidence, specular view
+    "N1": ((0.0, 0.0), (30.0, 90.0)),      # normal incidence, off-specular view
+    "O1": ((60.0, 0.0), (40.0, 135.0)),    # oblique, off-specular, out of the plane of incidence
+    "O2": ((60.0, 0.0), (55.0, 180.0)),    # oblique, in the plane, near the base lobe
+}
+
+#: (material, point) -> (top, {model: internal RGB}); 15 significant digits
+PINNED_WW = {
+    ("plastic/P1-a0_0.2", "N0"): (0.0795774715459475, {
+        "ww09": (0.0530876059637504, 0.120089130774876, 0.105450099740271),
+        "elek10": (0.0530876059637504, 0.120089130774876, 0.105450099740271),
+        "ww-bati19": (0.0235944915394446, 0.0533729470110559, 0.0468667109956758),
+    }),
+    ("plastic/P1-a0_0.2", "N1"): (0.0134952655629987, {
+        "ww09": (0.0528011127737152, 0.118805405003399, 0.101035704208568),
+        "elek10": (0.0529252458550765, 0.119359289713251, 0.10291915358345),
+        "ww-bati19": (0.0234857285045023, 0.052966024576847, 0.0456706673709714),
+    }),
+    ("plastic/P1-a0_0.2", "O1"): (0.00820422343071611, {
+        "ww09": (0.0505344442483724, 0.111181988612918, 0.0826410887975619),
+        "elek10": (0.051164268853484, 0.11383572386232, 0.0904959848897713),
+        "ww-bati19": (0.0218860994171913, 0.0486945289262943, 0.038710689442781),
+    }),
+    ("metal/M2-a0_0.05-a1_0.2", "N0"): (1.27323954473522, {
+        "ww09": (0.1714130539122, 0.000448474794909965, 0.000246128185941471),
+        "elek10": (0.1714130539122, 0.000448474794909965, 0.000246128185941471),
+        "ww-bati19": (0.0761835795165331, 0.000199322131071095, 0.000109390304862876),
+    }),
+    ("metal/M2-a0_0.05-a1_0.2", "N1"): (0.00191571152673663, {
+        "ww09": (0.0289503525811609, 7.5500122410111e-05, 4.01297400743279e-05),
+        "elek10": (0.0636920690528038, 0.000166190635906508, 8.95625699834733e-05),
+        "ww-bati19": (0.0282671988984588, 7.37571228269562e-05, 3.97487947436766e-05),
+    }),
+    ("metal/M2-a0_0.05-a1_0.2", "O1"): (0.000711198661527079, {
+        "ww09": (0.0178949066515945, 7.44371850355176e-05, 3.45805225238503e-05),
+        "elek10": (0.0444452589470784, 0.000118939932090314, 5.90960483012213e-05),
+        "ww-bati19": (0.0190451576385968, 5.0966735481984e-05, 2.53231409238729e-05),
+    }),
+    # frosted metal: Elek's rule makes the base alpha1 = 0.2 for elek10 and ww-bati19; ww09 keeps
+    # alpha1 = 0.001, evaluated at (l0, v0) whose half vector is 2.5 deg off the normal
+    ("metal/M4-a0_0.2-a1_0.001", "O2"): (0.473243318500887, {
+        "ww09": (0.00824637891263185, 0.000105491980320336, 0.000105491980320336),
+        "elek10": (0.169819561846928, 0.000549744165115674, 0.000549744165115674),
+        "ww-bati19": (0.0749764111585014, 0.00024271552763075, 0.00024271552763075),
+    }),
+}
+
+
+@pytest.mark.parametrize("material, point", list(PINNED_WW))
+@pytest.mark.parametrize("name", list(MODELS))
+def test_pinned_values_from_bati2019_equations(name, material, point):
+    """Each variant at database materials and (l, v) points against numbers computed from Bati
+    2019 eq. 1, 2, 5 and table 2 (see the block comment above), exact to 1e-10 relative."""
+    stack = _database_stack(material)
+    (tl, pl), (tv, pv) = PIN_POINTS[point]
+    l, v = direction(tl * DEG, pl * DEG), direction(tv * DEG, pv * DEG)
+    want_top, want = PINNED_WW[(material, point)]
+    want = np.array(want[name])
+    # the derivation, repeated here, gives the pinned numbers ...
+    top, internal = _bati2019_by_hand(name, stack, l, v)
+    assert top == pytest.approx(want_top, rel=1e-12)
+    np.testing.assert_allclose(internal, want, rtol=1e-12, atol=0)
+    # ... and the model gives them too
+    got = MODELS[name].evaluate(stack, l, v[None])
+    np.testing.assert_allclose(got.top[0], [want_top] * 3, rtol=1e-10, atol=0)
+    np.testing.assert_allclose(got.internal[0], want, rtol=1e-10, atol=0)
+
+
+def test_pinned_normal_incidence_closed_forms():
+    """At l = v = n every normal coincides (h0 = n, l1 = v1 = n, G = 1), so the three variants
+    reduce to arithmetic (Bati 2019 eq. 1, 2, 5):
+      T01 = T10 = 1 - ((1.5 - 1) / (1.5 + 1))^2 = 0.96,  a = exp(-2 tau),  t = T10 (G = 1);
+      top = F(0) D(n) / 4 = 0.04 / (4 pi alpha0^2);
+      ww09 = elek10 = 0.96 * 0.96 * f_r1 * exp(-2 tau),  ww-bati19 = that / 1.5^2;
+      f_r1 = rho / pi (P1) or F_c(0) / (4 pi alpha1^2) (M2, alpha1 = 0.2), with
+      F_c(0) = ((n - 1)^2 + k^2) / ((n + 1)^2 + k^2), n + i k = (1.45 + i kappa) / 1.5."""
+    n = np.array([0.0, 0.0, 1.0])
+    tau = np.array([0.05, 0.1, 0.4])
+    # P1: red 0.9216 * 0.2 * e^-0.1 / pi = 0.053087606, ww-bati19 0.4096 * 0.2 * e^-0.1 / pi = 0.023594492
+    plastic = _database_stack("plastic/P1-a0_0.2")
+    fr1 = np.array([0.2, 0.5, 0.8]) / math.pi
+    want = {"ww09": 0.9216 * fr1 * np.exp(-2 * tau), "elek10": 0.9216 * fr1 * np.exp(-2 * tau),
+            "ww-bati19": 0.9216 * fr1 * np.exp(-2 * tau) / 2.25}
+    assert want["ww09"][0] == pytest.approx(0.053087606, abs=5e-10)
+    assert want["ww-bati19"][0] == pytest.approx(0.023594492, abs=5e-10)
+    for name, m in MODELS.items():
+        got = m.evaluate(plastic, n, n[None])
+        np.testing.assert_allclose(got.top[0], [1.0 / (4.0 * math.pi)] * 3, rtol=1e-12)  # 0.04 / (4 pi 0.04)
+        np.testing.assert_allclose(got.internal[0], want[name], rtol=1e-12)
+    # M2 (alpha0 = 0.05, alpha1 = 0.2): red F_c(0) = 0.103323886, 0.9216 e^-0.1 0.103324 / (0.16 pi) = 0.17141305
+    metal = _database_stack("metal/M2-a0_0.05-a1_0.2")
+    nn, kk = 1.45 / 1.5, np.array([1.0, 0.01, 0.01]) / 1.5
+    f0 = ((nn - 1.0) ** 2 + kk ** 2) / ((nn + 1.0) ** 2 + kk ** 2)
+    assert f0[0] == pytest.approx(0.103323886, abs=5e-10)
+    fr1 = f0 / (4.0 * math.pi * 0.2 ** 2)
+    want = {"ww09": 0.9216 * fr1 * np.exp(-2 * tau), "elek10": 0.9216 * fr1 * np.exp(-2 * tau),
+            "ww-bati19": 0.9216 * fr1 * np.exp(-2 * tau) / 2.25}
+    assert want["ww09"][0] == pytest.approx(0.17141305, abs=5e-9)
+    for name, m in MODELS.items():
+        got = m.evaluate(metal, n, n[None])
+        np.testing.assert_allclose(got.top[0], [0.04 / (4.0 * math.pi * 0.05 ** 2)] * 3, rtol=1e-12)
+        np.testing.assert_allclose(got.internal[0], want[name], rtol=1e-11)
