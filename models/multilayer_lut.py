@@ -265,9 +265,11 @@ class MultilayerLUT(Model):
 
 
 class MultilayerLUTArticle(MultilayerLUT):
-    """:class:`MultilayerLUT` exactly as the article writes it: no radiance Jacobian ``1 / eta^2``.
+    """:class:`MultilayerLUT` without the radiance Jacobian ``1 / eta^2``, which the article omits.
 
-    Not registered by default; kept to show the effect of the article's omission.
+    Only that factor differs: the tables' weights, the masking term and the exit transmission are
+    ours (``docs/multilayer-lut.md`` lists where the article reads otherwise). Not registered by
+    default; kept to show the effect of the article's omission.
     """
 
     name = "multilayer-lut-article"
