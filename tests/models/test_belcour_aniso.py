@@ -406,3 +406,186 @@ def test_anisotropic_stacks_need_the_explicit_packing_option():
     np.testing.assert_array_equal(b.cov_r[:, 0], a.var_r)
     np.testing.assert_array_equal(b.cov_r[:, 2], a.var_r)
     assert np.all(b.cov_r[:, 1] == 0.0)
+
+
+# -------------------------------------------------------------------------- against Yamaguchi et al. 2019 (Y19)
+# Hand computations from the paper's equations (/work/shared/papers/anisotropic-belcour-extension.txt):
+# section 3.1 (interface covariance), eqs. 4-5 (scalar Jacobians), eq. 3 (lobe), appendix A.2 / Bati 2021
+# eqs. 2 and 5 (two-layer adding). h(a) = a^1.1 / (1 - a^1.1), h^-1(s) = (s / (1 + s))^(1/1.1) (Y19 eq. 2).
+
+
+def _h(a):
+    return a ** 1.1 / (1.0 - a ** 1.1)
+
+
+def _h_inv(s):
+    return (s / (1.0 + s)) ** (1.0 / 1.1)
+
+
+def _frame_cov(sx, sy, psi_deg):
+    """Y19 section 3.1 with t_x = (cos psi, sin psi), t_y = (-sin psi, cos psi) as the ROWS of
+    [t_x t_y] (the reading under which the principal directions are t_x and t_y, as the prose says)."""
+    c, s = math.cos(math.radians(psi_deg)), math.sin(math.radians(psi_deg))
+    T = np.array([[c, s], [-s, c]])  # rows t_x, t_y
+    return T.T @ np.diag([sx, sy]) @ T
+
+
+def _hand_principal(S):
+    """Closed-form eigen-decomposition of a symmetric 2x2: (l1 >= l2, angle of the l1 axis)."""
+    xx, xy, yy = S[0, 0], S[0, 1], S[1, 1]
+    r = math.sqrt((0.5 * (xx - yy)) ** 2 + xy * xy)
+    return 0.5 * (xx + yy) + r, 0.5 * (xx + yy) - r, 0.5 * math.atan2(2.0 * xy, xx - yy)
+
+
+def test_y19_interface_covariance_of_a_rotated_anisotropic_interface():
+    """Y19 section 3.1: Sigma = [t_x t_y]^T diag(h(a_x), h(a_y)) [t_x t_y], h(s a) for refraction; numbers
+    for a_x = 0.3, a_y = 0.1, psi = 30 deg, eta = 1.5: h(0.3) = 0.3623429648292626, h(0.1) = 0.08628683000848776,
+    xx = h(.3) 3/4 + h(.1) / 4, xy = (h(.3) - h(.1)) sqrt(3) / 4, yy = h(.3) / 4 + h(.1) 3/4."""
+    assert _h(0.3) == pytest.approx(0.3623429648292626, rel=1e-14)
+    assert _h(0.1) == pytest.approx(0.08628683000848776, rel=1e-14)
+    expected_r = (0.29332893112406894, 0.11953581281266648, 0.15530086371368146)
+    np.testing.assert_allclose([_h(0.3) * 0.75 + _h(0.1) * 0.25, (_h(0.3) - _h(0.1)) * math.sqrt(3) / 4,
+                                _h(0.3) * 0.25 + _h(0.1) * 0.75], expected_r, rtol=1e-14)
+    st = Stack("i", (Interface(0.3, (1.5,) * 3, roughness_y=0.1, rotation_deg=30.0),))
+    p = pack_aniso(st)
+    np.testing.assert_allclose(p.cov_r[0], expected_r, rtol=1e-10, atol=0.0)
+    # principal direction of h(a_x) is t_x = (cos 30, sin 30) (Y19 section 3.1 prose, figure 2); the literal
+    # column reading [t_x t_y]^T D [t_x t_y] with t_x, t_y as COLUMNS flips the sign of xy (axis at -30 deg)
+    l1, l2, ang = _hand_principal(_frame_cov(_h(0.3), _h(0.1), 30.0))
+    assert ang == pytest.approx(math.radians(30.0), abs=1e-12)
+    assert (l1, l2) == pytest.approx((_h(0.3), _h(0.1)), rel=1e-12)
+    Tc = np.array([[math.cos(math.radians(30)), -math.sin(math.radians(30))],
+                   [math.sin(math.radians(30)), math.cos(math.radians(30))]])  # columns t_x, t_y
+    literal_columns = Tc.T @ np.diag([_h(0.3), _h(0.1)]) @ Tc
+    assert literal_columns[0, 1] == pytest.approx(-expected_r[1], rel=1e-12)
+    # refraction: the transmission scale is |J_t| / |J_r| of Y19 eqs. 4-5 at normal incidence,
+    # J_r = 2, J_t = (1 - eta) / eta: down (eta = 1.5) 1/6, up (eta = 1/1.5) 1/4 (= Bati 2021 eq. 6)
+    s_down = abs((1.0 - 1.5) / 1.5) / 2.0
+    s_up = abs((1.0 - 1.0 / 1.5) / (1.0 / 1.5)) / 2.0
+    assert (s_down, s_up) == pytest.approx((1.0 / 6.0, 0.25), rel=1e-15)
+    for cov, s in ((p.cov_t_down[0], s_down), (p.cov_t_up[0], s_up)):
+        S = _frame_cov(_h(s * 0.3), _h(s * 0.1), 30.0)
+        np.testing.assert_allclose(cov, (S[0, 0], S[0, 1], S[1, 1]), rtol=1e-10, atol=0.0)
+    assert _h(0.3 / 6) == pytest.approx(0.038482767697216744, rel=1e-13)
+    assert _h(0.3 / 4) == pytest.approx(0.06144174680201861, rel=1e-13)
+
+
+def test_y19_two_interface_lobe_roughness_at_normal_incidence_numbers():
+    """Y19 A.2 / Bati 2021 eq. 5 at normal incidence, inter-reflection suppressed (tau = 30, m ~ 1e-27):
+    Sigma_1 = h(a0/4) I + eta (h(a0/6) I + Sigma_base) with a0 = 0.1 (isotropic coat, eta = 1.5) and the
+    base a_x = 0.3, a_y = 0.1, psi = 30 deg of the test above. a = h(.025) + 1.5 h(.1/6) = 0.03437810879151765;
+    eigenvalues a + 1.5 h(0.3) = 0.5778925560354116 and a + 1.5 h(0.1) = 0.16380835380424927 (Y19 eqs. 4-5: the
+    scalar Jacobian keeps the base's principal axes, t_x at 30 deg), lobe roughnesses h^-1 = 0.40126102240945344,
+    0.16821619148101424."""
+    st = coated_metal(0.1, 0.3, tau=(30.0, 30.0, 30.0), alpha1_y=0.1, rot1=30.0)
+    lobe = aniso_statistics(st, light(0.0)).lobes[1]
+    a = _h(0.025) + 1.5 * _h(0.1 / 6.0)
+    assert a == pytest.approx(0.03437810879151765, rel=1e-13)
+    base = (0.29332893112406894, 0.11953581281266648, 0.15530086371368146)
+    expected = np.array([[a + 1.5 * base[0], 1.5 * base[1]], [1.5 * base[1], a + 1.5 * base[2]]])
+    for ch in range(3):
+        np.testing.assert_allclose(lobe.covariance[ch], expected, rtol=1e-10, atol=0.0)
+        np.testing.assert_allclose(np.linalg.eigvalsh(lobe.covariance[ch])[::-1],
+                                   (0.5778925560354116, 0.16380835380424927), rtol=1e-10)
+        np.testing.assert_allclose(lobe.alpha[ch], (0.40126102240945344, 0.16821619148101424), rtol=1e-10)
+        assert abs(abs(np.dot(lobe.axis[ch], (math.cos(math.radians(30)), math.sin(math.radians(30))))) - 1.0) < 1e-10
+    assert _h_inv(0.5778925560354116) == pytest.approx(0.40126102240945344, rel=1e-13)
+
+
+# (coat a_x, a_y, psi), (base a_x, a_y, psi): tangent gaps pi/2, pi/3, pi/6 as Y19 figure 7, an isotropic coat,
+# and the roughnesses of the anisotropic test stacks above
+Y19_TWO_LAYER = [
+    ((0.1, 0.1, 0.0), (0.3, 0.1, 30.0)),
+    ((0.2, 0.05, 0.0), (0.4, 0.1, 90.0)),
+    ((0.2, 0.05, 10.0), (0.4, 0.1, 70.0)),
+    ((0.02, 0.2, 100.0), (0.3, 0.0, 250.0)),
+    ((0.3, 0.1, 45.0), (0.05, 0.4, 75.0)),
+]
+
+
+@pytest.mark.parametrize("coat,base", Y19_TWO_LAYER)
+@pytest.mark.parametrize("th,ph", [(0.0, 0.0), (40.0, 20.0), (70.0, 135.0)])
+def test_y19_two_interface_lobe_covariance_by_hand(coat, base, th, ph):
+    """Y19 A.2 in matrix form as Bati 2021 eqs. 2 and 5 (the adding of Belcour 2018 section 6):
+    Sigma_1 = Sigma^T_10 + J01 (Sigma^T_01 + Sigma^R_12 + m (Sigma^R_12 + Sigma^R_10)), J01 = eta c_t / c_i (scalar,
+    Y19 eqs. 4-5), Sigma^{R,T} of each interface from Y19 section 3.1 with the normal-incidence scales 1/6 (down)
+    and 1/4 (up); m = t^2 R10 R12 / (1 - t^2 R10 R12) with R10 = E_0 and R12 recovered from the lobe energy
+    E_1 = t^2 T01 R12 T10 / (1 - t^2 R10 R12) (T = 1 - E_0; Bati eq. 2), t = exp(-tau / c_t) per channel.
+    Then the lobe's alphas and axis by the closed-form 2x2 eigen-decomposition and h^-1."""
+    tau = (0.1, 0.4, 1.0)
+    (ax0, ay0, p0), (ax1, ay1, p1) = coat, base
+    st = coated_metal(ax0, ax1, tau=tau, alpha0_y=ay0, rot0=p0, alpha1_y=ay1, rot1=p1)
+    s = aniso_statistics(st, light(th, ph))
+    n = 1.5
+    ci = math.cos(math.radians(th))
+    ct = math.sqrt(1.0 - (1.0 - ci * ci) / (n * n))
+    J = n * ct / ci
+    S_r0 = _frame_cov(_h(ax0), _h(ay0), p0)
+    S_d0 = _frame_cov(_h(ax0 / 6.0), _h(ay0 / 6.0), p0)
+    S_u0 = _frame_cov(_h(ax0 / 4.0), _h(ay0 / 4.0), p0)
+    S_b = _frame_cov(_h(ax1), _h(ay1), p1)
+    E0, E1 = s.lobes[0].energy, s.lobes[1].energy
+    for ch in range(3):
+        t2 = math.exp(-2.0 * tau[ch] / ct)
+        R12 = E1[ch] / (t2 * ((1.0 - E0[ch]) ** 2 + E0[ch] * E1[ch]))
+        m = t2 * E0[ch] * R12 / (1.0 - t2 * E0[ch] * R12)
+        S1 = S_u0 + J * (S_d0 + S_b + m * (S_b + S_r0))
+        np.testing.assert_allclose(s.lobes[1].covariance[ch], S1, rtol=1e-10, atol=1e-14)
+        l1, l2, ang = _hand_principal(S1)
+        np.testing.assert_allclose(s.lobes[1].alpha[ch], (_h_inv(l1), _h_inv(l2)), rtol=1e-10)
+        assert abs(abs(np.dot(s.lobes[1].axis[ch], (math.cos(ang), math.sin(ang)))) - 1.0) < 1e-10
+        # the coat's own lobe: Sigma_0 = Sigma^R_01 (Y19 A.2, "Sigma_R = r12 Sigma^R_12" normalised)
+        np.testing.assert_allclose(s.lobes[0].covariance[ch], S_r0, rtol=1e-12, atol=1e-15)
+    if ax0 == ay0:
+        # isotropic coat: every added term is a multiple of I or of S_b, so the lobe keeps the base's
+        # tangent axes (Y19 eqs. 4-5, section 3.1: "the directions of the orthogonal basis vectors of P are preserved")
+        t_big = p1 if ax1 >= ay1 else p1 + 90.0
+        for ch in range(3):
+            d = np.dot(s.lobes[1].axis[ch], (math.cos(math.radians(t_big)), math.sin(math.radians(t_big))))
+            assert abs(abs(d) - 1.0) < 1e-10
+
+
+def _hand_ggx_lobe(l, v, a1, a2, ang):
+    """Y19 eq. 3 with an anisotropic GGX: D(h') G1(l') G1(v') / (4 l_z v_z), primes in the frame rotated by
+    ``ang``; D = 1 / (pi a1 a2 (x^2/a1^2 + y^2/a2^2 + z^2)^2), Lambda = (sqrt(1 + (a1^2 x^2 + a2^2 y^2) / z^2) - 1) / 2
+    (Heitz 2014, eqs. 85-86)."""
+    c, s = math.cos(ang), math.sin(ang)
+
+    def prime(w):
+        return c * w[..., 0] + s * w[..., 1], -s * w[..., 0] + c * w[..., 1], w[..., 2]
+
+    h = (l + v) / np.linalg.norm(l + v, axis=-1, keepdims=True)
+    hx, hy, hz = prime(h)
+    D = 1.0 / (math.pi * a1 * a2 * ((hx / a1) ** 2 + (hy / a2) ** 2 + hz ** 2) ** 2)
+
+    def lam(w):
+        x, y, z = prime(w)
+        return 0.5 * (np.sqrt(1.0 + (a1 * a1 * x * x + a2 * a2 * y * y) / (z * z)) - 1.0)
+
+    return D / ((1.0 + lam(l)) * (1.0 + lam(v))) / (4.0 * l[2] * v[..., 2])
+
+
+def test_y19_internal_lobe_evaluation_by_hand():
+    """Y19 eq. 3: internal = E_1 D(h') G(l', v') / (4 l_z v_z) for the two-interface stack, lobe alphas and axis
+    from the hand covariance of the test above (Y19 A.2 / Bati eq. 5) and a hand-written anisotropic GGX."""
+    tau = (0.1, 0.4, 1.0)
+    st = coated_metal(0.2, 0.4, tau=tau, alpha0_y=0.05, rot0=10.0, alpha1_y=0.1, rot1=70.0)
+    th, ph = 40.0, 20.0
+    l = light(th, ph)
+    v = hemisphere(12, 24, theta_max=85.0).reshape(-1, 3)
+    val = BelcourAniso().evaluate(st, l, v)
+    s = aniso_statistics(st, l)
+    n, ci = 1.5, math.cos(math.radians(th))
+    ct = math.sqrt(1.0 - (1.0 - ci * ci) / (n * n))
+    S_r0 = _frame_cov(_h(0.2), _h(0.05), 10.0)
+    S_b = _frame_cov(_h(0.4), _h(0.1), 70.0)
+    E0, E1 = s.lobes[0].energy, s.lobes[1].energy
+    for ch in range(3):
+        t2 = math.exp(-2.0 * tau[ch] / ct)
+        R12 = E1[ch] / (t2 * ((1.0 - E0[ch]) ** 2 + E0[ch] * E1[ch]))
+        m = t2 * E0[ch] * R12 / (1.0 - t2 * E0[ch] * R12)
+        S1 = (_frame_cov(_h(0.2 / 4), _h(0.05 / 4), 10.0)
+              + n * ct / ci * (_frame_cov(_h(0.2 / 6), _h(0.05 / 6), 10.0) + S_b + m * (S_b + S_r0)))
+        l1, l2, ang = _hand_principal(S1)
+        expected = E1[ch] * _hand_ggx_lobe(l, v, _h_inv(l1), _h_inv(l2), ang)
+        np.testing.assert_allclose(val.internal[:, ch], expected, rtol=1e-10, atol=1e-300)
