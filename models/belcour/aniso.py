@@ -152,11 +152,13 @@ class BelcourAniso(BelcourModel):
 
     def __init__(self, incident: str = "light", use_tir: bool = False, transmission_scale: str = "normal",
                  per_channel: bool = True, height_correlated: bool = False, fgd_source: str = "material",
+                 transmitted_jacobian: str = "reference",
                  cache_dir: str | os.PathLike | None = None, direction_grid: int = DIRECTION_GRID,
                  azimuth_grid: int = AZIMUTH_GRID) -> None:
         super().__init__(incident=incident, use_tir=use_tir, transmission_scale=transmission_scale,
                          per_channel=per_channel, height_correlated=height_correlated, fgd_source=fgd_source,
-                         cache_dir=cache_dir, direction_grid=direction_grid, azimuth_grid=azimuth_grid)
+                         transmitted_jacobian=transmitted_jacobian, cache_dir=cache_dir,
+                         direction_grid=direction_grid, azimuth_grid=azimuth_grid)
 
     def statistics(self, stack: Stack, omega_i) -> AnisoStatistics:
         """:func:`aniso_statistics` with this model's options."""
