@@ -7,11 +7,14 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench database report validate-inverse tables clean
+.PHONY: setup test test-slow demo bench database report appendix-e validate-inverse tables clean
 
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
 DB_OUT ?= results/bati2019
+# Bati 2019 appendix E (configs/appendix-e.toml): demo ~1 min, quick ~5 min, full < 1 h on 2 cores
+APPE_QUALITY ?= full
+APPE_OUT ?= results/appendix-e-$(APPE_QUALITY)
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -47,6 +50,12 @@ database: $(STAMP)
 
 report: $(STAMP)
 	$(GONIO) report $(DB_OUT) --out $(DB_OUT)/report
+
+# resumable: rerunning after an interruption traces only what is missing; the report reuses its cache
+appendix-e: $(STAMP)
+	$(GONIO) database simulate configs/appendix-e.toml --out $(APPE_OUT) --quality $(APPE_QUALITY)
+	$(GONIO) report $(APPE_OUT) --out $(APPE_OUT)-report --model belcour-fwd --incidents 30,80
+	@echo "appendix E: $(abspath $(APPE_OUT))-report/appendix-e.md"
 
 validate-inverse: $(STAMP)
 	$(GONIO) validate-inverse configs/inverse/cases.toml --simulate --json results/inverse/validation.json --report results/inverse/report

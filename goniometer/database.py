@@ -37,7 +37,7 @@ from goniometer.stack import Stack, StackError, stack_from_dict
 MANIFEST = "database.json"
 RESULTS_FORMAT = "goniometer.database-results"
 RESULTS_VERSION = 1
-PARAMS_REPORTED = ("alpha0", "alpha1", "tau", "rho", "eta1")
+PARAMS_REPORTED = ("alpha0", "alpha1", "tau", "rho", "eta1", "d", "g")
 
 
 class DatabaseError(ValueError):

@@ -43,7 +43,7 @@ def cmd_database_list(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     for r in rows:
-        params = " ".join(f"{k}={r[k]}" for k in ("alpha0", "alpha1", "tau_name", "rho_name", "eta1") if k in r)
+        params = " ".join(f"{k}={r[k]}" for k in ("alpha0", "alpha1", "tau_name", "rho_name", "eta1", "d", "g") if k in r)
         status = f"  [{r['status']}]" if "status" in r else ""
         print(f"{r['name']:32s} {r['paper_name']:4s} {r['parametrization']:8s} {params}{status}")
     counts = {}

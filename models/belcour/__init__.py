@@ -19,7 +19,8 @@ from models.belcour.covariance import (blended_alpha, interface_covariance, look
                                        roughness_to_variance, variance_to_roughness)
 from models.belcour.model import BelcourBati19, BelcourBTDF, BelcourForward, BelcourModel, BelcourSymmetric
 from models.belcour.options import DIRECTION_GRID, BelcourOptions
-from models.belcour.packing import BelcourPackedStack, pack_stack, unsupported_reason
+from models.belcour.packing import (G_MIN, BelcourPackedStack, forward_scattering_variance, pack_stack,
+                                    unsupported_reason)
 from models.belcour.statistics import BelcourLobe, StackStatistics, lobe_statistics, stack_statistics
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "AnisoLobe", "AnisoStatistics", "aniso_statistics",
     # stacks and the kernel
     "BelcourPackedStack", "pack_stack", "pack_aniso", "unsupported_reason", "isotropic_proxy",
+    "G_MIN", "forward_scattering_variance",
     "AddingDoubling", "run_adding_doubling",
     # roughness, variance and covariance
     "roughness_to_variance", "variance_to_roughness", "interface_covariance", "principal", "blended_alpha",

@@ -2,7 +2,9 @@
 eqs. 2, 4, 5): :func:`adding_doubling` (the numba kernel) and :func:`run_adding_doubling`.
 
 Per interface ``R = FGD(c, a~)``, ``T = 1 - R`` (0 for a conductor or total internal reflection at
-the mean cosine, after which the loop stops); per medium ``T = exp(-tau / c)``, ``R = 0``. Lobe
+the mean cosine, after which the loop stops); per medium ``T = exp(-tau / c)``, ``R = 0``, and for a
+scattering medium Belcour's forward-scattering operator ``T = (1 + tau_s / c) exp(-tau / c)``,
+``R = 0``, with ``sigma_HG(g)`` added to the variance transmitted down and up (``J = 1``). Lobe
 energy ``E_k = T0i R Ti0 / (1 - Ri0 R)``, lobe (co)variance
 ``v_k = vTi0 + J0i (vT0i + vr + m (vr + vRi0))``, ``m = Ri0 R / (1 - Ri0 R)``. Cosines are in the
 medium of each entry, clamped to ``>= COS_MIN``. Equations, choices and the covariance form:
@@ -100,7 +102,7 @@ def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, c
     """:func:`adding_doubling` for ``nq`` (a constant where inlined). Every update of a (co)variance is
     the scalar one of §6 applied to each entry, in the same floating-point order."""
     (kind, alpha, alpha_y, rot, iso, cov_r, cov_t_down, cov_t_up, n_mean, tau, eta_up, achromatic, fgd_split,
-     fgd_lower, fgd_upper, tir_split, tir_lower, tir_upper) = stack
+     fgd_lower, fgd_upper, tir_split, tir_lower, tir_upper, tau_s, var_s) = stack
     n_e = kind.shape[0]
     for k in range(E.shape[0]):
         for ch in range(3):
@@ -127,10 +129,14 @@ def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, c
         jd = 1.0
         ju = 1.0
         is_cond = kind[e] == KIND_CONDUCTOR
-        if kind[e] == KIND_MEDIUM:
+        is_med = kind[e] == KIND_MEDIUM
+        if is_med:
             c2 = c
             for ch in range(3):
                 t = math.exp(-tau[e, ch] / c)
+                if tau_s[e, ch] > 0.0:
+                    # Belcour's forward scattering: unscattered + once-scattered energy, all forward
+                    t = (1.0 + tau_s[e, ch] / c) * t
                 wk[_W_RDN, ch] = 0.0
                 wk[_W_RUP, ch] = 0.0
                 wk[_W_TDN, ch] = t
@@ -237,6 +243,10 @@ def _adding_doubling(nq, c_in, dx, dy, stack, per_channel, use_tir, angular_s, c
                 vr = _pick(q, r0, r1, r2)
                 vtd = _pick(q, d0, d1, d2)
                 vtu = _pick(q, u0, u1, u2)
+                if is_med and q != 1:
+                    # sigma_HG(g) on the transmitted variance, an isotropic (co)variance (xy = 0)
+                    vtd = var_s[e, ch]
+                    vtu = var_s[e, ch]
                 vri = cs[_C_RI, ch, q]
                 new_vR0 = (wR0 * cs[_C_R0, ch, q] + wE * wc[ch, q]) / wsum_r if wsum_r > 0.0 else 0.0
                 if consistent_j:

@@ -34,6 +34,8 @@ class BelcourModel(Model):
 
     options_type: type = BelcourOptions
     top_exact: bool = False
+    #: scattering media with g >= G_MIN (Belcour's forward-scattering operator; ``unsupported_reason``)
+    scattering = True
 
     def __init__(self, **options) -> None:
         if options.get("cache_dir") is not None:

@@ -15,7 +15,6 @@ import numpy as np
 
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models._jit import njit
-from models.base import scattering_reason
 from models.belcour.covariance import lobe_covariance, transmission_roughness
 from models.belcour.options import BelcourOptions
 from models.tables import belcour as tables
@@ -37,7 +36,10 @@ class BelcourPackedStack:
       (:func:`transmission_roughness`): one column (scalar variances) or three, ``(xx, xy, yy)``
       (:func:`lobe_covariance`; zeros for media);
     * ``n_mean``: mean relative index (Snell, s and J; 1 for conductors and media);
-    * ``tau``: RGB optical depth of media; ``eta_up``: TIR index ratio across the interface above
+    * ``tau``: RGB (extinction) optical depth of media; ``tau_s``: their RGB scattering optical
+      depth ``scattering_albedo * tau`` (sigma_s d); ``var_s``: the forward-scattering variance
+      ``sigma_HG(g)`` of each medium per channel (0 in a channel that does not scatter,
+      :func:`forward_scattering_variance`); ``eta_up``: TIR index ratio across the interface above
       the entry's upper medium (1 = none);
     * ``achromatic``: the three channels share one FGD slice;
     * FGD slices per entry and channel (``fgd_split``, ``fgd_lower``, ``fgd_upper``: stacked
@@ -57,6 +59,8 @@ class BelcourPackedStack:
     cov_t_up: np.ndarray
     n_mean: np.ndarray
     tau: np.ndarray
+    tau_s: np.ndarray
+    var_s: np.ndarray
     eta_up: np.ndarray
     achromatic: np.ndarray
     fgd_split: np.ndarray
@@ -99,19 +103,44 @@ class BelcourPackedStack:
         """The ``stack`` argument of :func:`adding_doubling`: the arrays above, in order."""
         return (self.kind, self.alpha, self.alpha_y, self.rot, self.iso, self.cov_r, self.cov_t_down,
                 self.cov_t_up, self.n_mean, self.tau, self.eta_up, self.achromatic, self.fgd_split, self.fgd_lower,
-                self.fgd_upper, self.tir_split, self.tir_lower, self.tir_upper)
+                self.fgd_upper, self.tir_split, self.tir_lower, self.tir_upper, self.tau_s, self.var_s)
+
+
+#: smallest Henyey-Greenstein asymmetry of a scattering medium the Belcour models accept: sigma_HG(g)
+#: diverges at g = 0 (and is undefined below); at g = 0.1 its lobe roughness is already 0.85
+#: (``docs/belcour.md``, "Scattering media")
+G_MIN = 0.1
+
+
+def forward_scattering_variance(g: float) -> float:
+    """Belcour 2018's forward-scattering variance of a Henyey-Greenstein medium,
+    ``sigma_HG(g) = ((1 - g) / g)^0.8 / (1 + g)`` (reference code; defined for 0 < g < 1)."""
+    if not 0.0 < g < 1.0:
+        raise ValueError(f"sigma_HG(g) is defined for 0 < g < 1, got g = {g!r}")
+    return ((1.0 - g) / g) ** 0.8 / (1.0 + g)
+
+
+def forward_scattering_reason(stack: Stack) -> str | None:
+    """Why Belcour's forward-scattering operator cannot represent a scattering medium of ``stack``
+    (None if every scattering medium has ``g >= G_MIN``)."""
+    for i, x in enumerate(stack.layers):
+        if isinstance(x, Medium) and x.scatters and not x.g >= G_MIN:
+            return (f"Belcour's forward-scattering operator needs g >= {G_MIN} (sigma_HG(g) diverges at g = 0; "
+                    f"layers[{i}] is a scattering medium with g = {x.g})")
+    return None
 
 
 def unsupported_reason(stack: Stack, anisotropic: bool = False) -> str | None:
     """Why Belcour's model cannot represent ``stack`` (None if it can); anisotropic interfaces are
-    refused unless ``anisotropic`` (the covariance form of ``belcour-aniso``)."""
+    refused unless ``anisotropic`` (the covariance form of ``belcour-aniso``); scattering media need
+    ``g >= G_MIN`` (:func:`forward_scattering_reason`)."""
     if any(isinstance(x, Lambertian) for x in stack.layers):
         return "Belcour's model cannot represent a Lambertian base (it only sums GGX lobes)"
     if not stack.interfaces:
         return "the stack has no interface"
     if not anisotropic and any(getattr(x, "is_anisotropic", False) for x in stack.interfaces):
         return "Belcour's model is isotropic: it cannot represent an anisotropic interface"
-    return scattering_reason(stack)
+    return forward_scattering_reason(stack)
 
 
 def _pad(a: np.ndarray, rows: int) -> np.ndarray:
@@ -159,6 +188,8 @@ def pack_stack(stack: Stack, options: BelcourOptions = BelcourOptions(),
     iso = np.ones(ne, dtype=np.bool_)
     n_mean = np.ones(ne)
     tau = np.zeros((ne, 3))
+    tau_s = np.zeros((ne, 3))
+    var_s = np.zeros((ne, 3))
     eta_up = np.ones(ne)
     achromatic = np.zeros(ne, dtype=np.bool_)
     fgd_split = np.zeros((ne, 3))
@@ -176,6 +207,11 @@ def pack_stack(stack: Stack, options: BelcourOptions = BelcourOptions(),
         if isinstance(layer, Medium):
             kind[e] = KIND_MEDIUM
             tau[e] = layer.optical_depth
+            if layer.scatters:
+                v = forward_scattering_variance(layer.g)
+                for ch in range(3):
+                    tau_s[e, ch] = layer.scattering_albedo[ch] * layer.optical_depth[ch]
+                    var_s[e, ch] = v if tau_s[e, ch] > 0.0 else 0.0
             continue
         assert isinstance(layer, Interface)
         eta = np.asarray(layer.ior, dtype=float) / n_cur
@@ -222,7 +258,8 @@ def pack_stack(stack: Stack, options: BelcourOptions = BelcourOptions(),
         cov_r[e] = lobe_covariance(alpha[e], alpha_y[e], c, s, iso[e])[:nq]
         cov_t_down[e] = lobe_covariance(x_down, y_down, c, s, iso[e])[:nq]
         cov_t_up[e] = lobe_covariance(x_up, y_up, c, s, iso[e])[:nq]
-    return BelcourPackedStack(kind, alpha, alpha_y, rot, iso, cov_r, cov_t_down, cov_t_up, n_mean, tau, eta_up,
+    return BelcourPackedStack(kind, alpha, alpha_y, rot, iso, cov_r, cov_t_down, cov_t_up, n_mean, tau, tau_s, var_s,
+                              eta_up,
                               achromatic, fgd_split, fgd_lower, fgd_upper, tir_split, tir_lower, tir_upper, n_if,
                               n_cur, top_eta, top_kappa)
 

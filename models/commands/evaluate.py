@@ -61,7 +61,9 @@ def cmd_models(args: argparse.Namespace) -> int:
     width = max(len(n) for n in models)
     for name, m in models.items():
         kind = "fitted" if name in FITTED else "analytic"
-        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {m.description}")
+        scat = "scatter" if m.scattering else "-"
+        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {scat:7s}  {m.description}")
+    print("(scatter: accepts scattering media (scattering_albedo > 0); the belcour-* models need g >= 0.1)")
     print("(fitted models are fitted to a file on request: gonio fit FILE.h5 --model hp15|ggx1|ggx2, "
           "or gonio evaluate FILE.h5 --model hp15-fit)")
     return 0

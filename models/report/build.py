@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from models import registry
+from models.report.appendix_e import appendix_e_markdown, appendix_e_section, is_appendix_e
 from models.report.evaluation import evaluate_material, model_code_key, report_code_key
 from models.report.figures import material_figures, model_style
 from models.report.files import safe_part, write_json, write_text
@@ -47,6 +48,8 @@ class ReportSummary:
     failed: dict[str, dict[str, str]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     reproduction: list[dict] = field(default_factory=list)
+    #: the appendix E section (:mod:`models.report.appendix_e`) when the results hold that database
+    appendix_e: dict | None = None
     elapsed_s: float = 0.0
 
 
@@ -89,6 +92,9 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     code, report_key = model_code_key(), report_code_key()
     styles = model_style([*registry.all_models(), *(models or ())])
     results: list[MaterialResult] = []
+    # appendix E: the black-base companions only give energies (no model applies to them)
+    black = [m for m in materials if m.category == "other" and "d" in m.params] if is_appendix_e(materials) else []
+    materials = [m for m in materials if m not in black]
     for k, mat in enumerate(materials):
         t1 = time.perf_counter()
         res, ref = evaluate_material(mat, out, models, subcells, code, isotropize)
@@ -114,6 +120,11 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         if unknown_angles:
             summary.warnings.append(f"no material has the incident direction(s) {unknown_angles} asked for figures")
     _write_outputs(results, manifest, out, styles, summary, rd, subcells, code)
+    if black or is_appendix_e([r.material for r in results]):
+        sec = appendix_e_section(results, black)
+        write_json(out / "appendix-e.json", sec)
+        write_text(out / "appendix-e.md", appendix_e_markdown(sec))
+        summary.appendix_e = sec
     summary.elapsed_s = time.perf_counter() - t0
     return summary
 

@@ -145,3 +145,22 @@ def test_dask_cluster_gives_bit_identical_results(tiny_run, tmp_path):
         for x, y in ((a.brdf.value, b.brdf.value), (a.btdf.value, b.btdf.value), (a.btdf.stderr, b.btdf.stderr),
                      (a.brdf.orders, b.brdf.orders), (a.energy["absorbed"], b.energy["absorbed"])):
             assert np.array_equal(x, y)
+
+
+def test_appendix_e_definition_expands_with_d_and_g():
+    from pathlib import Path
+    from goniometer.database import load_database
+    db = load_database(Path(__file__).resolve().parents[2] / "configs" / "appendix-e.toml")
+    metals = [m for m in db.materials if m.category == "metal"]
+    black = [m for m in db.materials if m.category == "other"]
+    assert len(metals) == 25 and len(black) == 25
+    assert {(m.params["d"], m.params["g"]) for m in metals} == {
+        (d, g) for d in (0.5, 1.0, 2.0, 4.0, 8.0) for g in (0.0, 0.3, 0.6, 0.8, 0.9)}
+    m = next(x for x in metals if x.params["d"] == 2.0 and x.params["g"] == 0.6)
+    top, med, base = m.stack.layers
+    assert (top.roughness, top.ior) == (0.0, (1.0, 1.0, 1.0))
+    # sigma_t d = (0.2, 0.2, 1.1) d, albedo sigma_s / sigma_t
+    assert med.optical_depth == (0.4, 0.4, 2.2) and med.g == 0.6
+    assert med.scattering_albedo == pytest.approx((0.5, 0.5, 1 / 1.1), rel=1e-15)
+    assert (base.roughness, base.ior, base.extinction) == (0.2, (1.5,) * 3, (3.0, 0.0, 0.0))
+    assert db.qualities["demo"] < db.qualities["quick"] < db.qualities["full"]
