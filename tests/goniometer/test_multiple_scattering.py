@@ -301,3 +301,15 @@ def test_cli_flag_switches_every_interface_and_the_file_records_it(tmp_path, cap
     layers = info["material"]["config"]["layers"]
     assert [x.get("multiple_scattering") for x in layers] == [True, None, True]
     assert info["energy"][0]["masking_loss"] == [0.0, 0.0, 0.0]
+
+
+def test_masking_setting_does_not_touch_a_multiple_scattering_interface():
+    """The walk is height-correlated by construction: with only multiple-scattering interfaces,
+    --masking separable and height-correlated give the same bits."""
+    st = Stack("p", (Interface(0.5, (1.5,) * 3, multiple_scattering=True), Medium((0.1, 0.2, 0.3)),
+                     Interface(0.4, (1.1, 0.9, 0.5), (2.0, 2.5, 3.0), multiple_scattering=True)))
+    s = SimulationSettings(incident_deg=(60.0,), rays=20_000, resolution=(9, 18), threads=1)
+    a = simulate(st, s.with_overrides(masking="separable"))
+    b = simulate(st, s.with_overrides(masking="height-correlated"))
+    assert np.array_equal(a.brdf.value, b.brdf.value)
+    assert all(np.array_equal(a.energy[k], b.energy[k]) for k in a.energy)
