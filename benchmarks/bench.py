@@ -1,8 +1,8 @@
 """Throughput benchmark of the goniometer (`make bench`).
 
 For a plastic, a metal and a slab of the database (alpha0 = 0.05, half slices, 7 incident
-directions) it measures rays per second of wall time and rays per CPU-second (the stable
-figure on a shared machine), with 1 and 2 threads, compile time excluded; and the compile time
+directions), and the metal with multiple-scattering interfaces, it measures rays per second of
+wall time and rays per CPU-second (the stable figure on a shared machine) and mean events per ray, with 1 and 2 threads, compile time excluded; and the compile time
 of the kernel from an empty numba cache (in a subprocess) and its load time from the cache.
 Writes ``benchmarks/results/<date>-<host>.json`` and prints a table.
 
@@ -44,6 +44,8 @@ MATERIALS = {
     "slab/S1-a0_0.05-a1_0.2": Stack("slab/S1-a0_0.05-a1_0.2", (Interface(0.05, (1.5,) * 3), Medium(TAU_C),
                                                                 Interface(0.2, (1.0,) * 3)), "slab"),
 }
+# the metal with multiple scattering on both interfaces (Heitz et al. 2016 random walks)
+MATERIALS["metal/M2-a0_0.05-a1_0.2+ms"] = MATERIALS["metal/M2-a0_0.05-a1_0.2"].with_multiple_scattering()
 
 
 def cpu_model() -> str:

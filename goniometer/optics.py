@@ -355,6 +355,40 @@ def microfacet_transmission(
     return (1.0 - f) * d * g * abs(lh * vh) * eta * eta / (lz * abs(vz) * denom * denom)
 
 
+# --------------------------------------------------------------------------- multiple scattering (Heitz 2016)
+#
+# The microsurface random walk of Heitz, Hanika, d'Eon & Dachsbacher 2016 ("Multiple-scattering
+# microfacet BSDFs with the Smith model"). Heights are carried as their Smith CDF value
+# ``c = C1(h)`` in (0, 1] (the height distribution cancels out of the Smith model; with Heitz's
+# uniform heights on [-1, 1], ``c = (h + 1) / 2``): a ray at height ``c`` travelling along ``w``
+# leaves the microsurface without a hit with probability ``G1(w, c) = c ** Lambda(w)`` (upward),
+# and seen from below the same surface has ``c' = 1 - c``. The walk loop itself is
+# :func:`goniometer.tracer.microsurface_walk` (it draws the random numbers).
+
+
+@numba.njit(cache=True)
+def ms_sample_height(wx: float, wy: float, wz: float, c: float, ax: float, ay: float, u: float) -> float:
+    """Next intersection of a ray with the microsurface, in height-CDF space (Heitz 2016, sec. 4).
+
+    ``w`` is the ray's direction of travel, ``c`` = C1 of its current height, ``u`` uniform in
+    [0, 1). Returns the height CDF of the next hit, or ``-1.0`` when the ray leaves the
+    microsurface (only upward rays can, with probability ``c ** Lambda(w)``). The probability of
+    no hit between ``c`` and ``x`` is ``(c / x) ** Lambda(w)`` upward and
+    ``(x / c) ** (1 + Lambda(-w))`` downward (Smith's Lambda of a downward direction being
+    ``-1 - Lambda(-w)``); a horizontal ray hits at its own height.
+    """
+    if wz > 0.0:
+        lam = ggx_lambda(wx, wy, wz, ax, ay)
+        v = 1.0 - u  # in (0, 1]
+        if v <= c ** lam:
+            return -1.0
+        return min(1.0, c / v ** (1.0 / lam))
+    if wz < 0.0:
+        lam = 1.0 + ggx_lambda(wx, wy, wz, ax, ay)
+        return c * (1.0 - u) ** (1.0 / lam)
+    return c
+
+
 # --------------------------------------------------------------------------- scattering media
 
 _INV_4PI = 1.0 / (4.0 * math.pi)

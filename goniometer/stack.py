@@ -16,6 +16,7 @@ Every error is a :class:`StackError` whose message names the file, the layer ind
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import tomllib
@@ -46,6 +47,9 @@ class Interface:
     frame being rotated by ``rotation_deg`` about z from the macro frame (x towards phi = 0).
 
     ``ior`` and ``extinction`` are the absolute index ``eta + i kappa`` of the medium below (RGB).
+    ``multiple_scattering``: every event on the interface is a random walk on the GGX
+    microsurface (Heitz et al. 2016; ``docs/material-format.md`` 2.1) instead of one microfacet
+    reflection or refraction with a masking loss.
     """
 
     roughness: float
@@ -53,6 +57,8 @@ class Interface:
     extinction: RGB = (0.0, 0.0, 0.0)
     roughness_y: float | None = None
     rotation_deg: float = 0.0
+    #: every event on the interface is a random walk on the microsurface (Heitz et al. 2016)
+    multiple_scattering: bool = False
 
     @property
     def is_conductor(self) -> bool:
@@ -139,6 +145,9 @@ class Stack:
                     d["extinction"] = list(x.extinction)
                 else:
                     d["ior"] = x.ior[0]
+                # omitted at its default: a single-scattering interface keeps its old identity
+                if x.multiple_scattering:
+                    d["multiple_scattering"] = True
                 layers.append(d)
             elif isinstance(x, Medium):
                 d = {"type": "medium", "optical_depth": list(x.optical_depth)}
@@ -151,6 +160,13 @@ class Stack:
             else:
                 layers.append({"type": "lambertian", "albedo": list(x.albedo)})
         return {"name": self.name, "category": self.category, "layers": layers}
+
+    def with_multiple_scattering(self, on: bool = True) -> "Stack":
+        """The same stack with ``multiple_scattering = on`` on every interface (``gonio simulate
+        --multiple-scattering``); the canonical JSON, hence the recorded stack, shows it."""
+        layers = tuple(dataclasses.replace(x, multiple_scattering=on) if isinstance(x, Interface) else x
+                       for x in self.layers)
+        return Stack(self.name, layers, self.category)
 
     def to_json(self) -> str:
         """Canonical JSON: sorted keys, no whitespace, RGB lists, shortest float repr."""
@@ -184,7 +200,7 @@ class PackedStack:
     ``region_g[r]`` Henyey-Greenstein asymmetry (both 0 where nothing scatters, see
     :attr:`Medium.scatters`); ``cond[0:3]``/``cond[3:6]`` the conductor's complex index
     **relative** to the region above it; ``rho`` the Lambertian albedo; ``base_kind`` one of
-    ``BASE_*``.
+    ``BASE_*``; ``if_ms[k]`` True where interface k scatters multiply (Heitz et al. 2016).
     """
 
     if_alpha: np.ndarray
@@ -196,10 +212,11 @@ class PackedStack:
     base_kind: int
     region_albedo: np.ndarray
     region_g: np.ndarray
+    if_ms: np.ndarray
 
     def as_tuple(self) -> tuple:
         """The stack arguments of :func:`goniometer.tracer.trace_batch`, in order."""
-        return (self.if_alpha, self.if_rot, self.region_eta, self.region_tau, self.region_albedo, self.region_g,
+        return (self.if_alpha, self.if_rot, self.if_ms, self.region_eta, self.region_tau, self.region_albedo, self.region_g,
                 self.cond, self.rho, self.base_kind)
 
 
@@ -210,6 +227,7 @@ def pack(stack: Stack) -> PackedStack:
     if_alpha = np.zeros((max(n, 1), 2))
     if_rot = np.zeros((max(n, 1), 2))
     if_rot[:, 0] = 1.0
+    if_ms = np.zeros(max(n, 1), dtype=np.bool_)
     region_eta = np.ones(n + 1)
     region_tau = np.zeros((n + 1, 3))
     region_albedo = np.zeros((n + 1, 3))
@@ -224,6 +242,7 @@ def pack(stack: Stack) -> PackedStack:
             if layer.is_anisotropic:
                 psi = np.radians(layer.rotation_deg)
                 if_rot[k] = (np.cos(psi), np.sin(psi))
+            if_ms[k] = layer.multiple_scattering
             if layer.is_conductor:
                 above = region_eta[region]
                 cond[0:3] = np.asarray(layer.ior) / above
@@ -246,13 +265,13 @@ def pack(stack: Stack) -> PackedStack:
         base = BASE_CONDUCTOR
     else:
         base = BASE_TRANSMIT
-    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base, region_albedo, region_g)
+    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base, region_albedo, region_g, if_ms)
 
 
 # ---------------------------------------------------------------------- loading
 
 _LAYER_KEYS = {
-    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg"},
+    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg", "multiple_scattering"},
     "medium": {"type", "optical_depth", "scattering_albedo", "g"},
     "lambertian": {"type", "albedo"},
 }
@@ -321,6 +340,9 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
         raise StackError(f"{where}.type: {kind!r} is not one of interface, medium, lambertian")
     unknown = sorted(set(d) - _LAYER_KEYS[kind])
     misplaced = [x for x in unknown if x in _LAYER_KEYS["medium"]]
+    if "multiple_scattering" in unknown:
+        raise StackError(f"{where}.multiple_scattering: only an interface layer takes multiple_scattering "
+                         f"(this layer is a {kind})")
     if misplaced:
         raise StackError(f"{where}.{misplaced[0]}: only a medium layer takes {misplaced[0]} "
                          f"(this layer is {'an' if kind == 'interface' else 'a'} {kind})")
@@ -334,7 +356,11 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
         if max(ext) <= 0.0 and len(set(ior)) != 1:
             raise StackError(f"{where}.ior: a dielectric interface takes one index for all channels "
                              f"(got {list(ior)}); an RGB index needs extinction > 0 (a conductor)")
-        return Interface(roughness=rough, ior=ior, extinction=ext, roughness_y=rough_y, rotation_deg=rotation)
+        ms = d.get("multiple_scattering", False)
+        if not isinstance(ms, bool):
+            raise StackError(f"{where}.multiple_scattering: {ms!r} is not a boolean (true or false)")
+        return Interface(roughness=rough, ior=ior, extinction=ext, roughness_y=rough_y, rotation_deg=rotation,
+                         multiple_scattering=ms)
     if kind == "medium":
         albedo = _rgb(d, "scattering_albedo", where, lo=0.0, hi=1.0, default=0.0)
         g = _number(d["g"], f"{where}.g") if "g" in d else 0.0
@@ -431,6 +457,9 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
             for a in x.alpha_xy:
                 if not 0.0 <= a <= 1.0:
                     raise StackError(f"{where}.roughness: {a} is outside [0, 1]")
+            if not isinstance(x.multiple_scattering, (bool, np.bool_)):
+                raise StackError(f"{where}.multiple_scattering: {x.multiple_scattering!r} is not a boolean "
+                                 f"(true or false)")
             if x.rotation_deg != 0.0 and not x.is_anisotropic:
                 raise StackError(f"{where}.rotation_deg: a rotation needs an anisotropic roughness")
             if x.is_conductor and not last:

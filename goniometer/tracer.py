@@ -6,7 +6,8 @@ normals of the side the path comes from; a dielectric reflects with probability 
 Fresnel) and refracts otherwise, a conductor always reflects with weight *= F (RGB).
 The weight is then multiplied by the masking term (separable: ``G1(o)``; height-correlated:
 ``G2 / G1(i)``) and an outgoing direction on the wrong side of the macro-surface ends the path
-(``masking_loss``). Absorbing media attenuate deterministically (Beer-Lambert); in a scattering
+(``masking_loss``). On a multiple-scattering interface the event is instead a random walk on the
+microsurface (:func:`microsurface_walk`, Heitz et al. 2016) that always leaves it: no masking loss. Absorbing media attenuate deterministically (Beer-Lambert); in a scattering
 medium the path makes free flights between collisions (:func:`_free_flight`: spectral-MIS
 distance sampling, Henyey-Greenstein directions). Lambertian bases reflect with cosine sampling
 and weight *= rho. A path leaving the top upward is recorded in the BRDF
@@ -179,7 +180,77 @@ def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g,
+                      eta, inv_eta, max_bounces, state):
+    """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
+    GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
+
+    ``w`` is the direction the light arrives from, in the interface's tangent frame of the
+    arrival side (``w_z > 0``); ``(ax, ay)`` its roughness. The ray starts above the microsurface
+    (height CDF 1); each step draws the next hit height (:func:`goniometer.optics.ms_sample_height`),
+    a visible normal of the reversed ray direction (:func:`goniometer.optics.sample_vndf`, valid
+    for directions below the horizon too) and reflects there -- a conductor with its Fresnel
+    weight per channel (complex index ``ce + i ck`` relative to the arrival side), a dielectric
+    reflecting with probability F and otherwise refracting (relative index ``eta``; on the far
+    side the microsurface is seen from below: heights ``1 - c``, directions negated, index
+    ``inv_eta``), until the ray leaves the microsurface. ``g_is_r`` / ``b_is_g``: channels that
+    share their complex index (one Fresnel evaluation).
+
+    Returns ``(ox, oy, oz, f0, f1, f2, n, transmitted)``: the exit direction (``o_z > 0``
+    reflected, ``< 0`` transmitted), the product of the conductor's Fresnel factors per channel
+    (1 for a dielectric) and the number ``n >= 1`` of microfacet bounces; ``n = 0`` when the ray
+    is still on the microsurface after ``max_bounces`` bounces (the caller books it as capped).
+    """
+    vx = -wx
+    vy = -wy
+    vz = -wz
+    c = 1.0
+    inside = False
+    f0 = 1.0
+    f1 = 1.0
+    f2 = 1.0
+    n = 0
+    while n < max_bounces:
+        cn = optics.ms_sample_height(vx, vy, vz, c, ax, ay, next_float(state))
+        if cn < 0.0:
+            if inside:
+                return -vx, -vy, -vz, f0, f1, f2, n, True
+            return vx, vy, vz, f0, f1, f2, n, False
+        n += 1
+        c = cn
+        ix = -vx
+        iy = -vy
+        iz = -vz
+        u1 = next_float(state)
+        u2 = next_float(state)
+        mx, my, mz = optics.sample_vndf(ix, iy, iz, ax, ay, u1, u2)
+        im = ix * mx + iy * my + iz * mz
+        if conductor:
+            r0 = optics.fresnel_conductor(im, ce0, ck0)
+            r1 = r0 if g_is_r else optics.fresnel_conductor(im, ce1, ck1)
+            r2 = r1 if b_is_g else optics.fresnel_conductor(im, ce2, ck2)
+            f0 *= r0
+            f1 *= r1
+            f2 *= r2
+            vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
+        else:
+            e = inv_eta if inside else eta
+            ie = eta if inside else inv_eta
+            f, cos_t = optics.fresnel_dielectric_cos_t_inv(im, e, ie)
+            if next_float(state) < f:
+                vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
+            else:
+                tx, ty, tz = optics.refract_known(ix, iy, iz, mx, my, mz, ie, im, cos_t)
+                vx = -tx
+                vy = -ty
+                vz = -tz
+                inside = not inside
+                c = 1.0 - c
+    return vx, vy, vz, f0, f1, f2, 0, inside
+
+
+@numba.njit(cache=True, error_model='numpy')
+def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
                 height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts):
     """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
@@ -218,6 +289,11 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_
         eta_dn[k] = region_eta[k + 1] / region_eta[k]
         eta_up[k] = 1.0 / eta_dn[k]
         aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
+    # any multiple-scattering interface (checked first, so single scattering pays one branch)
+    any_ms = False
+    for k in range(n_if):
+        if if_ms[k]:
+            any_ms = True
     # conductor channels that share their complex index share their Fresnel value
     cond_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
     cond_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
@@ -372,52 +448,74 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_
                         tx = c * wx + s * wy
                         wy = -s * wx + c * wy
                         wx = tx
-                    u1 = next_float(state)
-                    u2 = next_float(state)
-                    mx, my, mz = optics.sample_vndf(wx, wy, wz, ax, ay, u1, u2)
-                    wm = wx * mx + wy * my + wz * mz
-                    transmitted = False
-                    if is_cond:
-                        f0 = optics.fresnel_conductor(wm, cond[0], cond[3])
-                        f1 = f0 if cond_g_is_r else optics.fresnel_conductor(wm, cond[1], cond[4])
-                        f2 = f1 if cond_b_is_g else optics.fresnel_conductor(wm, cond[2], cond[5])
-                        ab0 += w0 * (1.0 - f0)
-                        ab1 += w1 * (1.0 - f1)
-                        ab2 += w2 * (1.0 - f2)
-                        w0 *= f0
-                        w1 *= f1
-                        w2 *= f2
-                        ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
-                    else:
+                    if any_ms and if_ms[k]:
+                        # multiple scattering: the whole walk on the microsurface is this one
+                        # event (no masking loss); each further microfacet bounce counts toward
+                        # the event cap
                         eta = eta_dn[k] if from_above else eta_up[k]
                         inv_eta = eta_up[k] if from_above else eta_dn[k]
-                        f, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
-                        if next_float(state) < f:
+                        ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
+                            wx, wy, wz, ax, ay, is_cond, cond[0], cond[1], cond[2], cond[3], cond[4], cond[5],
+                            cond_g_is_r, cond_b_is_g, eta, inv_eta, max(1, event_cap - events + 1), state)
+                        if is_cond:
+                            ab0 += w0 * (1.0 - f0)
+                            ab1 += w1 * (1.0 - f1)
+                            ab2 += w2 * (1.0 - f2)
+                            w0 *= f0
+                            w1 *= f1
+                            w2 *= f2
+                        if nb == 0:
+                            # still on the microsurface at the cap: booked as capped at the loop top
+                            events = event_cap
+                            continue
+                        events += nb - 1
+                    else:
+                        u1 = next_float(state)
+                        u2 = next_float(state)
+                        mx, my, mz = optics.sample_vndf(wx, wy, wz, ax, ay, u1, u2)
+                        wm = wx * mx + wy * my + wz * mz
+                        transmitted = False
+                        if is_cond:
+                            f0 = optics.fresnel_conductor(wm, cond[0], cond[3])
+                            f1 = f0 if cond_g_is_r else optics.fresnel_conductor(wm, cond[1], cond[4])
+                            f2 = f1 if cond_b_is_g else optics.fresnel_conductor(wm, cond[2], cond[5])
+                            ab0 += w0 * (1.0 - f0)
+                            ab1 += w1 * (1.0 - f1)
+                            ab2 += w2 * (1.0 - f2)
+                            w0 *= f0
+                            w1 *= f1
+                            w2 *= f2
                             ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                         else:
-                            ox, oy, oz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
-                            transmitted = True
-                    # single-scattering microfacet model: wrong side -> lost to masking
-                    if (transmitted and oz >= 0.0) or (not transmitted and oz <= 0.0):
-                        mk0 += w0
-                        mk1 += w1
-                        mk2 += w2
-                        w0 = 0.0
-                        w1 = 0.0
-                        w2 = 0.0
-                        break
-                    lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
-                    if height_correlated:
-                        lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
-                        g = optics.smith_g2(lam_i, lam_o, transmitted, True) * (1.0 + lam_i)
-                    else:
-                        g = 1.0 / (1.0 + lam_o)
-                    mk0 += w0 * (1.0 - g)
-                    mk1 += w1 * (1.0 - g)
-                    mk2 += w2 * (1.0 - g)
-                    w0 *= g
-                    w1 *= g
-                    w2 *= g
+                            eta = eta_dn[k] if from_above else eta_up[k]
+                            inv_eta = eta_up[k] if from_above else eta_dn[k]
+                            f, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
+                            if next_float(state) < f:
+                                ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
+                            else:
+                                ox, oy, oz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
+                                transmitted = True
+                        # single-scattering microfacet model: wrong side -> lost to masking
+                        if (transmitted and oz >= 0.0) or (not transmitted and oz <= 0.0):
+                            mk0 += w0
+                            mk1 += w1
+                            mk2 += w2
+                            w0 = 0.0
+                            w1 = 0.0
+                            w2 = 0.0
+                            break
+                        lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
+                        if height_correlated:
+                            lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
+                            g = optics.smith_g2(lam_i, lam_o, transmitted, True) * (1.0 + lam_i)
+                        else:
+                            g = 1.0 / (1.0 + lam_o)
+                        mk0 += w0 * (1.0 - g)
+                        mk1 += w1 * (1.0 - g)
+                        mk2 += w2 * (1.0 - g)
+                        w0 *= g
+                        w1 *= g
+                        w2 *= g
                     if rot:
                         tx = c * ox - s * oy
                         oy = s * ox + c * oy
@@ -465,7 +563,7 @@ def trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                brdf, btdf, energy, energy_sq, counts):
@@ -484,27 +582,27 @@ def trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, regio
     if n <= 0:
         return
     state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-    trace_chunk(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+    trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
                 height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                 param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                 brdf, btdf, energy, energy_sq, counts):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch)."""
     for b in numba.prange(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+        trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                    param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                    brdf, btdf, energy, energy_sq, counts)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                        param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                        brdf, btdf, energy, energy_sq, counts):
@@ -514,7 +612,7 @@ def trace_batch_serial(if_alpha, if_rot, region_eta, region_tau, region_albedo, 
     default threading layer must not be entered by several threads at once.
     """
     for b in range(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+        trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                    param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
                    brdf, btdf, energy, energy_sq, counts)

@@ -26,6 +26,9 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int)
     p.add_argument("--masking", choices=("separable", "height-correlated"))
     p.add_argument("--max-order", dest="max_order", type=int, help="bounce orders stored separately (K)")
+    p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
+                   help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
+                        "the file's recorded stack shows it")
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
     p.set_defaults(func=cmd_simulate)
@@ -51,6 +54,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
     except (StackError, SettingsError) as e:
         raise UsageError(str(e)) from None
+    if args.multiple_scattering:
+        stack = stack.with_multiple_scattering()
     over: dict[str, Any] = {}
     if args.incident is not None:
         thetas, phis = incident_list(args.incident)
