@@ -124,6 +124,13 @@ def _deposit_pending(brdf, btdf, pend, i, j, o, max_order, w0, w1, w2):
         _deposit(btdf, i, j, o, max_order, w0, w1, w2)
 
 
+@numba.njit(cache=True, inline="always")
+def _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2):
+    """The path weight times ``(a0, a1, a2)`` per channel, what it loses booked as absorbed:
+    ``(w0 a0, w1 a1, w2 a2, ab0 + w0 (1 - a0), ...)``."""
+    return w0 * a0, w1 * a1, w2 * a2, ab0 + w0 * (1.0 - a0), ab1 + w1 * (1.0 - a1), ab2 + w2 * (1.0 - a2)
+
+
 @numba.njit(cache=True, error_model='numpy')
 def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, state):
     """One free flight of a path in a scattering medium region (``docs/material-format.md``, media).
@@ -170,13 +177,11 @@ def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1
         r0 = a0 * c0
         r1 = a1 * c1
         r2 = a2 * c2
-    ab0 += w0 * (1.0 - r0)
-    ab1 += w1 * (1.0 - r1)
-    ab2 += w2 * (1.0 - r2)
+    w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, r0, r1, r2)
     h = min(1.0, max(0.0, h + s * dz))
     u1 = next_float(state)
     ox, oy, oz = optics.hg_scatter(dx, dy, dz, g, u1, next_float(state))
-    return True, h, ox, oy, oz, w0 * r0, w1 * r1, w2 * r2, ab0, ab1, ab2
+    return True, h, ox, oy, oz, w0, w1, w2, ab0, ab1, ab2
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -350,12 +355,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 else:
                     a1 = math.exp(-region_tau[region, 1] * inv_mu)
                     a2 = math.exp(-region_tau[region, 2] * inv_mu)
-                ab0 += w0 * (1.0 - a0)
-                ab1 += w1 * (1.0 - a1)
-                ab2 += w2 * (1.0 - a2)
-                w0 *= a0
-                w1 *= a1
-                w2 *= a2
+                w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2)
             # ---- what lies at the end of this traversal
             at_interface = True
             if scattered:
@@ -410,12 +410,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 events += 1
                 if n_if == 0:
                     order += 1
-                ab0 += w0 * (1.0 - rho[0])
-                ab1 += w1 * (1.0 - rho[1])
-                ab2 += w2 * (1.0 - rho[2])
-                w0 *= rho[0]
-                w1 *= rho[1]
-                w2 *= rho[2]
+                w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, rho[0], rho[1], rho[2])
                 u1 = next_float(state)
                 u2 = next_float(state)
                 r = math.sqrt(u1)
@@ -458,12 +453,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                             wx, wy, wz, ax, ay, is_cond, cond[0], cond[1], cond[2], cond[3], cond[4], cond[5],
                             cond_g_is_r, cond_b_is_g, eta, inv_eta, max(1, event_cap - events + 1), state)
                         if is_cond:
-                            ab0 += w0 * (1.0 - f0)
-                            ab1 += w1 * (1.0 - f1)
-                            ab2 += w2 * (1.0 - f2)
-                            w0 *= f0
-                            w1 *= f1
-                            w2 *= f2
+                            w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
                         if nb == 0:
                             # still on the microsurface at the cap: booked as capped at the loop top
                             events = event_cap
@@ -479,12 +469,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                             f0 = optics.fresnel_conductor(wm, cond[0], cond[3])
                             f1 = f0 if cond_g_is_r else optics.fresnel_conductor(wm, cond[1], cond[4])
                             f2 = f1 if cond_b_is_g else optics.fresnel_conductor(wm, cond[2], cond[5])
-                            ab0 += w0 * (1.0 - f0)
-                            ab1 += w1 * (1.0 - f1)
-                            ab2 += w2 * (1.0 - f2)
-                            w0 *= f0
-                            w1 *= f1
-                            w2 *= f2
+                            w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
                             ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                         else:
                             eta = eta_dn[k] if from_above else eta_up[k]
