@@ -1,7 +1,8 @@
 """Throughput benchmark of the goniometer (`make bench`).
 
 For a plastic, a metal and a slab of the database (alpha0 = 0.05, half slices, 7 incident
-directions), and the metal with multiple-scattering interfaces, it measures rays per second of
+directions), the metal with multiple-scattering interfaces and a scattering medium (Bati 2019
+appendix E), it measures rays per second of
 wall time and rays per CPU-second (the stable figure on a shared machine) and mean events per ray, with 1 and 2 threads, compile time excluded; and the compile time
 of the kernel from an empty numba cache (in a subprocess) and its load time from the cache.
 Writes ``benchmarks/results/<date>-<host>.json`` and prints a table.
@@ -46,6 +47,10 @@ MATERIALS = {
 }
 # the metal with multiple scattering on both interfaces (Heitz et al. 2016 random walks)
 MATERIALS["metal/M2-a0_0.05-a1_0.2+ms"] = MATERIALS["metal/M2-a0_0.05-a1_0.2"].with_multiple_scattering()
+# a scattering medium (Bati 2019 appendix E at d = 2, g = 0.8: sigma_s = (0.1, 0.1, 1), sigma_a = 0.1)
+MATERIALS["metal/E-d_2-g_0.8"] = Stack("metal/E-d_2-g_0.8", (
+    Interface(0.0, (1.0,) * 3), Medium((0.4, 0.4, 2.2), scattering_albedo=(0.5, 0.5, 1.0 / 1.1), g=0.8),
+    Interface(0.2, (1.5,) * 3, (3.0, 0.0, 0.0))), "metal")
 
 
 def cpu_model() -> str:
