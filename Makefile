@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench database report appendix-e validate-inverse tables clean
+.PHONY: setup test test-slow demo bench database report appendix-e validate-inverse tables ms-database clean
 
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
@@ -15,6 +15,8 @@ DB_OUT ?= results/bati2019
 # Bati 2019 appendix E (configs/appendix-e.toml): demo ~1 min, quick ~5 min, full < 1 h on 2 cores
 APPE_QUALITY ?= full
 APPE_OUT ?= results/appendix-e-$(APPE_QUALITY)
+# multiple-scattering twins of the 2019 database (configs/bati2019-ms.toml), compared with $(DB_OUT)
+MS_OUT ?= results/bati2019-ms
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -56,6 +58,14 @@ appendix-e: $(STAMP)
 	$(GONIO) database simulate configs/appendix-e.toml --out $(APPE_OUT) --quality $(APPE_QUALITY)
 	$(GONIO) report $(APPE_OUT) --out $(APPE_OUT)-report --model belcour-fwd --incidents 30,80
 	@echo "appendix E: $(abspath $(APPE_OUT))-report/appendix-e.md"
+
+# resumable; simulates the single-scattering twin too if $(DB_OUT) lacks it (same QUALITY), then the
+# MS report with the table multiple-scattering.md (docs/report.md)
+ms-database: $(STAMP)
+	$(GONIO) database simulate configs/bati2019-ms.toml --out $(MS_OUT) --quality $(QUALITY)
+	$(GONIO) database simulate $(DATABASE) --out $(DB_OUT) --quality $(QUALITY)
+	$(GONIO) report $(MS_OUT) --out $(MS_OUT)-report --compare-to $(DB_OUT)
+	@echo "multiple scattering: $(abspath $(MS_OUT))-report/multiple-scattering.md"
 
 validate-inverse: $(STAMP)
 	$(GONIO) validate-inverse configs/inverse/cases.toml --simulate --json results/inverse/validation.json --report results/inverse/report

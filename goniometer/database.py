@@ -16,6 +16,7 @@ file that cannot be read is reported and re-simulated only on request.
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
 import hashlib
 import itertools
@@ -97,16 +98,22 @@ class Database:
 def load_database(path: str | Path) -> Database:
     """Load and expand a database definition; raises :class:`DatabaseError`."""
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise DatabaseError(f"{p}: cannot read: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise DatabaseError(f"{p}: invalid TOML: {e}") from None
-    allowed = {"name", "description", "simulation", "quality", "symbols", "family"}
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise DatabaseError(f"{p}: {unknown[0]}: unknown key (allowed: {', '.join(sorted(allowed))})")
+    data = _read_definition(p)
+    if "base" in data:
+        base = data["base"]
+        if not isinstance(base, str) or not base:
+            raise DatabaseError(f"{p}: base: {base!r} is not a path (a string, relative to this file)")
+        if not isinstance(data.get("name"), str) or not data.get("name"):
+            raise DatabaseError(f"{p}: name: required in a definition with a base, a non-empty string")
+        bp = p.parent / base
+        inherited = _read_definition(bp)
+        for key in ("base", "multiple_scattering"):
+            if key in inherited:
+                raise DatabaseError(f"{bp}: {key}: not allowed in the base of {p} (one level of base only)")
+        data = {**inherited, **{k: v for k, v in data.items() if k != "base"}}
+    ms = data.get("multiple_scattering", False)
+    if not isinstance(ms, bool):
+        raise DatabaseError(f"{p}: multiple_scattering: {ms!r} is not a boolean (true or false)")
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise DatabaseError(f"{p}: name: required, a non-empty string")
@@ -122,6 +129,8 @@ def load_database(path: str | Path) -> Database:
     materials: list[Material] = []
     for fi, fam in enumerate(families):
         materials.extend(_expand_family(p, fi, fam, symbols, param_rule))
+    if ms:
+        materials = [dataclasses.replace(m, stack=m.stack.with_multiple_scattering()) for m in materials]
     seen: dict[str, int] = {}
     for i, m in enumerate(materials):
         if m.name in seen:
@@ -138,6 +147,20 @@ def load_database(path: str | Path) -> Database:
     except SettingsError as e:
         raise DatabaseError(f"{p}: simulation: {e}") from None
     return db
+
+
+def _read_definition(p: Path) -> dict:
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise DatabaseError(f"{p}: cannot read: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise DatabaseError(f"{p}: invalid TOML: {e}") from None
+    allowed = {"name", "description", "base", "multiple_scattering", "simulation", "quality", "symbols", "family"}
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise DatabaseError(f"{p}: {unknown[0]}: unknown key (allowed: {', '.join(sorted(allowed))})")
+    return data
 
 
 def _expand_family(path: Path, fi: int, fam: dict, symbols: dict, param_rule) -> Iterator[Material]:

@@ -20,6 +20,9 @@ def register(sub) -> None:
     p.add_argument("--fits", action="store_true", help="also fit hp15, ggx1 and ggx2 to every BRDF (slow)")
     p.add_argument("--isotropize", choices=("mean",),
                    help="let isotropic models evaluate anisotropic stacks with the mean roughness")
+    p.add_argument("--compare-to", metavar="SS_RESULTS_DIR",
+                   help="results of the single-scattering twin of this multiple-scattering database: "
+                        "adds multiple-scattering.md/.json")
     p.set_defaults(func=cmd_report)
 
 
@@ -42,7 +45,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         with bar:
             summary = build_report(args.results, args.out, models=args.model or None, subcells=args.subcells,
                                    progress=progress, incidents_for_figures=incidents, definition=args.definition,
-                                   fits=args.fits, isotropize=args.isotropize)
+                                   fits=args.fits, isotropize=args.isotropize,
+                                   compare_to=args.compare_to)
     except ReportError as e:
         raise UsageError(str(e)) from None
     for w in summary.warnings:
@@ -50,6 +54,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     print(f"{len(summary.materials)} material(s), {summary.records} (material, model) record(s); "
           f"{len(summary.evaluated)} evaluated, {len(summary.reused)} reused from the cache")
     print(f"errors: {summary.errors_json}")
+    if summary.multiple_scattering is not None:
+        print(f"multiple scattering: {summary.out_dir / 'multiple-scattering.md'}")
     print(f"open: {summary.index_html}")
     return 0
 

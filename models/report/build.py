@@ -21,6 +21,7 @@ from models.report.appendix_e import appendix_e_markdown, appendix_e_section, is
 from models.report.evaluation import evaluate_material, model_code_key, report_code_key
 from models.report.figures import material_figures, model_style
 from models.report.files import safe_part, write_json, write_text
+from models.report.multiple_scattering import evaluate_twins, multiple_scattering_markdown, multiple_scattering_section
 from models.report.html import html_data, render_html
 from models.report.panels import save_figure
 from models.report.reproduction import reproduction_checks, reproduction_markdown
@@ -50,6 +51,8 @@ class ReportSummary:
     reproduction: list[dict] = field(default_factory=list)
     #: the appendix E section (:mod:`models.report.appendix_e`) when the results hold that database
     appendix_e: dict | None = None
+    #: the multiple-scattering table (:mod:`models.report.multiple_scattering`) with ``compare_to``
+    multiple_scattering: dict | None = None
     elapsed_s: float = 0.0
 
 
@@ -57,7 +60,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
                  subcells: int = 5, progress: Progress | None = None,
                  incidents_for_figures: Sequence[float] | None = None,
                  definition: str | Path | None = None, fits: bool = False,
-                 isotropize: str | None = None) -> ReportSummary:
+                 isotropize: str | None = None, compare_to: str | Path | None = None) -> ReportSummary:
     """Evaluate every finished material of ``results_dir`` and write the report into ``out_dir``.
 
     ``models``: model names (default: every model of the registry that applies to each
@@ -67,7 +70,9 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     errors always use every incident); ``definition``: the database definition when the one named
     in the manifest has moved; ``fits``: also fit the compact models (hp15-fit, ggx1-fit,
     ggx2-fit) to every BRDF (seconds to minutes each); ``isotropize="mean"``: let isotropic models
-    evaluate anisotropic stacks with the mean roughness (noted per material). Raises
+    evaluate anisotropic stacks with the mean roughness (noted per material); ``compare_to``: the
+    results directory of the single-scattering twin of this (multiple-scattering) database, which
+    adds ``multiple-scattering.md`` / ``.json`` (:mod:`models.report.multiple_scattering`). Raises
     :class:`ReportError` on bad input.
     """
     if fits:
@@ -125,6 +130,16 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         write_json(out / "appendix-e.json", sec)
         write_text(out / "appendix-e.md", appendix_e_markdown(sec))
         summary.appendix_e = sec
+    if compare_to is not None:
+        single, twin_warnings = evaluate_twins(compare_to, out, [r.material.name for r in results], models,
+                                               subcells, code, isotropize)
+        summary.warnings.extend(twin_warnings)
+        sec = multiple_scattering_section(single, results)
+        if not sec["materials"]:
+            raise ReportError(f"--compare-to {compare_to}: no material name in common with {rd}")
+        write_json(out / "multiple-scattering.json", sec)
+        write_text(out / "multiple-scattering.md", multiple_scattering_markdown(sec))
+        summary.multiple_scattering = sec
     summary.elapsed_s = time.perf_counter() - t0
     return summary
 

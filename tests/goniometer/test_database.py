@@ -164,3 +164,41 @@ def test_appendix_e_definition_expands_with_d_and_g():
     assert med.scattering_albedo == pytest.approx((0.5, 0.5, 1 / 1.1), rel=1e-15)
     assert (base.roughness, base.ior, base.extinction) == (0.2, (1.5,) * 3, (3.0, 0.0, 0.0))
     assert db.qualities["demo"] < db.qualities["quick"] < db.qualities["full"]
+
+
+def test_bati2019_ms_is_the_2019_database_with_multiple_scattering_on_every_interface():
+    ss = load_database(ROOT / "configs" / "bati2019.toml")
+    ms = load_database(ROOT / "configs" / "bati2019-ms.toml")
+    assert ms.name == "bati2019-ms" and len(ms.materials) == 60
+    assert [(m.name, m.category, m.params, m.parametrization) for m in ms.materials] == \
+           [(m.name, m.category, m.params, m.parametrization) for m in ss.materials]
+    assert (ms.incident_deg, ms.resolution, ms.seed, ms.masking, ms.qualities) == \
+           (ss.incident_deg, ss.resolution, ss.seed, ss.masking, ss.qualities)
+    for a, b in zip(ss.materials, ms.materials):
+        assert b.stack == a.stack.with_multiple_scattering()
+        assert b.stack.to_json() == a.stack.with_multiple_scattering().to_json() != a.stack.to_json()
+    assert ms.fingerprint() != ss.fingerprint()
+
+
+def test_base_and_multiple_scattering_keys(tmp_path):
+    (tmp_path / "sub").mkdir()
+    shutil.copy(TINY, tmp_path / "tiny.toml")
+    twin = tmp_path / "sub" / "twin.toml"
+    twin.write_text('base = "../tiny.toml"\nname = "tiny-ms"\nmultiple_scattering = true\n')
+    ss, ms = load_database(TINY), load_database(twin)
+    assert ms.name == "tiny-ms" and [m.name for m in ms.materials] == [m.name for m in ss.materials]
+    assert all(x.multiple_scattering for m in ms.materials for x in m.stack.layers if hasattr(x, "multiple_scattering"))
+    # a table of the derived file replaces the base's; false leaves the stacks as they are
+    twin.write_text('base = "../tiny.toml"\nname = "t2"\nmultiple_scattering = false\n[quality]\nq = 7\n')
+    t2 = load_database(twin)
+    assert t2.qualities == {"q": 7} and t2.materials == ss.materials
+    bad = {'base = "../tiny.toml"\n': "name: required",
+           'base = "../nope.toml"\nname = "x"\n': "cannot read",
+           'base = 3\nname = "x"\n': "base: 3 is not a path",
+           'base = "twin2.toml"\nname = "x"\n': "one level of base only",
+           'base = "../tiny.toml"\nname = "x"\nmultiple_scattering = "yes"\n': "not a boolean"}
+    (tmp_path / "sub" / "twin2.toml").write_text('base = "../tiny.toml"\nname = "y"\n')
+    for text, message in bad.items():
+        twin.write_text(text)
+        with pytest.raises(DatabaseError, match=message):
+            load_database(twin)
