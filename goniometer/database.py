@@ -23,7 +23,6 @@ import itertools
 import json
 import os
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -34,6 +33,7 @@ from goniometer.results import run_description, same_run
 from goniometer.settings import SettingsError, SimulationSettings
 from goniometer.run import run_incidents
 from goniometer.stack import Stack, StackError, stack_from_dict
+from goniometer.tomlfile import read_toml
 
 MANIFEST = "database.json"
 RESULTS_FORMAT = "goniometer.database-results"
@@ -150,12 +150,7 @@ def load_database(path: str | Path) -> Database:
 
 
 def _read_definition(p: Path) -> dict:
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise DatabaseError(f"{p}: cannot read: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise DatabaseError(f"{p}: invalid TOML: {e}") from None
+    data = read_toml(p, DatabaseError)
     allowed = {"name", "description", "base", "multiple_scattering", "simulation", "quality", "symbols", "family"}
     unknown = sorted(set(data) - allowed)
     if unknown:

@@ -19,12 +19,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Union
 
 import numpy as np
+
+from goniometer.tomlfile import read_toml
 
 RGB = tuple[float, float, float]
 CATEGORIES = ("plastic", "metal", "slab", "other")
@@ -286,14 +287,7 @@ def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:
     Raises :class:`StackError` (with the file name) on any problem, including invalid TOML.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise StackError(f"{p}: cannot read: {e.strerror or e}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise StackError(f"{p}: invalid TOML: {e}") from None
+    data = read_toml(p, StackError)
     stack = stack_from_dict(data, source=str(p))
     sim = data.get("simulation", {})
     if not isinstance(sim, dict):

@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import os
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -23,6 +22,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from goniometer.stack import Stack
+from goniometer.tomlfile import read_toml
 from models import belcour
 from models.inverse.estimate import RingData, estimate_lobes, ring_data
 from models.inverse.lobes import InverseError, InverseOptions, Lobe, Pick, jsonable, parse_picks
@@ -55,12 +55,7 @@ class Case:
 def load_cases(path: str | os.PathLike) -> list[Case]:
     """Read a cases file; raises :class:`InverseError` naming the file, case and field."""
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise InverseError(f"{p}: cannot read: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InverseError(f"{p}: invalid TOML: {e}") from None
+    data = read_toml(p, InverseError)
     raw = data.get("case")
     if not isinstance(raw, list) or not raw:
         raise InverseError(f"{p}: no [[case]] tables")
