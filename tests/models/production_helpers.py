@@ -4,6 +4,7 @@ node graphs, and a height-correlated GGX BRDF in angle form (independent of goni
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 import MaterialX as mx  # pinned in the test extra of pyproject.toml
@@ -15,11 +16,18 @@ OPENPBR = ("open_pbr_surface.mtlx", "ND_open_pbr_surface_surfaceshader", "NG_ope
 STANDARD_SURFACE = ("standard_surface.mtlx", "ND_standard_surface_surfaceshader", "NG_standard_surface_surfaceshader_100")
 
 
-def load(which: tuple[str, str, str]):
-    """``(nodedef, nodegraph)`` of ``which`` from the installed MaterialX library."""
-    path = Path(mx.__file__).parent / "libraries" / "bxdf" / which[0]
+@lru_cache(maxsize=None)
+def _document(file: str):
+    """The MaterialX document of ``file`` (kept alive: its elements refer to it)."""
+    path = Path(mx.__file__).parent / "libraries" / "bxdf" / file
     doc = mx.createDocument()
     mx.readFromXmlFile(doc, str(path))
+    return doc
+
+
+def load(which: tuple[str, str, str]):
+    """``(nodedef, nodegraph)`` of ``which`` from the installed MaterialX library."""
+    doc = _document(which[0])
     nodedef = doc.getNodeDef(which[1])
     graph = doc.getNodeGraph(which[2])
     assert nodedef is not None and graph is not None, f"{which} not found in {path}"
