@@ -31,7 +31,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import brentq
 
-from goniometer.optics import np_fresnel_conductor, np_microfacet_reflection
+from goniometer.optics import np_microfacet_reflection
 from goniometer.results import SimulationResult
 from goniometer.stack import Interface, Lambertian, Stack
 from models.tables import fgd_direct
@@ -54,9 +54,7 @@ class ProductionError(ValueError):
 class CoatedBase:
     """A stack ``[isotropic dielectric coat, base]`` with the base a GGX conductor or a Lambertian.
 
-    ``base_albedo_spec`` is OpenPBR's base albedo estimate ``E_base``: the conductor's Fresnel
-    reflectance at normal incidence in air (its ``base_color`` under the F0 mapping) or the
-    Lambertian albedo. ``base_key`` identifies the bare twin (the base layer's canonical JSON).
+    ``base_key`` identifies the bare twin (the base layer's canonical JSON).
     """
 
     name: str
@@ -66,7 +64,6 @@ class CoatedBase:
     base_alpha: float | None        # None for a Lambertian
     base_eta: tuple[float, float, float] | None
     base_kappa: tuple[float, float, float] | None
-    base_albedo_spec: tuple[float, float, float]
     multiple_scattering: bool
     base_key: str
 
@@ -96,16 +93,15 @@ def coated_base(stack: Stack) -> CoatedBase | None:
     if isinstance(base, Interface) and base.is_anisotropic:
         return None
     if isinstance(base, Lambertian):
-        kind, alpha, eta, kappa, e_spec = "lambertian", None, None, None, tuple(base.albedo)
+        kind, alpha, eta, kappa = "lambertian", None, None, None
         ms = coat.multiple_scattering
     else:
         kind, alpha, eta, kappa = "conductor", base.roughness, tuple(base.ior), tuple(base.extinction)
-        e_spec = tuple(float(x) for x in np_fresnel_conductor(1.0, np.array(eta), np.array(kappa)))
         if base.multiple_scattering != coat.multiple_scattering:
             return None
         ms = coat.multiple_scattering
     return CoatedBase(name=stack.name, base=kind, coat_ior=float(coat.ior[0]), coat_alpha=float(coat.roughness),
-                      base_alpha=alpha, base_eta=eta, base_kappa=kappa, base_albedo_spec=e_spec,
+                      base_alpha=alpha, base_eta=eta, base_kappa=kappa,
                       multiple_scattering=ms, base_key=_layer_key(stack, 1))
 
 
