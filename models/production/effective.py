@@ -3,9 +3,9 @@
 Definitions (``docs/production.md`` sections 2 and 3, which this module implements):
 
 * **coat albedo** ``E_coat(mu)``: the directional albedo of the coat's GGX reflection lobe seen
-  from air, single scattering, Fresnel of the coat index, Smith masking of the run
-  (:func:`models.tables.fgd_direct`), evaluated at the centre polar angle of each row of the
-  classic grid.
+  from air, single scattering, Fresnel of the coat index, Smith masking of the run (Belcour's FGD
+  by direct quadrature, :func:`models.tables.fgd_direct_many`), evaluated at the centre polar
+  angle of each row of the classic grid.
 * **effective darkening** ``D_eff`` (per colour channel): the simulated albedo of the internal
   light (bounce orders >= 2: everything but the lobe reflected off the coat) divided by what
   OpenPBR's albedo-scaling layering predicts without darkening from the *bare* base (the same
@@ -34,7 +34,7 @@ from scipy.optimize import brentq
 from goniometer.optics import np_microfacet_reflection
 from goniometer.results import SimulationResult
 from goniometer.stack import Interface, Lambertian, Stack
-from models.tables import fgd_direct
+from models.tables import fgd_direct_many
 
 #: incident elevation (degrees) at which the effective roughness is read
 ROUGHNESS_INCIDENT_DEG = 0.0
@@ -110,7 +110,7 @@ def coated_base(stack: Stack) -> CoatedBase | None:
 @lru_cache(maxsize=256)
 def _coat_albedo_rows(coat_alpha: float, coat_ior: float, height_correlated: bool, n_theta: int) -> np.ndarray:
     mu = np.cos(np.radians((np.arange(n_theta) + 0.5) * 90.0 / n_theta))
-    e = np.array([fgd_direct(float(m), coat_alpha, coat_ior, 0.0, height_correlated) for m in mu])
+    e = fgd_direct_many(mu, coat_alpha, coat_ior, 0.0, height_correlated)
     e.setflags(write=False)
     return e
 
