@@ -55,6 +55,10 @@ def coat_darkening(coat_ior: ArrayLike, base_albedo: ArrayLike, coat_weight: flo
     * ``coat_weight``: OpenPBR ``coat_weight`` in [0, 1] (presence of the coat).
     * ``darkening``: OpenPBR ``coat_darkening`` in [0, 1] (1 = the physical darkening).
 
+    This is the node graph's ``K``; the specification text recommends a refinement
+    (``K = lerp(K_s, K_r, r_b)`` with the hemispherical Fresnel albedo), which
+    ``docs/production-models.md`` states and this function does not implement.
+
     Returns the factor with the broadcast shape of ``coat_ior`` and ``base_albedo``: 1 without
     coat (weight 0), for an index-matched coat (n = 1 gives K = 0) and for a white base
     (E_base = 1); ``1 - K`` for a black base estimate (E_base = 0).
