@@ -99,8 +99,10 @@ def scatter_figure(r: QuantityResult) -> bytes:
 
 
 def roughening_ior_figure(r: QuantityResult) -> bytes:
-    """Effective roughness against the coat index, one curve per (coat, base) roughness, reference
-    configurations; the spec (flat in n) and the fitted formula as lines."""
+    """Effective roughness against the coat index, one colour per (coat, base) roughness, reference
+    configurations (mean over the base metals); the fitted formula (solid) and OpenPBR 1.1 (dotted,
+    flat in n) drawn over the whole index range."""
+    import matplotlib
     from matplotlib.figure import Figure
     s = r.samples
     ref = np.array([x == REFERENCE_SCATTERING for x in s.scattering])
@@ -108,21 +110,24 @@ def roughening_ior_figure(r: QuantityResult) -> bytes:
     fig = Figure(figsize=(7.5, 5.6))
     ax = fig.add_subplot(1, 1, 1)
     pairs = sorted({(a, b) for a, b in zip(c["coat_alpha"][ref], c["base_alpha"][ref])})
-    import matplotlib
     cmap = matplotlib.colormaps["viridis"]
+    n_all = c["coat_ior"][ref]
+    grid = np.linspace(float(n_all.min()), float(n_all.max()), 60)
+    held = sorted({float(x) for x in c["coat_ior"][ref & (c["heldout"] > 0)]})
     for j, (ac, ab) in enumerate(pairs):
         sel = ref & (c["coat_alpha"] == ac) & (c["base_alpha"] == ab)
-        n = c["coat_ior"][sel]
         col = cmap(j / max(1, len(pairs) - 1))
-        # several samples per (n, ac, ab): the base metals; show their mean
+        n = c["coat_ior"][sel]
         un = np.unique(n)
         mean = np.array([np.mean(c["measured"][sel][n == u]) for u in un])
-        fit = np.array([np.mean(c["fitted"][sel][n == u]) for u in un])
-        spec = np.array([np.mean(c["spec"][sel][n == u]) for u in un])
         ax.plot(un, mean, "o", color=col, ms=4, label=f"alpha_coat {ac:g}, alpha_base {ab:g}")
-        ax.plot(un, fit, "-", color=col, lw=1)
-        ax.plot(un, spec, ":", color=col, lw=1)
-    ax.set_xlabel("coat index of refraction n")
+        if r.fit is not None:
+            X = {"coat_ior": grid, "base_alpha": np.full_like(grid, ab), "coat_alpha": np.full_like(grid, ac)}
+            ax.plot(grid, r.fit.predict(X), "-", color=col, lw=1)
+        ax.plot(grid, np.full_like(grid, np.mean(c["spec"][sel])), ":", color=col, lw=1)
+    for h in held:
+        ax.axvline(h, color="0.8", lw=6, zorder=0)
+    ax.set_xlabel("coat index of refraction n (grey bands: held-out indices)")
     ax.set_ylabel("effective base roughness (GGX alpha)")
     ax.set_title("roughening vs coat index: reference (dots), fitted (solid), OpenPBR 1.1 (dotted)")
     ax.legend(fontsize=6, ncol=2, loc="upper left")

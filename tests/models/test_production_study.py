@@ -163,3 +163,18 @@ def test_cli_refuses_a_directory_without_a_database(tmp_path, capsys):
     assert main(["production", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("gonio: error: RESULTS_DIR:")
+
+
+@pytest.mark.slow
+def test_pipeline_with_belcour(tiny_results, tmp_path):
+    """belcour-fwd is read by the reference's own estimators on the conductors and refuses the
+    Lambertian bases (its reason recorded as an empty column)."""
+    from models.report.production import write_production_report
+    summary = write_production_report(tiny_results, tmp_path / "r")
+    d = summary["darkening"]
+    assert d["belcour_n"] == 4 * 3 and d["heldout_by_base"]["conductor"]["belcour_n"] == 4 * 3
+    assert d["heldout_by_base"]["lambertian"]["belcour_n"] == 0
+    assert summary["roughening"]["belcour_n"] == 4 and summary["roughening"]["belcour_rmse"] > 0
+    records = json.loads((tmp_path / "r" / "configurations.json").read_text())
+    assert all(r["belcour"] is None for r in records["darkening"] if r["name"].startswith("plastic/"))
+    assert all(0 < r["belcour"] < 1.5 for r in records["darkening"] if r["name"].startswith("metal/"))
