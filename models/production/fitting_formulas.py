@@ -4,6 +4,7 @@ The formulas (``docs/production.md`` section 5), in OpenPBR's own inputs so a re
 them as they are: ``coat_ior`` n, the base albedo estimate ``E_base`` (``base_color *
 specular_weight`` for a metal, ``base_color`` for a diffuse base), ``base_metalness`` m (0 or 1),
 and GGX alphas (``alpha = r**2`` of OpenPBR's perceptual roughness r) of the coat and the base.
+Domain: ``n >= 1`` (a coat denser than air), ``E_base`` in [0, 1], alphas in [0, 1].
 
 * :data:`DARKENING` keeps the specification's form ``(1 - K) / (1 - E K)``. Diffuse base:
   ``K = 1 - (1 - F0(n)) / n**(2 q)`` (``q = 1`` is the spec). Metal base: the metal's reflectance

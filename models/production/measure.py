@@ -4,7 +4,8 @@ For each coated material (:func:`models.production.effective.coated_base`) with 
 the same directory: the effective darkening (per channel) and, for conductor bases, the effective
 base roughness; and the same two estimators applied to ``belcour-fwd``'s internal lobes integrated
 onto the reference's cells (:func:`models.compare.integrate`), so the model is read with the very
-yardstick the reference is. Lambertian bases are outside ``belcour-fwd``'s domain (it refuses
+yardstick the reference is (and, for reference, the roughness its variance statistics give the base
+lobe directly). Lambertian bases are outside ``belcour-fwd``'s domain (it refuses
 them; its reason is recorded).
 """
 
@@ -18,11 +19,13 @@ import numpy as np
 
 from goniometer import store
 from goniometer.results import SimulationResult
+from goniometer.stack import Stack
 from models.compare import integrate
 from models.production.effective import (CoatedBase, Darkening, ProductionError, Roughness, bare_key,
                                          coat_albedo_rows, coated_base, darkening_from, effective_darkening,
                                          effective_roughness, internal_albedo, layered_prediction,
                                          normal_incidence_index, roughness_from)
+from models.belcour import lobe_statistics
 from models.registry import get as get_model
 
 #: the existing model the production formulas are compared with
@@ -42,6 +45,13 @@ class Measurement:
     belcour_darkening: np.ndarray | None          # (3,), None where belcour-fwd refuses the stack
     belcour_roughness: Roughness | None
     belcour_reason: str | None                    # why belcour-fwd has no value
+    belcour_lobe_alpha: float | None = None       # its base lobe's own roughness at normal incidence
+
+
+def belcour_lobe_alpha(stack: Stack) -> float:
+    """Roughness of belcour-fwd's base lobe (lobe 1) at normal incidence, channel mean: what its
+    variance statistics predict directly (``docs/belcour.md`` §2, §6)."""
+    return float(np.mean(lobe_statistics(stack, 1.0)[1][1]))
 
 
 def belcour_measure(coated: SimulationResult, bare: SimulationResult, cfg: CoatedBase
@@ -72,7 +82,8 @@ def measure_pair(coated: SimulationResult, bare: SimulationResult, with_belcour:
     rough = effective_roughness(coated) if cfg.base == "conductor" else None
     bd, br, why = (belcour_measure(coated, bare, cfg) if with_belcour
                    else (None, None, "not evaluated (with_belcour=False)"))
-    return Measurement(coated.stack.name, cfg, dark, rough, bd, br, why)
+    lobe = belcour_lobe_alpha(coated.stack) if bd is not None and cfg.base == "conductor" else None
+    return Measurement(coated.stack.name, cfg, dark, rough, bd, br, why, lobe)
 
 
 def result_files(results_dir: str | Path) -> list[Path]:

@@ -81,6 +81,7 @@ def build_samples(measurements: list[Measurement], parameters: dict[str, OpenPBR
                 base_alpha=base_alpha, base_metalness=metal, base_albedo=float(np.mean(e_base)),
                 measured=m.roughness.alpha, stderr=m.roughness.stderr, spec=spec_a,
                 belcour=np.nan if m.belcour_roughness is None else m.belcour_roughness.alpha,
+                belcour_lobe_alpha=np.nan if m.belcour_lobe_alpha is None else m.belcour_lobe_alpha,
                 clamped=float(m.roughness.clamped)))
     out = {}
     for q, rs in rows.items():
@@ -109,6 +110,8 @@ def _errors(s: Samples) -> dict:
            "belcour_n": int(has_b.sum())}
     if has_b.any():
         out["belcour_rmse"] = rmse(s.columns["belcour"][has_b], y[has_b])
+        if "belcour_lobe_alpha" in s.columns:
+            out["belcour_lobe_alpha_rmse"] = rmse(s.columns["belcour_lobe_alpha"][has_b], y[has_b])
         out["spec_rmse_belcour_samples"] = rmse(s.columns["spec"][has_b], y[has_b])
         out["fitted_rmse_belcour_samples"] = rmse(s.columns["fitted"][has_b], y[has_b])
     return out
@@ -136,6 +139,7 @@ def run_quantity(samples: Samples, formula: Formula, held: tuple[float, ...]) ->
         "spec_rmse": head["spec_rmse"], "fitted_rmse": head["fitted_rmse"],
         "n_train": int(train.sum()), "n_heldout": int(test.sum()),
         "belcour_rmse": head.get("belcour_rmse"), "belcour_n": head["belcour_n"],
+        "belcour_lobe_alpha_rmse": head.get("belcour_lobe_alpha_rmse"),
         "spec_rmse_belcour_samples": head.get("spec_rmse_belcour_samples"),
         "fitted_rmse_belcour_samples": head.get("fitted_rmse_belcour_samples"),
         "noise_rms": head["noise_rms"],

@@ -188,6 +188,12 @@ def markdown(summary: dict, results: dict[str, QuantityResult]) -> str:
               else f"{d['spec_rmse_belcour_samples']:.4f} / {d['fitted_rmse_belcour_samples']:.4f}")
         lines.append(f"| {q} | {d['units']} | {d['n_train']} | {d['n_heldout']} | {_fmt(d['spec_rmse'], 4)} | "
                      f"{_fmt(d['fitted_rmse'], 4)} | {b} | {sb} | {_fmt(d['noise_rms'], 4)} |")
+    lr = summary["roughening"].get("belcour_lobe_alpha_rmse")
+    if lr is not None:
+        lines += ["", f"belcour-fwd's base-lobe roughness read directly from its variance statistics (lobe 1 at "
+                  f"normal incidence, channel mean) has a held-out RMSE of {lr:.4f} against the effective "
+                  "roughness (the table's belcour-fwd column reads its integrated lobe with the reference's "
+                  "estimator)."]
     lines += ["", "Darkening samples are (material, colour channel) pairs: the coat is achromatic, so each "
               "channel is an independent base albedo. Roughening samples are coated conductors. belcour-fwd "
               "refuses Lambertian bases, so it is compared on the conductor samples only (the column beside "

@@ -175,6 +175,7 @@ def test_pipeline_with_belcour(tiny_results, tmp_path):
     assert d["belcour_n"] == 4 * 3 and d["heldout_by_base"]["conductor"]["belcour_n"] == 4 * 3
     assert d["heldout_by_base"]["lambertian"]["belcour_n"] == 0
     assert summary["roughening"]["belcour_n"] == 4 and summary["roughening"]["belcour_rmse"] > 0
+    assert summary["roughening"]["belcour_lobe_alpha_rmse"] > 0
     records = json.loads((tmp_path / "r" / "configurations.json").read_text())
     assert all(r["belcour"] is None for r in records["darkening"] if r["name"].startswith("plastic/"))
     assert all(0 < r["belcour"] < 1.5 for r in records["darkening"] if r["name"].startswith("metal/"))
