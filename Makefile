@@ -85,7 +85,7 @@ clean:
 # Issue 13 section 3 (configs/production.toml, docs/production.md): simulate the production coats
 # (resumable; add --scheduler via PRODUCTION_FLAGS for Dask), measure the effective darkening and
 # roughening, fit the replacement formulas and write $(PRODUCTION_OUT)/summary.json and production.md.
-# full: ~30-40 min on 2 cores (docs/production.md section 6); demo: configs/production-demo.toml, ~1 min.
+# full: ~25 min on 2 idle cores (docs/production.md section 6); demo: configs/production-demo.toml, ~20 s.
 .PHONY: production
 PRODUCTION_QUALITY ?= full
 PRODUCTION_CONFIG ?= configs/production$(if $(filter demo,$(PRODUCTION_QUALITY)),-demo,).toml

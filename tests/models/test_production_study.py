@@ -179,3 +179,21 @@ def test_pipeline_with_belcour(tiny_results, tmp_path):
     records = json.loads((tmp_path / "r" / "configurations.json").read_text())
     assert all(r["belcour"] is None for r in records["darkening"] if r["name"].startswith("plastic/"))
     assert all(0 < r["belcour"] < 1.5 for r in records["darkening"] if r["name"].startswith("metal/"))
+
+
+@pytest.mark.parametrize("name, counts", [("production.toml", (384, 96, 18)), ("production-demo.toml", (24, 12, 5))])
+def test_production_definitions(name, counts):
+    """The shipped definitions: the issue's grid (coat index 1.3-2.0, SS and MS, conductor and
+    Lambertian bases), classic slices with normal incidence, and a bare twin for every coated material."""
+    from models.production.effective import bare_key, coated_base
+    db = load_database(Path(__file__).resolve().parents[2] / "configs" / name)
+    cats = [m.category for m in db.materials]
+    assert (cats.count("metal"), cats.count("plastic"), cats.count("other")) == counts
+    assert 0.0 in db.incident_deg and {m.parametrization for m in db.materials} == {"classic"}
+    assert {"demo", "full"} <= set(db.qualities)
+    twins = {bare_key(m.stack) for m in db.materials} - {None}
+    coated = [coated_base(m.stack) for m in db.materials if m.category != "other"]
+    assert all(c is not None and c.base_key in twins for c in coated)
+    assert min(c.coat_ior for c in coated) == 1.3 and max(c.coat_ior for c in coated) == 2.0
+    assert {c.multiple_scattering for c in coated} == {False, True}
+    assert {c.base for c in coated} == {"conductor", "lambertian"}
