@@ -23,7 +23,7 @@ from goniometer.stack import Stack
 from models.compare import integrate
 from models.production.effective import (CoatedBase, Darkening, ProductionError, Roughness, bare_key,
                                          coat_albedo_rows, coated_base, darkening_from, effective_darkening,
-                                         effective_roughness, internal_albedo, layered_prediction,
+                                         effective_roughness, layered_prediction,
                                          normal_incidence_index, roughness_from)
 from models.belcour import lobe_statistics
 from models.registry import get as get_model
