@@ -173,8 +173,8 @@ def markdown(summary: dict, results: dict[str, QuantityResult]) -> str:
         "",
         "Reference: configurations with **multiple-scattering interfaces** (energy-conserving, the "
         "behaviour a renderer with energy compensation should match); fits use them only. "
-        f"Held-out coat indices (seed {split['seed']}): {', '.join(f'{x:g}' for x in split['heldout_coat_ior'])}; "
-        f"training: {', '.join(f'{x:g}' for x in split['train_coat_ior'])}.",
+        f"Held-out coat indices (seed {split['seed']}): {', '.join(str(float(x)) for x in split['heldout_coat_ior'])}; "
+        f"training: {', '.join(str(float(x)) for x in split['train_coat_ior'])}.",
         "",
         "## Summary (held-out configurations, RMSE in the quantity's own units)",
         "",
