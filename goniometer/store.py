@@ -92,6 +92,11 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
         en.create_dataset(f"{name}_stderr", data=r.energy_stderr[name])
     en.create_dataset("roulette", data=r.roulette)
     en.create_dataset("capped", data=r.capped)
+    if r.reflected_without_base is not None:
+        d = en.create_dataset("reflected_without_base", data=r.reflected_without_base)
+        d.attrs["description"] = ("part of `reflected` carried by paths that never had an event at the base "
+                                  "(the bottom layer: conductor, Lambertian or last interface)")
+        en.create_dataset("reflected_without_base_stderr", data=r.reflected_without_base_stderr)
 
 
 def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name: str | None = None):
@@ -273,6 +278,9 @@ def _read(f: h5py.File, p: Path) -> SimulationResult:
         capped_paths=f["simulation/capped_paths"][()] if "simulation/capped_paths" in f else np.zeros(M, np.int64),
         mean_events=f["simulation/mean_events"][()] if "simulation/mean_events" in f else np.full(M, np.nan),
         elapsed_s=elapsed, threads=int(sim["threads"]), compile_s=float(sim.get("compile_s", 0.0)),
+        reflected_without_base=en["reflected_without_base"][()] if "reflected_without_base" in en else None,
+        reflected_without_base_stderr=(en["reflected_without_base_stderr"][()]
+                                       if "reflected_without_base_stderr" in en else None),
     )
 
 
