@@ -153,6 +153,8 @@ def info_dict(path: Path) -> dict[str, Any]:
         e = {"theta_deg": float(r.theta_deg[m]), "phi_deg": float(r.phi_deg[m])}
         for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
             e[k] = [float(x) for x in r.energy[k][m]]
+        if r.reflected_without_base is not None:
+            e["reflected_without_base"] = [float(x) for x in r.reflected_without_base[m]]
         e["mean_events"] = float(r.mean_events[m])
         d["energy"].append(e)
     return d
