@@ -180,7 +180,7 @@ class FurnaceResult:
         }
 
 
-def furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[int], None] | None = None,
+def run_furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[int], None] | None = None,
             model_progress: Callable[[str], None] | None = None) -> FurnaceResult:
     """Simulate ``stack`` at the incident directions of ``settings`` (its grid is replaced by
     :data:`GRID`) and evaluate every model that applies. The models run first, so a model that
@@ -205,4 +205,4 @@ def furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[int]
 
 
 __all__ = ["INCIDENT_DEG", "RAYS", "GRID", "ENERGY_TERMS", "furnace_settings", "simulated_albedo", "needed_sides",
-           "model_reason", "ModelAlbedos", "model_albedos", "FurnaceResult", "furnace"]
+           "model_reason", "ModelAlbedos", "model_albedos", "FurnaceResult", "run_furnace"]

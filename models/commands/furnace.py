@@ -46,7 +46,7 @@ def cmd_furnace(args: argparse.Namespace) -> int:
     from goniometer.stack import StackError, load_toml
     from goniometer.tasks import warm_up
     from models.base import ModelError
-    from models.furnace import furnace, furnace_settings
+    from models.furnace import furnace_settings, run_furnace
 
     try:
         stack, table = load_toml(args.config)
@@ -80,7 +80,7 @@ def cmd_furnace(args: argparse.Namespace) -> int:
                     interrupts.check()
                     bar.update(n)
 
-                result = furnace(stack, settings, progress=progress,
+                result = run_furnace(stack, settings, progress=progress,
                                  model_progress=None if quiet else (lambda n: bar.write(f"integrating {n} ...",
                                                                                         file=sys.stderr)))
         except ModelError as e:

@@ -20,7 +20,7 @@ from goniometer.settings import SimulationSettings
 from goniometer.stack import Interface, Medium, Stack, load_toml
 from models import registry
 from models.compare.albedo import directional_albedo
-from models.furnace import ENERGY_TERMS, GRID, INCIDENT_DEG, furnace, furnace_settings, simulated_albedo
+from models.furnace import ENERGY_TERMS, GRID, INCIDENT_DEG, furnace_settings, run_furnace, simulated_albedo
 
 from tests.conftest import P_FALSE_ALARM, Z_TOL
 
@@ -49,7 +49,7 @@ def runs():
     out = {}
     for p in CONFIGS:
         stack, table = load_toml(p)
-        out[p.stem] = (stack, furnace(stack, furnace_settings(table, incident_deg=ANGLES, rays=RAYS, threads=1)))
+        out[p.stem] = (stack, run_furnace(stack, furnace_settings(table, incident_deg=ANGLES, rays=RAYS, threads=1)))
     return out
 
 
@@ -112,7 +112,7 @@ def test_a_smooth_interface_skips_every_model():
     # a smooth coat over the white metal: the coated-base models would represent it, but its
     # Dirac lobe is no integrable function
     stack = Stack("smooth", (Interface(0.0, (1.5,) * 3), Interface(0.3, (1e-9,) * 3, (1.0,) * 3, multiple_scattering=True)))
-    r = furnace(stack, furnace_settings(incident_deg=(30.0,), rays=500, threads=1))
+    r = run_furnace(stack, furnace_settings(incident_deg=(30.0,), rays=500, threads=1))
     assert not r.models.albedo
     assert "perfectly smooth" in r.models.skipped["ww09"] and "layers[0]" in r.models.skipped["ww09"]
     np.testing.assert_allclose(r.albedo, 1.0, atol=1e-12)    # nothing is absorbed or lost
