@@ -33,7 +33,6 @@ from goniometer.settings import SimulationSettings
 from goniometer.slices import light_direction
 from goniometer.stack import Stack
 from models import registry
-from models.base import ModelError
 from models.compare.albedo import MAX_PANEL, ORDER, directional_albedo, lobe_scale, smooth_interface
 
 #: default incident elevations of ``gonio furnace`` (degrees): 0, 5, ..., 85
@@ -112,7 +111,7 @@ def model_albedos(stack: Stack, theta_deg: tuple[float, ...], phi_deg: tuple[flo
                   order: int = ORDER, progress: Callable[[str], None] | None = None) -> ModelAlbedos:
     """Directional albedo of every registered analytic model that can represent ``stack``, at the
     incident directions (``theta_deg``, ``phi_deg``); the others under ``skipped`` with their
-    reason. A model that fails while being evaluated raises :class:`ModelError`."""
+    reason. A model that fails while being evaluated raises :class:`models.base.ModelError`."""
     phi_deg = phi_deg if phi_deg is not None else tuple(0.0 for _ in theta_deg)
     out = ModelAlbedos()
     for name, model in registry.all_models().items():

@@ -6,7 +6,6 @@ standard error matches the scatter of independent runs, the JSON contract and ba
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
