@@ -37,6 +37,8 @@ _EXPORTS = {
     "light_direction": "goniometer.slices",
     "read": "goniometer.store", "write": "goniometer.store", "describe": "goniometer.store",
     "StoreError": "goniometer.store",
+    # xarray views (optional extra "xarray")
+    "open_dataset": "goniometer.dataset", "open_datatree": "goniometer.dataset",
     # databases
     "load_database": "goniometer.database", "simulate_database": "goniometer.database",
     "DatabaseError": "goniometer.database",
