@@ -14,26 +14,28 @@ def register(sub) -> None:
     """Add ``fit``, ``models``, ``evaluate`` and ``plot`` to the ``gonio`` sub-command parser."""
     p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file")
     p.add_argument("file", metavar="FILE.h5")
-    p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"))
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"), help="the compact model (required)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.add_argument("--starts", type=int, default=4, help="optimiser starts (default 4)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the optimiser starts (default: %(default)s)")
     p.add_argument("--weighting", choices=("paper", "eq4"), default="paper",
                    help="the paper's eq. 29 weighting (default) or eq. 4 directly")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("models", help="list the analytic models and what they support")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_models)
 
     p = sub.add_parser("evaluate", help="integrate models onto a simulated file and print their errors")
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--model", action="append", metavar="NAME", help="a model to evaluate (repeatable; default: all that apply)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5", help="write the integrated model slices")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
+    p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5",
+                   help="write the integrated model slices (default: not written)")
     p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell axis (default 5)")
     p.add_argument("--isotropize", choices=("mean",),
-                   help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the output)")
+                   help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the "
+                        "output) (default: isotropic models skip anisotropic stacks)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
@@ -41,11 +43,16 @@ def register(sub) -> None:
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG figures")
     p.add_argument("--model", action="append", metavar="NAME",
-                   help="draw this model too (repeatable; 'all': every model that supports the stack)")
-    p.add_argument("--incident", metavar="THETAS", help="only these incident angles of the file, e.g. 0,60")
-    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell side when integrating models")
-    p.add_argument("--isotropize", choices=("mean",), help="feed isotropic models the mean roughness")
-    p.add_argument("--json", action="store_true", help="print the figure paths (and the model errors) as JSON")
+                   help="draw this model too (repeatable; 'all': every model that supports the stack) "
+                        "(default: the simulation alone)")
+    p.add_argument("--incident", metavar="THETAS",
+                   help="only these incident angles of the file, e.g. 0,60 (default: all of the file's)")
+    p.add_argument("--subcells", type=int, default=5,
+                   help="sub-cells per cell side when integrating models (default: %(default)s)")
+    p.add_argument("--isotropize", choices=("mean",),
+                   help="feed isotropic models the mean roughness (default: isotropic models skip anisotropic stacks)")
+    p.add_argument("--json", action="store_true",
+                   help="print the figure paths (and the model errors) as JSON (default: one path a line)")
     p.set_defaults(func=cmd_plot)
 
 
