@@ -105,6 +105,13 @@ def incident_list(text: str) -> tuple[list[float], list[float] | None]:
     return thetas, (phis if any_phi else None)
 
 
+def at_least_one(value: int, option: str, what: str) -> int:
+    """``value`` if it is 1 or more, else a UsageError naming ``option`` and the allowed range."""
+    if value < 1:
+        raise UsageError(f"{option}: {value} is not allowed; {what} is 1 or more")
+    return value
+
+
 def resolution(text: str) -> tuple[int, int]:
     try:
         a, b = text.lower().split("x")

@@ -6,8 +6,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
-from goniometer.cli.common import UsageError, incident_list
+from goniometer.cli.common import UsageError, at_least_one, incident_list
 
 
 def register(sub) -> None:
@@ -114,6 +115,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from models.base import ModelError
     from models.evaluation import evaluate, save_slices
 
+    at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     try:
         if args.save_slices:
             store.check_writable(args.save_slices)
@@ -130,13 +132,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     what = "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF"
     print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
           f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
-    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'total mean':>11s}  noise floor")
+    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
+          f"{'total mean':>11s} {'its floor':>9s}")
     for name, e in ev.errors.items():
-        i, t = e["internal"], e["total"]
-        rgb = " ".join(f"{x:9.3e}" for x in i["rmse"])
-        print(f"{name:16s} {i['rmse_mean']:13.4e} {rgb:>30s} {i['rmse_luminance']:10.3e} {t['rmse_mean']:11.4e}"
-              f"  {i['noise_floor_mean']:.2e}")
-    print(f"('internal' = {what}; noise floor = the error a perfect model would show against this reference)")
+        print(table_row(name, e["internal"], e["total"]))
+    print(f"('internal' = {what}; each floor = the error a perfect model would show against this reference "
+          f"on the part beside it, channel mean)")
     for name, note in ev.approximations.items():
         print(f"note {name}: {note}")
     for name, reason in ev.skipped.items():
@@ -146,10 +147,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def table_row(name: str, internal: dict, total: dict) -> str:
+    """One line of ``gonio evaluate``'s table: each part's channel-mean RMSE beside its own noise
+    floor (the total error is compared with the total floor, the internal error with the internal
+    floor; ``models.compare.errors``)."""
+    rgb = " ".join(f"{x:9.3e}" for x in internal["rmse"])
+    return (f"{name:16s} {internal['rmse_mean']:13.4e} {rgb:>30s} {internal['rmse_luminance']:10.3e} "
+            f"{internal['noise_floor_mean']:9.2e} {total['rmse_mean']:11.4e} {total['noise_floor_mean']:9.2e}")
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
     from models.report import ReportError, plot_file
 
+    at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UsageError(f"--out: {args.out} is an existing file; give a directory for the figures")
     incidents = None
     if args.incident is not None:
         thetas, _ = incident_list(args.incident)

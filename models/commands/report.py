@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from goniometer.cli.common import UsageError, incident_list, progress_bar
+from goniometer.cli.common import UsageError, at_least_one, incident_list, progress_bar
 
 
 def register(sub) -> None:
@@ -32,6 +32,7 @@ def register(sub) -> None:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from models.report import ReportError, build_report
+    at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     incidents = None
     if args.incidents:
         incidents, _ = incident_list(args.incidents)

@@ -127,6 +127,9 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
     "evaluation": the gonio evaluate --json object or None}``. Raises ReportError for a bad file or
     an incident angle the file does not hold, ModelError for an unknown or unsupported model.
     """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ReportError(f"{out}: the output directory names an existing file (give a directory)")
     ref = read_reference(Path(path))
     if incidents is not None:
         have = [float(t) for t in ref.theta_deg]
@@ -142,8 +145,10 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
         ev = evaluate(ref, names, s=subcells, isotropize=isotropize)
         slices = {n: (ms.top, ms.internal) for n, ms in ev.slices.items()}
         doc = ev.to_json()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ReportError(f"{out}: cannot create the output directory ({e.strerror or e})") from None
     figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents)
     paths = [out / "energy.png"]
     for e in figs["incidents"]:
