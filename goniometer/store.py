@@ -13,6 +13,7 @@ import datetime as _dt
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 import h5py
 import numpy as np
@@ -165,7 +166,8 @@ def energy_attrs(name: str) -> dict[str, str]:
     return {"long_name": long_name, "units": "1", "description": description}
 
 
-def attach_incident_dims(g: h5py.Group, theta_deg: np.ndarray, phi_deg: np.ndarray, describe=None) -> None:
+def attach_incident_dims(g: h5py.Group, theta_deg: np.ndarray, phi_deg: np.ndarray,
+                         describe: Callable[[str], dict | None] | None = None) -> None:
     """Give every dataset of a per-incident group (``/energy``, ``/simulation``) named dimensions:
     shape (M,) gets ``incident``, shape (M, 3) gets ``incident, channel``; ``incident`` holds theta_l
     and the auxiliary coordinate ``incident_phi`` phi_l. Call it once every dataset is written; any
