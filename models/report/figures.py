@@ -96,17 +96,21 @@ def _figure_incidents(ref: SimulationResult, wanted: Sequence[float] | None) -> 
 
 
 def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndarray, np.ndarray]],
-                          fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None) -> dict:
+                          fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None,
+                          name_by_angle: bool = False) -> dict:
     """Draw every figure of one material into ``fig_dir``; returns their paths relative to the
-    report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``."""
+    report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``.
+    Files of incident direction m are named ``*_m<m>.png``, or with ``name_by_angle``
+    ``*_theta<θ_l>_phi<φ_l>.png`` (degrees, as ``gonio plot`` names them)."""
     side = comparison_side(ref.stack)
     sd = ref.brdf if side == "brdf" else ref.btdf
     entries = []
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
-        plane = f"plane_m{inc.m}.png"
+        tag = f"theta{inc.theta:g}_phi{inc.phi:g}" if name_by_angle else f"m{inc.m}"
+        plane = f"plane_{tag}.png"
         save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays), fig_dir / plane)
-        tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir)
-        orders = f"orders_m{inc.m}.png"
+        tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir, tag)
+        orders = f"orders_{tag}.png"
         write_png(fig_dir / orders, _orders_image(inc, sd.grid))
         entries.append({"index": inc.m, "theta": inc.theta, "phi": inc.phi, "plane": f"{rel}/{plane}",
                         "orders": f"{rel}/{orders}", "top": {k: f"{rel}/{v}" for k, v in tops.items()},
@@ -149,7 +153,7 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ReportError(f"{out}: cannot create the output directory ({e.strerror or e})") from None
-    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents)
+    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents, name_by_angle=True)
     paths = [out / "energy.png"]
     for e in figs["incidents"]:
         paths += [out / e["plane"], out / e["orders"]] + [out / t for t in e["top"].values()]
@@ -209,11 +213,11 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
     axes[0].set_ylabel("log(1 + √f), luminance", fontsize=8)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
-    fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°", fontsize=9)
+    fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°", fontsize=9)
     return fig
 
 
-def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path) -> tuple[dict[str, str], float, float]:
+def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str) -> tuple[dict[str, str], float, float]:
     """Reference and model top views, one PNG each with three disks: RGB, luminance isovalues and
     the signed difference of g(L) to the reference (for the reference: its 2-sigma noise), all
     on scales shared by the reference and the models. Returns file names, the difference scale
@@ -235,7 +239,7 @@ def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path) -> tuple[dict[str
         a = mark_light(rgb_panel(cells, scale, pm), inc.light)
         b = mark_light(iso_panel(_lum(cells), lum_scale, pm), inc.light)
         c = mark_light(diverging_panel(third, lim, pm), inc.light)
-        fname = f"top_m{inc.m}_{safe_part(name)}.png"
+        fname = f"top_{tag}_{safe_part(name)}.png"
         write_png(fig_dir / fname, compose([[a, b, c]]))
         out[name] = fname
     return out, lim, lum_scale

@@ -359,7 +359,8 @@ def test_plot_writes_the_figures_of_one_file(simulated, tmp_path, capsys):
                  "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
     names = sorted(Path(p).name for p in r["figures"])
-    assert names == ["energy.png", "orders_m1.png", "plane_m1.png", "top_m1_belcour-btdf.png", "top_m1_reference.png"]
+    assert names == ["energy.png", "orders_theta60_phi0.png", "plane_theta60_phi0.png",
+                     "top_theta60_phi0_belcour-btdf.png", "top_theta60_phi0_reference.png"]  # named by angle
     for p in r["figures"]:
         assert Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert r["evaluation"]["side"] == "btdf" and "belcour-btdf" in r["evaluation"]["models"]
