@@ -94,9 +94,7 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     en.create_dataset("roulette", data=r.roulette)
     en.create_dataset("capped", data=r.capped)
     if r.reflected_without_base is not None:
-        d = en.create_dataset("reflected_without_base", data=r.reflected_without_base)
-        d.attrs["description"] = ("part of `reflected` carried by paths that never had an event at the base "
-                                  "(the bottom layer: conductor, Lambertian or last interface)")
+        en.create_dataset("reflected_without_base", data=r.reflected_without_base)
         en.create_dataset("reflected_without_base_stderr", data=r.reflected_without_base_stderr)
 
     # last: named dimensions for every dataset of the two per-incident groups (xarray without phony dims)
@@ -144,6 +142,10 @@ ENERGY_ATTRS = {
     "roulette": ("Russian roulette balance", "net weight booked by Russian roulette divided by the rays; "
                  "zero in expectation"),
     "capped": ("capped fraction", "weight of the paths stopped by the event cap divided by the rays"),
+    "reflected_without_base": ("reflected fraction that never reached the base",
+                               "part of `reflected` carried by paths that never had an event at the base "
+                               "(the bottom layer: conductor, Lambertian, or last interface of a transmitting "
+                               "stack); not a further term of the energy sum"),
 }
 
 
