@@ -16,7 +16,7 @@ def register(sub) -> None:
                                        "errors and energy terms) and every model that applies (white-furnace tables)")
     p.add_argument("config", metavar="CONFIG.toml")
     p.add_argument("--json", action="store_true", help="print one JSON object (docs/furnace.md)")
-    p.add_argument("--plot", metavar="FILE.png", help="also draw albedo vs incident angle into this PNG")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw albedo vs incident angle into this PNG (default: no figure)")
     p.add_argument("--incident", metavar="LIST",
                    help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth); default: the "
                         "file's [simulation] incident_deg, else 0,5,...,85")
