@@ -83,6 +83,7 @@ def artistic_from_ior(eta: ArrayLike, kappa: ArrayLike) -> tuple[np.ndarray, np.
     r = np.asarray(np_fresnel_conductor(np.ones_like(eta), eta, kappa), dtype=np.float64)
     sr = np.sqrt(r)
     n_min = (1.0 - r) / (1.0 + r)
-    n_max = (1.0 + sr) / (1.0 - sr)
-    return r, (n_max - eta) / (n_max - n_min)
+    with np.errstate(divide="ignore", invalid="ignore"):   # r = 1 (a perfect mirror): g undefined (NaN)
+        n_max = (1.0 + sr) / (1.0 - sr)
+        return r, (n_max - eta) / (n_max - n_min)
 
