@@ -12,9 +12,9 @@ import numpy as np
 from models import registry
 from models.base import ModelError
 from models.render.figure import fill, figure, split, write_png
-from models.render.modelbsdf import ModelBSDF
+from models.render.modelbsdf import ModelBSDF, node_step_deg
 from models.render.reference import Reference, open_reference
-from models.render.sphere import BTDF, SphereView
+from models.render.sphere import BTDF, SphereView, shade_views
 from models.render.tonemap import EXPOSURE_RULE, display, exposure
 
 REFERENCE = "reference"
@@ -81,20 +81,29 @@ def model_names(names: Sequence[str] | None) -> list[str] | None:
 def render_spheres(reference: Reference, models: Sequence[str] | None, view: SphereView) -> SphereSet:
     """The reference and ``models`` (names; None: every model of the registry) on ``view``. Models
     that refuse the stack or the side are skipped with their reason."""
-    if view.side != reference.side:
-        raise ModelError(f"view side {view.side} differs from the reference's {reference.side}")
-    images = {REFERENCE: view.shade(reference.bsdf)}
+    return render_views(reference, models, [view])[0]
+
+
+def render_views(reference: Reference, models: Sequence[str] | None, views: Sequence[SphereView]) -> list[SphereSet]:
+    """:func:`render_spheres` for several views at once: each model is evaluated once per light node
+    for all of them (nodes spaced for the largest view, :func:`models.render.modelbsdf.node_step_deg`)."""
+    views = list(views)
+    for view in views:
+        if view.side != reference.side:
+            raise ModelError(f"view side {view.side} differs from the reference's {reference.side}")
+    images = {REFERENCE: shade_views(views, reference.bsdf)}
     skipped: dict[str, str] = {}
-    catalogue = registry.all_models()
-    for name in (list(catalogue) if models is None else models):
+    step = min(node_step_deg(v.size) for v in views)
+    for name in (list(registry.all_models()) if models is None else models):
         try:
-            f = ModelBSDF(registry.get(name), reference.stack, reference.side)
+            f = ModelBSDF(registry.get(name), reference.stack, reference.side, step)
         except ModelError as e:
             msg = str(e)
             skipped[name] = msg[len(name) + 2:] if msg.startswith(f"{name}: ") else msg
             continue
-        images[name] = view.shade(f)
-    return SphereSet(view, reference, images, skipped)
+        images[name] = shade_views(views, f)
+    return [SphereSet(view, reference, {n: imgs[k] for n, imgs in images.items()}, dict(skipped))
+            for k, view in enumerate(views)]
 
 
 def view_text(view: SphereView) -> str:

@@ -2,10 +2,10 @@
 
 ``Model.evaluate`` takes one light direction and many outgoing directions, while every pixel of a
 sphere has its own light direction. The model is therefore evaluated at light elevations every
-:data:`THETA_STEP_DEG` (azimuth 0) and interpolated linearly in ``theta_l`` at a fixed half vector
+:func:`node_step_deg` (azimuth 0) and interpolated linearly in ``theta_l`` at a fixed half vector
 (:mod:`models.render.incidents`, ``"half"`` coordinates: a specular peak does not fade between
 nodes). A node whose outgoing direction falls below the horizon is left out (the other carries the
-pair); lights closer to grazing than the last node (``90 - THETA_STEP_DEG``) use that node.
+pair); lights closer to grazing than the last node (``90 deg - step``) use that node.
 Isotropic stacks only (the pair is rotated so that ``l`` has azimuth 0).
 """
 
@@ -17,8 +17,15 @@ from goniometer.stack import Stack
 from models.base import Model, ModelError
 from models.render.incidents import align, bracket, half_vector, node_light, view_from_half
 
-#: spacing of the light elevations at which a model is evaluated (degrees)
+#: the finest and the coarsest spacing of the light elevations at which a model is evaluated (degrees)
 THETA_STEP_DEG = 0.25
+THETA_STEP_MAX_DEG = 2.0
+
+
+def node_step_deg(size: int) -> float:
+    """Node spacing for a sphere ``size`` pixels wide: the angle between the normals of two
+    neighbouring pixels at the image centre (``2 / size`` rad), clipped to [0.25, 2] degrees."""
+    return float(np.clip(np.degrees(2.0 / size), THETA_STEP_DEG, THETA_STEP_MAX_DEG))
 
 
 class ModelBSDF:

@@ -42,7 +42,8 @@ class Reference:
 
     stack: Stack
     side: str
-    bsdf: BSDF
+    #: None when only cached images of it are at hand (the report's sphere cache)
+    bsdf: BSDF | None
     #: e.g. "slices interpolated between theta_l = 0, 15, ..., 80 deg (half parametrisation)"
     description: str
     #: recorded light elevations (degrees) the BSDF is defined between, or None (the whole range)

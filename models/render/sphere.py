@@ -119,11 +119,22 @@ class SphereView:
     def shade(self, f: BSDF) -> np.ndarray:
         """(size, size, 3) linear radiance ``f(l, v) cos(theta_l) E`` of every pixel: 0 on unlit sphere
         pixels, NaN where ``f`` has no value and outside the disk."""
-        lit, l, v = self.local
+        return shade_views([self], f)[0]
+
+
+def shade_views(views: list[SphereView], f: BSDF) -> list[np.ndarray]:
+    """:meth:`SphereView.shade` of several views with one call of ``f`` on all their pixels (a model
+    is then evaluated once per light node for every view)."""
+    parts = [v.local for v in views]
+    l = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3))
+    v = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 3))
+    fv = np.asarray(f(l, v), dtype=np.float64).reshape(len(l), 3) if len(l) else np.zeros((0, 3))
+    images, start = [], 0
+    for view, (lit, lv, _) in zip(views, parts):
         values = np.zeros((len(lit), 3))
-        if len(l):
-            fv = np.asarray(f(l, v), dtype=np.float64).reshape(len(l), 3)
-            values[lit] = fv * (l[:, 2] * IRRADIANCE)[:, None]
-        img = np.full((self.size, self.size, 3), np.nan)
-        img[self.inside] = values
-        return img
+        values[lit] = fv[start:start + len(lv)] * (lv[:, 2] * IRRADIANCE)[:, None]
+        start += len(lv)
+        img = np.full((view.size, view.size, 3), np.nan)
+        img[view.inside] = values
+        images.append(img)
+    return images
