@@ -60,7 +60,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     if doc["no_value_fraction"] > 0:
         print(f"reference has no value on {doc['no_value_fraction']:.1%} of the sphere (hatched)")
     for name, m in doc["models"].items():
-        print(f"  {name:16s} image RMSE {m['rmse']:.4g} (display units, white = 1)")
+        rmse = "-" if m["rmse"] is None else f"{m['rmse']:.4g}"
+        print(f"  {name:16s} image RMSE {rmse} (display units, white = 1)")
     for name, reason in doc["skipped"].items():
         print(f"skipped {name}: {reason}")
     print(f"wrote {args.out}")

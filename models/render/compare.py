@@ -57,10 +57,13 @@ class SphereSet:
         return [n for n in self.images if n != REFERENCE]
 
     def to_json(self) -> dict:
+        """What ``gonio render --json`` prints (an RMSE without any common pixel is null)."""
+        def num(x: float) -> float | None:
+            return float(x) if np.isfinite(x) else None
         return {"light_angle_deg": self.view.light_angle_deg, "size": self.view.size, "side": self.view.side,
                 "material": self.reference.stack.name, "reference": self.reference.description,
                 "exposure": self.exposure, "no_value_fraction": self.no_value(REFERENCE),
-                "models": {n: {"rmse": self.rmse(n), "no_value_fraction": self.no_value(n)} for n in self.models},
+                "models": {n: {"rmse": num(self.rmse(n)), "no_value_fraction": self.no_value(n)} for n in self.models},
                 "skipped": dict(self.skipped)}
 
 
