@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Sequence
 
@@ -29,7 +30,7 @@ class SphereSet:
     images: dict[str, np.ndarray]
     skipped: dict[str, str] = field(default_factory=dict)
 
-    @property
+    @cached_property
     def exposure(self) -> float:
         """The one exposure of every panel (:func:`models.render.tonemap.exposure` on the reference)."""
         return exposure(self.images[REFERENCE], self.view.inside)

@@ -170,15 +170,18 @@ def tabulated_reference(path: str | Path) -> Reference:
 
     Uses ``goniometer.tabulated.read_tabulated(path)``: its ``eval(l, v)`` lookup and its stack."""
     try:
-        from goniometer.tabulated import read_tabulated
+        from goniometer.tabulated import TabulatedError, read_tabulated
     except ImportError:
         raise RenderError(f"{path}: a tabulated BRDF file ({TABULATED_FORMAT}), but this installation has no "
                           f"reader for it (goniometer.tabulated); render a slices file instead") from None
-    table = read_tabulated(path)
+    try:
+        table = read_tabulated(path)
+    except TabulatedError as e:
+        raise RenderError(str(e)) from None
     stack = table.stack
     _check_isotropic(stack, str(path))
     return Reference(stack, "brdf", lambda l, v: np.asarray(table.eval(l, v), dtype=np.float64),
-                     "tabulated BRDF (Rusinkiewicz half/difference grid)", None)
+                     "tabulated BRDF (MERL half/difference grid, value of the cell holding each pair)", None)
 
 
 def open_reference(path: str | Path) -> Reference:

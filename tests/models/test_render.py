@@ -210,3 +210,50 @@ def test_cli_writes_the_png(lambert_classic, tmp_path, capsys):
     assert code == 0, err
     assert (tmp_path / "s.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "wrote" in out and "skipped ww09:" in out
+
+
+class _FakeTable:
+    """Stands for goniometer.tabulated's TabulatedBRDF (another branch): a stack and eval(l, v)."""
+
+    def __init__(self, stack):
+        self.stack = stack
+
+    def eval(self, l, v):
+        return np.broadcast_to(RHO / math.pi, l.shape)
+
+
+def _tabulated_file(path: Path) -> Path:
+    import h5py
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "goniometer.tabulated"
+    return path
+
+
+def test_a_tabulated_file_goes_through_read_tabulated(tmp_path, monkeypatch):
+    """A file whose format attribute is goniometer.tabulated is read by
+    goniometer.tabulated.read_tabulated and rendered from its eval(l, v): a Lambertian table gives
+    the Lambert sphere over the whole lit half (no recorded range)."""
+    import sys
+    import types
+    fake = types.ModuleType("goniometer.tabulated")
+    stack = g.stack_from_dict(LAMBERT)
+    fake.TabulatedError = type("TabulatedError", (ValueError,), {})
+    fake.read_tabulated = lambda p: _FakeTable(stack)
+    monkeypatch.setitem(sys.modules, "goniometer.tabulated", fake)
+    ref = open_reference(_tabulated_file(tmp_path / "t.h5"))
+    assert ref.side == "brdf" and ref.theta_range_deg is None and ref.stack.name == "lambert"
+    size, a = 40, math.radians(65.0)
+    img = SphereView(size, 65.0).shade(ref.bsdf)
+    x, y, nz, inside = _pixels(size)
+    cos_l = y * math.sin(a) + nz * math.cos(a)
+    expected = RHO[None, None, :] / math.pi * np.clip(cos_l, 0.0, None)[..., None]
+    np.testing.assert_allclose(img[inside], expected[inside], rtol=1e-12, atol=1e-15)
+
+
+def test_a_tabulated_file_without_its_reader_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    import sys
+    monkeypatch.setitem(sys.modules, "goniometer.tabulated", None)   # import fails
+    path = _tabulated_file(tmp_path / "t.h5")
+    code, out, err = _run(capsys, path, "--out", tmp_path / "s.png")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "goniometer.tabulated" in err and str(path) in err
