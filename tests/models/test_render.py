@@ -257,3 +257,21 @@ def test_a_tabulated_file_without_its_reader_is_a_clear_error(tmp_path, monkeypa
     code, out, err = _run(capsys, path, "--out", tmp_path / "s.png")
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "goniometer.tabulated" in err and str(path) in err
+
+
+def test_a_model_is_exact_at_its_light_nodes(metal_half):
+    """ModelBSDF returns Model.evaluate itself when the light sits on a node (0.25 deg steps), for any
+    azimuth of the light (isotropy) and on both sides of the plane of incidence."""
+    model = registry.get("belcour-sym")
+    f = ModelBSDF(model, metal_half.stack, "brdf", 0.25)
+    rng = np.random.default_rng(3)
+    for theta in (0.0, 20.25, 47.5, 71.0):
+        v = rng.normal(size=(50, 3))
+        v[:, 2] = np.abs(v[:, 2]) + 0.05
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        direct = model.evaluate(metal_half.stack, light_direction(theta), v).total
+        phi = float(rng.uniform(0, 2 * math.pi))
+        c, s = math.cos(phi), math.sin(phi)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        l = np.broadcast_to(rot @ light_direction(theta), v.shape)
+        np.testing.assert_allclose(f(l, v @ rot.T), direct, rtol=1e-9, atol=1e-12)
