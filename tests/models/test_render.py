@@ -17,7 +17,6 @@ from goniometer.cli import main as gonio
 from models.render import (BTDF, ModelBSDF, SphereView, open_reference, render_spheres, slices_reference,
                            srgb_oetf)
 from models.render.compare import REFERENCE, SphereSet
-from models.render.reference import Reference
 from models import registry
 
 RHO = np.array([0.2, 0.5, 0.8])
