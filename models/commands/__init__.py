@@ -9,6 +9,7 @@ from __future__ import annotations
 from models.commands import evaluate, inverse, report, tables
 from models.commands import furnace
 from models.commands import production
+from models.commands import render
 
 
 def register(sub) -> None:
@@ -19,3 +20,4 @@ def register(sub) -> None:
     tables.register(sub)
     furnace.register(sub)
     production.register(sub)
+    render.register(sub)
