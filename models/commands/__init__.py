@@ -6,10 +6,7 @@ the host (:mod:`goniometer.cli`) calls it. Nothing below the application imports
 
 from __future__ import annotations
 
-from models.commands import evaluate, inverse, report, tables
-from models.commands import furnace
-from models.commands import production
-from models.commands import render
+from models.commands import evaluate, furnace, inverse, production, render, report, tables
 
 
 def register(sub) -> None:
