@@ -30,7 +30,7 @@ from models.report.results import MaterialResult, ReportError, ReportMaterial
 CACHE_FORMAT = "goniometer.report-cache"
 CACHE_VERSION = 1
 #: bump when the figures change in a way the module source hash would not capture
-FIGURE_VERSION = 1
+FIGURE_VERSION = 2
 #: precision of the model slices kept in the cache (for figures only)
 SLICE_CACHE_MANTISSA_BITS = 11
 

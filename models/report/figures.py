@@ -22,8 +22,9 @@ from goniometer.slices import SliceGrid, light_direction
 from models.compare.errors import luminance
 from models.evaluation import comparison_side, evaluate
 from models.report.evaluation import cache_paths, judged_side, load_slices, read_reference
-from models.report.files import material_dir, read_json, safe_part, write_json
-from models.report.geometry import exposure, pixel_map, plane_cells, remap
+from models.report.files import material_dir, read_json, safe_part, write_json, write_text
+from models.report.geometry import exposure, pixel_map, plane_cells, remap, unremap
+from models.report.hover import HOVER_PX, hover_incident, hover_script
 from models.report.panels import (DPI, ISO_LEVELS, colormap, compose, diverging_panel, iso_panel, mark_light,
                                   rgb_panel, save_figure, write_png)
 from models.report.results import MaterialResult, ReportError
@@ -45,6 +46,9 @@ PAPER_MARKERS = {"ww09": "o", "elek10": "s", "ww-bati19": "D", "belcour-fwd": "^
 FALLBACK_MARKERS = ("X", "*", "h", "<", ">", "p", "d", "8")
 DISK_PX = 180          # top-view disk diameter (pixels)
 ORDER_DISK_PX = 130    # bounce-order disk diameter
+PANEL_GAP_PX = 8       # gap between the disks of a composed image (panels.compose)
+#: significant digits of the colour-bar numbers handed to the page
+LEGEND_DIGITS = 4
 
 
 def model_style(names: Iterable[str]) -> dict[str, dict[str, str]]:
@@ -97,28 +101,62 @@ def _figure_incidents(ref: SimulationResult, wanted: Sequence[float] | None) -> 
 
 def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndarray, np.ndarray]],
                           fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None,
-                          standalone: bool = False) -> dict:
+                          standalone: bool = False, name: str | None = None) -> dict:
     """Draw every figure of one material into ``fig_dir``; returns their paths relative to the
     report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``.
     Files of incident direction m are named ``*_m<m>.png``. ``standalone`` (``gonio plot``, where
     no HTML page explains the images): files named ``*_theta<θ_l>_phi<φ_l>.png`` (degrees), and
-    top views drawn as labelled figures (titles, colour bars, orientation; :func:`_labelled_top`)."""
+    top views drawn as labelled figures (titles, colour bars, orientation; :func:`_labelled_top`).
+    Otherwise the page draws the colour bars from each entry's ``legend`` / ``orders_legend`` and
+    reads the hover values from ``hover.js`` (:mod:`models.report.hover`), registered under ``name``
+    (default: the stack's name)."""
     side = comparison_side(ref.stack)
     sd = ref.brdf if side == "brdf" else ref.btdf
-    entries = []
+    entries, hover = [], []
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
         tag = f"theta{inc.theta:g}_phi{inc.phi:g}" if standalone else f"m{inc.m}"
         plane = f"plane_{tag}.png"
         save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays), fig_dir / plane)
         labels = (ref.stack.name, side) if standalone else None
-        tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
+        tops, diff_scale, lum_scale, rgb_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
         orders = f"orders_{tag}.png"
-        write_png(fig_dir / orders, _orders_image(inc, sd.grid))
+        orders_img, orders_legend = _orders_image(inc, sd.grid)
+        write_png(fig_dir / orders, orders_img)
         entries.append({"index": inc.m, "theta": inc.theta, "phi": inc.phi, "plane": f"{rel}/{plane}",
                         "orders": f"{rel}/{orders}", "top": {k: f"{rel}/{v}" for k, v in tops.items()},
-                        "diff_scale": diff_scale, "scale": lum_scale})
+                        "diff_scale": diff_scale, "scale": lum_scale,
+                        "legend": _legend(rgb_scale, lum_scale), "orders_legend": orders_legend})
+        if not standalone:
+            hover.append(_hover_entry(inc, sd.grid))
     save_figure(_energy_figure(ref, sd, side), fig_dir / "energy.png")
-    return {"incidents": entries, "energy": f"{rel}/energy.png", "orders_k": int(sd.orders.shape[1])}
+    out = {"incidents": entries, "energy": f"{rel}/energy.png", "orders_k": int(sd.orders.shape[1])}
+    if not standalone:
+        write_text(fig_dir / "hover.js", hover_script(name or ref.stack.name, side, hover))
+        out["hover"] = f"{rel}/hover.js"
+    return out
+
+
+def _sig(x: float) -> float:
+    """``x`` rounded to :data:`LEGEND_DIGITS` significant digits (colour-bar numbers)."""
+    return float(f"{float(x):.{LEGEND_DIGITS - 1}e}")
+
+
+def _legend(rgb_scale: float, lum_scale: float, factor: float = 1.0) -> dict:
+    """The numbers of a view's colour bars: ``rgb_white``, the f (1/sr) at which an RGB channel
+    saturates (``factor * g(f) = rgb_scale``); ``band_edges``, the luminance (1/sr) at the
+    :data:`ISO_LEVELS` + 1 band edges (evenly spaced in g from 0 to ``lum_scale``), and ``g_top`` =
+    ``lum_scale``."""
+    edges = unremap(np.linspace(0.0, lum_scale, ISO_LEVELS + 1))
+    return {"rgb_white": _sig(unremap(rgb_scale / factor)), "g_top": _sig(lum_scale),
+            "band_edges": [_sig(e) for e in edges]}
+
+
+def _hover_entry(inc: _Incident, grid: SliceGrid) -> dict:
+    """The hover read-out data of one incident direction (:func:`models.report.hover.hover_incident`):
+    the luminance of the reference, its standard error and each model's total, as the top views show."""
+    pm = pixel_map(grid, inc.light, inc.mask, HOVER_PX)
+    return hover_incident(pm, inc.theta, inc.phi, inc.m, _lum(inc.ref), _lum(inc.ref_se),
+                          {n: _lum(t + i) for n, (t, i) in inc.models.items()})
 
 
 def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | None = None,
@@ -220,11 +258,11 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
 
 
 def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
-               labels: tuple[str, str] | None = None) -> tuple[dict[str, str], float, float]:
+               labels: tuple[str, str] | None = None) -> tuple[dict[str, str], float, float, float]:
     """Reference and model top views, one PNG each with three disks: RGB, luminance isovalues and
     the signed difference of g(L) to the reference (for the reference: its 2-sigma noise), all
-    on scales shared by the reference and the models. Returns file names, the difference scale
-    and the luminance scale. ``labels`` = (material name, side): labelled figures instead of the
+    on scales shared by the reference and the models. Returns file names, the difference scale,
+    the luminance scale and the RGB scale (g units). ``labels`` = (material name, side): labelled figures instead of the
     bare disks the HTML report frames."""
     pm = pixel_map(grid, inc.light, inc.mask, DISK_PX)
     scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
@@ -245,11 +283,11 @@ def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
         c = mark_light(diverging_panel(third, lim, pm), inc.light)
         fname = f"top_{tag}_{safe_part(name)}.png"
         if labels is None:
-            write_png(fig_dir / fname, compose([[a, b, c]]))
+            write_png(fig_dir / fname, compose([[a, b, c]], gap=PANEL_GAP_PX))
         else:
             save_figure(_labelled_top((a, b, c), name, inc, labels, lum_scale, lim), fig_dir / fname)
         out[name] = fname
-    return out, lim, lum_scale
+    return out, lim, lum_scale, scale
 
 
 def _labelled_top(panels: tuple[np.ndarray, np.ndarray, np.ndarray], name: str, inc: _Incident,
@@ -287,18 +325,22 @@ def _labelled_top(panels: tuple[np.ndarray, np.ndarray, np.ndarray], name: str, 
     return fig
 
 
-def _orders_image(inc: _Incident, grid: SliceGrid) -> np.ndarray:
+def _orders_image(inc: _Incident, grid: SliceGrid) -> tuple[np.ndarray, list[dict]]:
     """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled) over isovalues (each
-    order exposed on its own range, see :func:`exposure`)."""
+    order exposed on its own range, see :func:`exposure`); with each column's colour-bar numbers
+    (:func:`_legend`)."""
     pm = pixel_map(grid, inc.light, inc.mask, ORDER_DISK_PX)
     scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
-    top, bottom = [], []
+    top, bottom, legends = [], [], []
     for k in range(inc.orders.shape[0]):
         cells = inc.orders[k]
-        top.append(mark_light(rgb_panel(cells, scale, pm, factor=1.0 if k == 0 else 2.0), inc.light))
+        factor = 1.0 if k == 0 else 2.0
+        top.append(mark_light(rgb_panel(cells, scale, pm, factor=factor), inc.light))
         lum = _lum(cells)
-        bottom.append(mark_light(iso_panel(lum, exposure(remap(lum), inc.omega, inc.mask), pm), inc.light))
-    return compose([top, bottom])
+        lum_scale = exposure(remap(lum), inc.omega, inc.mask)
+        bottom.append(mark_light(iso_panel(lum, lum_scale, pm), inc.light))
+        legends.append({"order": k + 1, "factor": factor, **_legend(scale, lum_scale, factor)})
+    return compose([top, bottom], gap=PANEL_GAP_PX), legends
 
 
 def order_energy(sd: SliceData) -> np.ndarray:
@@ -350,13 +392,14 @@ def material_figures(res: MaterialResult, ref: SimulationResult | None, out: Pat
         if res.slices is None:
             raise ReportError(f"{cache_paths(out, res.material.name)[1]}: unreadable cache; delete it and rerun")
     fig_dir.mkdir(parents=True, exist_ok=True)
-    res.figures = draw_material_figures(ref, res.slices, fig_dir, rel_dir.as_posix(), styles, incidents)
+    res.figures = draw_material_figures(ref, res.slices, fig_dir, rel_dir.as_posix(), styles, incidents,
+                                        name=res.material.name)
     write_json(stamp_path, {"key": fkey, "figures": res.figures})
     return True
 
 
 def _files_exist(out: Path, figures: dict) -> bool:
-    paths = [figures.get("energy")]
+    paths = [figures.get("energy"), figures.get("hover", figures.get("energy"))]
     for inc in figures.get("incidents", []):
         paths += [inc.get("plane"), inc.get("orders"), *inc.get("top", {}).values()]
     return all(p and (out / p).is_file() for p in paths)

@@ -126,6 +126,12 @@ def remap(f: np.ndarray) -> np.ndarray:
     return np.log1p(np.sqrt(np.maximum(f, 0.0)))
 
 
+def unremap(g: np.ndarray | float) -> np.ndarray:
+    """The inverse of :func:`remap`: the value ``f = (exp(g) - 1)^2`` drawn at ``g >= 0`` (colour-bar
+    ticks in 1/sr)."""
+    return np.expm1(np.maximum(g, 0.0)) ** 2
+
+
 def exposure(g: np.ndarray, omega: np.ndarray, mask: np.ndarray, saturated: float = SATURATED_FRACTION) -> float:
     """The value of ``g`` (n_theta, n_phi) exceeded on only ``saturated`` of the valid projected
     solid angle: a display scale that a sharp peak (tiny solid angle) does not dictate."""

@@ -11,6 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from models import registry
+from models.report.figures import DISK_PX, ORDER_DISK_PX, PANEL_GAP_PX
+from models.report.hover import HOVER_PX
+from models.report.panels import ISO_LEVELS, legend_colours
 from models.report.reproduction import (CLOSE_RATIO, HOLDS_AT, IDENTICAL_REL, INDISTINGUISHABLE_RATIO, PARTLY_AT,
                                         SIMILAR_RATIO)
 from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, ReportError, material_sort_key,
@@ -52,7 +55,10 @@ def _selectors(results: list[MaterialResult]) -> tuple[dict[str, list[dict]], di
 
 
 def html_data(results: list[MaterialResult], styles: dict, overview: dict, meta: dict) -> dict:
-    """The data embedded in the page: meta, categories, selectors, materials (errors, figures), models."""
+    """The data embedded in the page: meta, categories, selectors, materials (errors, figures), models,
+    and what the page needs to draw the colour bars and map a pointer on an image to a direction
+    (``views``: disk and gap sizes of the composed images in pixels, the hover grid; ``colours``:
+    the band and diverging colours of :func:`models.report.panels.legend_colours`)."""
     sel, values = _selectors(results)
     cats = list(dict.fromkeys(r.material.category for r in results))
     models = registry.catalogue()
@@ -68,6 +74,9 @@ def html_data(results: list[MaterialResult], styles: dict, overview: dict, meta:
                      "failed": r.evaluation.get("failed", {}), **r.figures})
     return {"format": REPORT_FORMAT, "version": REPORT_VERSION, "meta": meta, "categories": cats,
             "selectors": sel, "materials": mats, "overview": overview,
+            "views": {"top": {"disk_px": DISK_PX, "gap_px": PANEL_GAP_PX, "panels": 3},
+                      "orders": {"disk_px": ORDER_DISK_PX, "gap_px": PANEL_GAP_PX}, "hover_px": HOVER_PX},
+            "colours": {**legend_colours(), "iso_levels": ISO_LEVELS},
             "models": {n: {**styles[n], "description": getattr(models.get(n), "description", "")} for n in styles}}
 
 

@@ -22,6 +22,17 @@ def colormap(name: str):
     return matplotlib.colormaps[name]
 
 
+def legend_colours(stops: int = 11) -> dict:
+    """The colours of the false-colour panels for legends drawn outside the images (the HTML colour
+    bars): ``bands``, the :data:`ISO_LEVELS` band colours of :func:`iso_panel` (lowest first), and
+    ``diverging``, ``stops`` colours of :func:`diverging_panel` evenly spaced from -lim to +lim."""
+    def hexes(rgb: np.ndarray) -> list[str]:
+        return ["#%02x%02x%02x" % tuple(int(round(255 * c)) for c in row[:3]) for row in rgb]
+    return {"bands": hexes(colormap("viridis")(np.linspace(0.0, 1.0, ISO_LEVELS))),
+            "diverging": hexes(colormap("RdBu_r")(np.linspace(0.0, 1.0, stops))),
+            "masked": hexes(np.full((1, 3), 0.82))[0]}
+
+
 def rgb_panel(rgb: np.ndarray, scale: float, pm: PixelMap, factor: float = 1.0) -> np.ndarray:
     """(3, S, S) cell values -> (S, S, 3) image of ``factor * g(f) / scale``."""
     img = np.moveaxis(np.clip(factor * remap(pm.sample(rgb)) / scale, 0.0, 1.0), 0, -1)

@@ -21,6 +21,14 @@
 
   function fmt(x) { return (typeof x === "number" && isFinite(x)) ? x.toExponential(2) : "–"; }
 
+  // A colour-bar or read-out number: 3 significant digits, plain between 0.01 and 1000.
+  function num(x) {
+    if (typeof x !== "number" || !isFinite(x)) { return "–"; }
+    if (x === 0) { return "0"; }
+    const a = Math.abs(x);
+    return (a >= 0.01 && a < 1000) ? String(Number(x.toPrecision(3))) : x.toExponential(2);
+  }
+
   function colour(model) { return (data.models[model] || {}).colour || "#000"; }
 
   function swatch(model) { return el("span", { "class": "swatch", style: "background:" + colour(model) }); }
@@ -132,6 +140,7 @@
     renderSpheres(m);
     setImage("img-plane", inc ? inc.plane : null);
     setImage("img-orders", inc ? inc.orders : null);
+    if (!inc) { renderOrdersLegend(null); }
     setImage("img-energy", m.energy || null);
     const box = $("topviews");
     box.innerHTML = "";
@@ -145,9 +154,206 @@
       const third = name === "reference" ? "2σ noise" : "difference";
       const cap = el("figcaption", {}, [name === "reference" ? "" : swatch(name), name + " ",
         el("small", { text: "RGB · isovalues · " + third + " (±" + inc.diff_scale.toPrecision(2) + ")" })]);
-      box.appendChild(el("figure", { "data-model": name }, [
-        el("img", { id: "img-top-" + name, src: src, alt: name + " top view, θl = " + inc.theta + "°" }), cap]));
+      const img = el("img", { id: "img-top-" + name, "class": "hoverable", src: src,
+        alt: name + " top view, θl = " + inc.theta + "°" });
+      img.addEventListener("mousemove", function (ev) { showReadout(ev, img, m, inc); });
+      img.addEventListener("mouseleave", hideReadout);
+      box.appendChild(el("figure", { "data-model": name }, [cap, img, topLegend(inc, name)]));
     });
+    renderOrdersLegend(inc);
+    if (m.hover) { loadHover(m, function () { /* ready for the read-out */ }); }
+  }
+
+  // ------------------------------------------------------------------ colour bars
+  // Drawn from the numbers of each incident (`legend`, `orders_legend`) and the panel colours
+  // (`data.colours`) that the PNGs were drawn with; laid out under the disks of the composed image.
+
+  function gridColumns(n, view) {
+    const cols = [];
+    for (let i = 0; i < n; i++) { if (i) { cols.push(view.gap_px + "fr"); } cols.push(view.disk_px + "fr"); }
+    return cols.join(" ");
+  }
+
+  function bandBar(lg, label) {
+    const strip = el("div", { "class": "cbar-strip" }, data.colours.bands.map(function (c) {
+      return el("span", { style: "background:" + c });
+    }));
+    const e = lg.band_edges, mid = Math.floor(e.length / 2);
+    return el("div", { "class": "cbar cbar-bands", "data-colorbar": "bands",
+      title: "band edges, L in 1/sr: " + e.map(num).join(", ") + " (evenly spaced in log(1 + √L) up to " +
+        num(lg.g_top) + "); white: above" }, [
+      strip, el("div", { "class": "cbar-ticks" }, [el("span", { text: num(e[0]) }), el("span", { text: num(e[mid]) }),
+        el("span", { text: num(e[e.length - 1]) })]),
+      el("div", { "class": "cbar-label", text: label })]);
+  }
+
+  function divergingBar(lim, label) {
+    const stops = data.colours.diverging;
+    const strip = el("div", { "class": "cbar-strip", style: "background:linear-gradient(to right," + stops.join(",") + ")" });
+    return el("div", { "class": "cbar cbar-diverging", "data-colorbar": "diverging" }, [
+      strip, el("div", { "class": "cbar-ticks" }, [el("span", { text: "−" + num(lim) }), el("span", { text: "0" }),
+        el("span", { text: "+" + num(lim) })]),
+      el("div", { "class": "cbar-label", text: label })]);
+  }
+
+  function rgbNote(white, factor) {
+    return el("div", { "class": "cbar cbar-rgb", "data-colorbar": "rgb" }, [el("div", { "class": "cbar-label",
+      text: "RGB" + (factor && factor !== 1 ? " ×" + factor : "") + ": white at f ≥ " + num(white) + " 1/sr" })]);
+  }
+
+  function topLegend(inc, name) {
+    const row = el("div", { "class": "legend-row", style: "grid-template-columns:" + gridColumns(3, data.views.top) });
+    if (!inc.legend) { return row; }
+    const a = rgbNote(inc.legend.rgb_white), b = bandBar(inc.legend, "luminance L, 1/sr"),
+      c = divergingBar(inc.diff_scale, name === "reference" ? "2σ noise of log(1 + √L)" : "Δ log(1 + √L); red: brighter");
+    a.style.gridColumn = "1"; b.style.gridColumn = "3"; c.style.gridColumn = "5";
+    [a, b, c].forEach(function (x) { row.appendChild(x); });
+    return row;
+  }
+
+  function renderOrdersLegend(inc) {
+    const box = $("orders-legend");
+    if (!box) { return; }
+    box.innerHTML = "";
+    const lgs = (inc && inc.orders_legend) || [];
+    box.style.gridTemplateColumns = gridColumns(Math.max(lgs.length, 1), data.views.orders);
+    lgs.forEach(function (lg, k) {
+      const cell = el("div", { "class": "legend-cell" }, [
+        el("div", { "class": "cbar-label", text: "order " + lg.order + (k === lgs.length - 1 ? "+" : "") +
+          ": RGB" + (lg.factor !== 1 ? " ×" + lg.factor : "") + " white at f ≥ " + num(lg.rgb_white) + " 1/sr" }),
+        bandBar(lg, "L, 1/sr")]);
+      cell.style.gridColumn = String(2 * k + 1);
+      box.appendChild(cell);
+    });
+  }
+
+  // ------------------------------------------------------------------ hover read-out
+  // hover.js of a material (models/report/hover.py) registers its coded values in
+  // window.GONIO_HOVER; it is loaded by a <script> element, which works from file://.
+
+  const hoverState = {};     // material name -> "loading" | "ready" | "failed"
+  const hoverWaiting = {};   // material name -> callbacks
+  const decoded = new Map(); // coded string -> Uint16Array
+  const diskIndexBySize = {};
+  let lastHover = null;
+
+  function loadHover(m, done) {
+    const reg = window.GONIO_HOVER || {};
+    if (reg[m.name]) { hoverState[m.name] = "ready"; done(reg[m.name]); return; }
+    if (hoverState[m.name] === "failed") { return; }
+    (hoverWaiting[m.name] = hoverWaiting[m.name] || []).push(done);
+    if (hoverState[m.name] === "loading") { return; }
+    hoverState[m.name] = "loading";
+    const s = document.createElement("script");
+    s.src = m.hover;
+    s.onload = function () {
+      const h = (window.GONIO_HOVER || {})[m.name];
+      hoverState[m.name] = h ? "ready" : "failed";
+      (hoverWaiting[m.name] || []).splice(0).forEach(function (cb) { if (h) { cb(h); } });
+      if (lastHover) { showReadout(lastHover.ev, lastHover.img, lastHover.m, lastHover.inc); }
+    };
+    s.onerror = function () { hoverState[m.name] = "failed"; hoverWaiting[m.name] = []; };
+    document.head.appendChild(s);
+  }
+
+  function codes(text) {
+    let out = decoded.get(text);
+    if (!out) {
+      const bin = atob(text);
+      out = new Uint16Array(bin.length >> 1);
+      for (let i = 0; i < out.length; i++) { out[i] = bin.charCodeAt(2 * i) | (bin.charCodeAt(2 * i + 1) << 8); }
+      decoded.set(text, out);
+    }
+    return out;
+  }
+
+  // Index of coarse pixel (r, c) among the stored pixels (inside the disk, row by row); -1 outside.
+  function diskIndex(S) {
+    if (!diskIndexBySize[S]) {
+      const idx = new Int32Array(S * S).fill(-1);
+      let n = 0;
+      for (let r = 0; r < S; r++) {
+        for (let c = 0; c < S; c++) {
+          const a = 2 * c + 1 - S, b = 2 * r + 1 - S;
+          if (a * a + b * b < S * S) { idx[r * S + c] = n++; }
+        }
+      }
+      diskIndexBySize[S] = idx;
+    }
+    return diskIndexBySize[S];
+  }
+
+  // The value of a code (hover.py): null for "no value", strings for the out-of-range codes.
+  function codeText(h, code) {
+    if (code === h.codes.no_value) { return null; }
+    if (code === h.codes.below) { return "< " + num(h.f_min); }
+    if (code === h.codes.above) { return "> " + num(h.f_max); }
+    if (code === h.codes.negative) { return "negative"; }
+    return h.f_min * Math.exp((code - 1) * Math.log(h.f_max / h.f_min) / (h.n_codes - 1));
+  }
+
+  function hideReadout() {
+    lastHover = null;
+    const box = $("hover-readout");
+    box.hidden = true;
+    box.dataset.row = "";
+  }
+
+  function showReadout(ev, img, m, inc) {
+    const box = $("hover-readout");
+    const view = data.views.top, S = data.views.hover_px;
+    const rect = img.getBoundingClientRect();
+    if (!img.naturalWidth || !rect.width) { return; }
+    const px = (ev.clientX - rect.left) * img.naturalWidth / rect.width;
+    const py = (ev.clientY - rect.top) * img.naturalHeight / rect.height;
+    const pitch = view.disk_px + view.gap_px, panel = Math.floor(px / pitch), dx = px - panel * pitch;
+    const c = Math.floor(dx * S / view.disk_px), r = Math.floor(py * S / view.disk_px);
+    const x = (2 * c + 1) / S - 1, y = 1 - (2 * r + 1) / S;
+    if (panel < 0 || panel >= view.panels || dx >= view.disk_px || r < 0 || r >= S || x * x + y * y >= 1) {
+      hideReadout();
+      return;
+    }
+    lastHover = { ev: ev, img: img, m: m, inc: inc };
+    const theta = Math.acos(Math.sqrt(1 - x * x - y * y)) * 180 / Math.PI;
+    const phi = ((Math.atan2(y, x) * 180 / Math.PI) + 360) % 360;
+    const lines = [el("div", { "class": "ro-dir", text: "θv = " + theta.toFixed(1) + "°, φv = " + phi.toFixed(1) + "°" +
+      (m.side === "btdf" ? " (below the surface)" : "") })];
+    const reg = window.GONIO_HOVER || {}, h = reg[m.name];
+    const e = h ? h.incidents.filter(function (i) { return i.index === inc.index; })[0] : null;
+    if (!m.hover) {
+      lines.push(el("div", { text: "no hover values in this report" }));
+    } else if (!h) {
+      lines.push(el("div", { text: hoverState[m.name] === "failed" ? "hover values missing (" + m.hover + ")" : "loading values…" }));
+      loadHover(m, function () {});
+    } else if (!e) {
+      lines.push(el("div", { text: "no hover values for this incident direction" }));
+    } else {
+      const k = diskIndex(S)[r * S + c];
+      const ref = codeText(h, codes(e.reference)[k]);
+      if (ref === null) {
+        lines.push(el("div", { text: "masked cell: not compared" }));
+      } else {
+        const se = codeText(h, codes(e.reference_se)[k]);
+        lines.push(el("div", { "class": "ro-ref" }, ["reference L = ", el("b", { text: num(ref) }),
+          " ± " + num(se) + " 1/sr"]));
+        const rows = visibleModels(m).filter(function (n) { return e.models[n]; }).map(function (n) {
+          const v = codeText(h, codes(e.models[n])[k]);
+          const rel = (typeof v === "number" && typeof ref === "number" && ref > 0) ?
+            " (" + (v >= ref ? "+" : "−") + num(Math.abs(100 * (v / ref - 1))) + " %)" : "";
+          return el("tr", { "data-model": n }, [el("td", {}, [swatch(n), n]), el("td", { "class": "num", text: num(v) + rel })]);
+        });
+        if (rows.length) { lines.push(el("table", { "class": "ro-models" }, rows)); }
+      }
+    }
+    box.innerHTML = "";
+    lines.forEach(function (l) { box.appendChild(l); });
+    box.dataset.row = String(r);
+    box.dataset.col = String(c);
+    box.dataset.panel = String(panel);
+    box.hidden = false;
+    const w = box.offsetWidth, hh = box.offsetHeight;
+    box.style.left = Math.max(4, Math.min(ev.clientX + 16, window.innerWidth - w - 8)) + "px";
+    box.style.top = Math.max(4, Math.min(ev.clientY + 16, window.innerHeight - hh - 8)) + "px";
   }
 
   function renderErrors(m) {
@@ -155,8 +361,16 @@
     t.innerHTML = "";
     const names = Object.keys(m.errors);
     const brdf = m.side === "brdf";
-    const head = ["model", brdf ? "internal" : "BTDF", "R", "G", "B", "luminance"].concat(brdf ? ["total", "total lum."] : []);
-    t.appendChild(el("thead", {}, [el("tr", {}, head.map(function (h) { return el("th", { text: h }); }))]));
+    const ncol = brdf ? 8 : 6;
+    function th(text, title, attrs) { return el("th", Object.assign({ text: text, title: title }, attrs || {})); }
+    const top = [th("model", "model (best first by the channel-mean RMSE)", { rowspan: "2" }),
+      th(brdf ? "internal paths" : "BTDF", brdf ? "bounce order 1 dropped from the reference, the top lobe from the models"
+        : "the whole BTDF", { colspan: "5" })];
+    if (brdf) { top.push(th("total", "the whole BRDF", { colspan: "2" })); }
+    const sub = [th("mean", "RMSE (eq. 4), mean over R, G, B"), th("R", "RMSE of the red channel"),
+      th("G", "RMSE of the green channel"), th("B", "RMSE of the blue channel"), th("lum.", "RMSE of the luminance")];
+    if (brdf) { sub.push(th("mean", "RMSE (eq. 4), mean over R, G, B"), th("lum.", "RMSE of the luminance")); }
+    t.appendChild(el("thead", {}, [el("tr", {}, top), el("tr", {}, sub)]));
     const body = el("tbody");
     const ranked = names.slice().sort(function (a, b) {
       return m.errors[a].internal.rmse_mean - m.errors[b].internal.rmse_mean;
@@ -195,7 +409,7 @@
       }
       body.appendChild(tr);
     } else {
-      body.appendChild(el("tr", {}, [el("td", { colspan: String(head.length), text: "no model applies to this material" })]));
+      body.appendChild(el("tr", {}, [el("td", { colspan: String(ncol), text: "no model applies to this material" })]));
     }
     t.appendChild(body);
     const notes = $("material-notes");
@@ -227,6 +441,7 @@
     const inc = currentIncident(m);
     if (inc) { state.theta = inc.theta; }
     $("model-checks").querySelectorAll("input").forEach(function (cb) { cb.checked = !state.hidden.has(cb.dataset.model); });
+    hideReadout();
     renderInfo(m);
     renderErrors(m);
     renderFigures(m, inc);
