@@ -23,9 +23,11 @@ from goniometer.slices import SliceGrid, light_direction
 import models.report.build as report_module
 from models.evaluation import evaluate
 from models.report import ReportError, build_report, model_style, open_results
-from models.report.evaluation import round_mantissa
-from models.report.figures import PAPER_COLOURS
+from models.compare.errors import luminance
+from models.report.evaluation import cache_paths, load_slices, round_mantissa
+from models.report.figures import DISK_PX, ORDER_DISK_PX, PANEL_GAP_PX, PAPER_COLOURS
 from models.report.geometry import plane_cells
+from models.report import hover as hover_mod
 
 TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_database.toml"
 REQUIRED = ("material", "category", "paper_name", "model", "internal", "total")
@@ -123,6 +125,7 @@ def test_html_is_static_and_every_image_exists(report):
     for m in data["materials"]:
         assert m["incidents"] and len(m["incidents"]) == 2
         paths.add(m["energy"])
+        paths.add(m["hover"])
         for inc in m["incidents"]:
             paths |= {inc["plane"], inc["orders"], *inc["top"].values()}
             assert set(inc["top"]) == {"reference", *m["errors"]}
@@ -158,6 +161,104 @@ def test_missing_model_is_reported_as_not_evaluated(results_dir, tmp_path):
     assert {r["model"] for r in records} == {"ww09"}
     data = _html_data(summary.index_html)
     assert all([i["theta"] for i in m["incidents"]] == [60.0] for m in data["materials"])
+
+
+# ---------------------------------------------------------------------- colour bars and hover data
+
+def test_hover_codes_round_trip():
+    rng = np.random.default_rng(7)
+    v = np.exp(rng.uniform(np.log(hover_mod.F_MIN), np.log(hover_mod.F_MAX), 20_000))
+    back = hover_mod.decode(hover_mod.encode(v))
+    assert np.max(np.abs(back / v - 1)) <= hover_mod.RELATIVE_PRECISION * (1 + 1e-9)
+    assert hover_mod.RELATIVE_PRECISION < 3e-4     # about 4 significant digits
+    special = hover_mod.decode(hover_mod.encode(np.array([0.0, 1e-9, 2e7, -1.0, np.nan, hover_mod.F_MIN])))
+    assert special[0] == 0 and special[1] == 0 and special[2] == np.inf and special[3] == -np.inf
+    assert np.isnan(special[4]) and math.isclose(special[5], hover_mod.F_MIN, rel_tol=1e-12)
+    assert DISK_PX % hover_mod.HOVER_PX == 0, "a hover pixel is a block of image pixels"
+    inside = hover_mod.disk_pixels(45)
+    assert inside.sum() == 1597 and inside[22, 0] and not inside[0, 0]
+
+
+def _hover_doc(out: Path, rel: str) -> dict:
+    text = (out / rel).read_text()
+    m = re.fullmatch(r"//[^\n]*\n\(window\.GONIO_HOVER = window\.GONIO_HOVER \|\| \{\}\)\[(\"[^\"]*\")\] = (.*);\n",
+                     text, re.S)
+    assert m, text[:200]
+    doc = json.loads(m.group(2))
+    assert json.loads(m.group(1)) == doc["material"]
+    return doc
+
+
+def test_hover_data_is_the_reference_at_the_pixel_direction(report, results_dir):
+    """The hover values of the classic-slice metal, checked against the cells found from each
+    coarse pixel's direction by the classic grid's own definition (uniform theta and phi bins)."""
+    summary, out, _, _ = report
+    data = _html_data(summary.index_html)
+    m = next(x for x in data["materials"] if x["category"] == "metal")
+    assert m["parametrization"] == "classic"
+    doc = _hover_doc(out, m["hover"])
+    assert doc["format"] == hover_mod.HOVER_FORMAT and doc["material"] == m["name"] and doc["size"] == 45
+    assert [i["index"] for i in doc["incidents"]] == [i["index"] for i in m["incidents"]]
+    path = next(x.path for x in open_results(results_dir)[1] if x.name == m["name"])
+    ref = store.read(path)
+    entry = json.loads(cache_paths(out, m["name"])[0].read_text())
+    slices = load_slices(cache_paths(out, m["name"])[1], entry["key"], list(m["errors"]))
+    S = doc["size"]
+    rows, cols = np.nonzero(hover_mod.disk_pixels(S))
+    x, y = (2 * cols + 1) / S - 1, 1 - (2 * rows + 1) / S
+    theta = np.degrees(np.arccos(np.sqrt(1 - x * x - y * y)))
+    phi = np.degrees(np.arctan2(y, x)) % 360
+    nt, nph = ref.brdf.grid.n_theta, ref.brdf.grid.n_phi
+    ii, jj = (theta / 90 * nt).astype(int), (phi / 360 * nph).astype(int)
+    for e in doc["incidents"]:
+        k = e["index"]
+        assert ref.phi_deg[k] == 0.0   # classic cells are binned in v's own azimuth
+        ok = ref.brdf.mask[k][ii, jj]
+        lum = luminance(ref.brdf.value[k], axis=0, keepdims=False)[ii, jj]
+        se = luminance(ref.brdf.stderr[k], axis=0, keepdims=False)[ii, jj]
+        got, got_se = hover_mod.decode(e["reference"]), hover_mod.decode(e["reference_se"])
+        assert np.all(np.isnan(got[~ok])) and ok.sum() > 0.8 * ok.size
+        pos = ok & (lum >= hover_mod.F_MIN)
+        assert np.all(np.abs(got[pos] / lum[pos] - 1) <= hover_mod.RELATIVE_PRECISION * 1.000001)
+        assert np.all(got[ok & (lum < hover_mod.F_MIN)] == 0)
+        assert np.all(np.abs(got_se[ok & (se > 0)] / se[ok & (se > 0)] - 1) <= hover_mod.RELATIVE_PRECISION * 1.000001)
+        assert set(e["models"]) == set(m["errors"])
+        for name, (top, internal) in slices.items():
+            want = luminance(top[k] + internal[k], axis=0, keepdims=False)[ii, jj]
+            got_m = hover_mod.decode(e["models"][name])
+            sel = ok & (want > hover_mod.F_MIN)
+            # the cache keeps 11 mantissa bits; the hover data was made from the full-precision slices
+            assert np.all(np.abs(got_m[sel] / want[sel] - 1) <= hover_mod.RELATIVE_PRECISION + 2.0 ** -11), name
+
+
+def test_colour_bar_numbers_and_colours_match_the_images(report):
+    """The legends the page draws are the images' scales and colours: the band edges are the
+    inverse remap of the luminance scale, and every pixel of the band panel of a top view is a
+    legend colour (or an edge, masked, outside or light-marker pixel)."""
+    from PIL import Image
+    summary, out, _, _ = report
+    data = _html_data(summary.index_html)
+    bands = np.array([[int(h[i:i + 2], 16) for i in (1, 3, 5)] for h in data["colours"]["bands"]])
+    assert len(bands) == data["colours"]["iso_levels"] == 10
+    assert data["views"]["top"] == {"disk_px": DISK_PX, "gap_px": PANEL_GAP_PX, "panels": 3}
+    assert data["views"]["orders"]["disk_px"] == ORDER_DISK_PX
+    specials = np.array([[26, 26, 26], [255, 255, 255], [209, 209, 209], [115, 115, 115], [255, 217, 0]])
+    allowed = np.concatenate([bands, specials])
+    for m in data["materials"]:
+        for inc in m["incidents"]:
+            lg = inc["legend"]
+            edges = np.array(lg["band_edges"])
+            assert edges[0] == 0 and np.all(np.diff(edges) > 0) and len(edges) == 11
+            assert math.isclose(edges[-1], math.expm1(inc["scale"]) ** 2, rel_tol=1e-3)
+            assert math.isclose(edges[5], math.expm1(inc["scale"] / 2) ** 2, rel_tol=1e-3)
+            assert lg["rgb_white"] > 0 and len(inc["orders_legend"]) == m["orders_k"]
+            assert [o["factor"] for o in inc["orders_legend"]] == [1.0] + [2.0] * (m["orders_k"] - 1)
+        img = np.asarray(Image.open(out / m["incidents"][-1]["top"]["reference"]).convert("RGB")).astype(int)
+        panel = img[:, DISK_PX + PANEL_GAP_PX:2 * DISK_PX + PANEL_GAP_PX].reshape(-1, 3)
+        dist = np.abs(panel[:, None, :] - allowed[None, :, :]).max(axis=2).min(axis=1)
+        assert np.all(dist <= 1), f"{m['name']}: colours outside the legend: {np.unique(panel[dist > 1], axis=0)[:5]}"
+        present = np.abs(panel[:, None, :] - bands[None, :, :]).max(axis=2).min(axis=0) <= 1
+        assert present.sum() >= 2, "the band panel shows the legend's colours"
 
 
 # ---------------------------------------------------------------------- cache
@@ -318,7 +419,48 @@ def _image_loaded(driver, element_id: str, src: str) -> bool:
         "&& i.offsetWidth > 0;", element_id, src))
 
 
-def test_html_browser_in_headless_chromium(report, browser):
+_FIT_JS = """
+const tables = Array.from(document.querySelectorAll('table')).map(function (t) {
+  const box = t.parentElement;
+  return {id: t.id || t.className, table: t.scrollWidth, box: box.clientWidth, box_scroll: box.scrollWidth};
+});
+return {inner: window.innerWidth, doc: document.documentElement.scrollWidth, tables: tables};
+"""
+
+
+def _assert_fits(driver, what: str) -> None:
+    """At the 1 400-pixel window, the page and every table fit without horizontal scrolling."""
+    fit = driver.execute_script(_FIT_JS)
+    assert fit["inner"] == 1400, fit
+    assert fit["doc"] <= fit["inner"], f"{what}: the page scrolls horizontally: {fit}"
+    assert any(t["id"] == "material-errors" for t in fit["tables"])
+    for t in fit["tables"]:
+        assert t["table"] <= t["box"] and t["box_scroll"] <= t["box"], f"{what}: table {t['id']} overflows: {t}"
+
+
+def _hover(driver, img_id: str, panel: int, row: int, col: int) -> dict:
+    """Move the pointer over coarse hover pixel (row, col) of disk ``panel`` of a top view; returns
+    the read-out's text and data attributes once it shows a value."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    img = driver.find_element(By.ID, img_id)
+    driver.execute_script("arguments[0].scrollIntoView({block: 'center'});", img)
+    rect = driver.execute_script("const r = arguments[0].getBoundingClientRect();"
+                                 "return [r.width, r.height, arguments[0].naturalWidth];", img)
+    block = DISK_PX / hover_mod.HOVER_PX
+    k = rect[0] / rect[2]     # CSS pixels per image pixel
+    x = (panel * (DISK_PX + PANEL_GAP_PX) + (col + 0.5) * block) * k - rect[0] / 2
+    y = (row + 0.5) * block * k - rect[1] / 2
+    ActionChains(driver).move_to_element_with_offset(img, round(x), round(y)).perform()
+    _wait(driver, lambda d: re.search(r"reference L = \S*\d", d.find_element(By.ID, "hover-readout").text),
+          "hover read-out with the reference value")
+    return driver.execute_script("const b = document.getElementById('hover-readout');"
+                                 "return {text: b.innerText, hidden: b.hidden, row: +b.dataset.row, "
+                                 "col: +b.dataset.col, panel: +b.dataset.panel};")
+
+
+def test_html_browser_in_headless_chromium(report, browser, results_dir):
+    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
     summary, out, _, _ = report
@@ -340,11 +482,63 @@ def test_html_browser_in_headless_chromium(report, browser):
         _wait(browser, lambda d, n=name: _image_loaded(d, f"img-top-{n}", inc["top"][n]), f"top view of {name}")
     rows = browser.find_elements(By.CSS_SELECTOR, "#material-errors tbody tr[data-model]")
     assert {r.get_attribute("data-model") for r in rows} == set(metal["errors"])
+    assert len(metal["errors"]) >= 10, "the metal shows the most models: the widest error table"
+    _assert_fits(browser, "metal")
+
+    # colour bars under every top view and every bounce-order column, with the legend's numbers
+    for name in ("reference", *metal["errors"]):
+        fig = browser.find_element(By.CSS_SELECTOR, f'#topviews figure[data-model="{name}"]')
+        kinds = {e.get_attribute("data-colorbar") for e in fig.find_elements(By.CSS_SELECTOR, "[data-colorbar]")}
+        assert kinds == {"rgb", "bands", "diverging"}, (name, kinds)
+        bands = fig.find_element(By.CSS_SELECTOR, '[data-colorbar="bands"]')
+        assert len(bands.find_elements(By.CSS_SELECTOR, ".cbar-strip span")) == 10
+        assert "1/sr" in bands.text and "1/sr" in fig.find_element(By.CSS_SELECTOR, '[data-colorbar="rgb"]').text
+        top_edge = float(bands.find_elements(By.CSS_SELECTOR, ".cbar-ticks span")[-1].text)
+        assert math.isclose(top_edge, inc["legend"]["band_edges"][-1], rel_tol=5e-3)
+        diverging = fig.find_element(By.CSS_SELECTOR, '[data-colorbar="diverging"]').text
+        lim = float(re.search(r"\+(\S+)", diverging).group(1))
+        assert math.isclose(lim, inc["diff_scale"], rel_tol=5e-3), (diverging, inc["diff_scale"])
+    order_bars = browser.find_elements(By.CSS_SELECTOR, '#orders-legend [data-colorbar="bands"]')
+    assert len(order_bars) == metal["orders_k"]
+
+    # hover read-out: pick a coarse pixel whose 3 x 3 neighbourhood lies in one valid cell (so a
+    # pointer a pixel off reads the same value); the page must show that pixel's direction and the
+    # reference luminance of its cell
+    from models.report.geometry import pixel_map
+    ref = store.read(next(x.path for x in open_results(results_dir)[1] if x.name == metal["name"]))
+    k = inc["index"]
+    S = hover_mod.HOVER_PX
+    pm = pixel_map(ref.brdf.grid, light_direction(ref.theta_deg[k], ref.phi_deg[k]), ref.brdf.mask[k], S)
+    lum = luminance(ref.brdf.value[k], axis=0, keepdims=False)
+    cand = [(r, c) for r in range(2, S - 2) for c in range(2, S - 2)
+            if pm.ok[r - 1:r + 2, c - 1:c + 2].all() and len({(pm.ii[a, b], pm.jj[a, b]) for a in range(r - 1, r + 2)
+                                                              for b in range(c - 1, c + 2)}) == 1
+            and lum[pm.ii[r, c], pm.jj[r, c]] > 0]
+    assert cand
+    row, col = cand[len(cand) // 3]
+    for panel in (0, 2):
+        ro = _hover(browser, "img-top-reference", panel, row, col)
+        assert ro["panel"] == panel and abs(ro["row"] - row) <= 1 and abs(ro["col"] - col) <= 1, (ro, row, col)
+        r, c = ro["row"], ro["col"]
+        x, y = (2 * c + 1) / S - 1, 1 - (2 * r + 1) / S
+        th, ph = math.degrees(math.acos(math.sqrt(1 - x * x - y * y))), math.degrees(math.atan2(y, x)) % 360
+        got = re.search(r"θv = ([\d.]+)°, φv = ([\d.]+)°", ro["text"])
+        assert got and abs(float(got.group(1)) - th) <= 0.051 and abs(float(got.group(2)) - ph) <= 0.051, ro["text"]
+        value = float(re.search(r"reference L = (\S+) ± (\S+) 1/sr", ro["text"]).group(1))
+        want = lum[pm.ii[row, col], pm.jj[row, col]]
+        assert math.isclose(value, want, rel_tol=5e-3 + hover_mod.RELATIVE_PRECISION), (value, want)
+        for name in metal["errors"]:
+            assert re.search(re.escape(name) + r"\s+\d", ro["text"]), (name, ro["text"])
+    ActionChains(browser).move_to_element(browser.find_element(By.ID, "material-title")).perform()
+    _wait(browser, lambda d: d.execute_script("return document.getElementById('hover-readout').hidden"),
+          "read-out hidden when the pointer leaves the image")
 
     # hide a model: its top view goes away
     hidden = next(iter(metal["errors"]))
     browser.find_element(By.ID, f"chk-model-{hidden}").click()
     _wait(browser, lambda d: not d.find_elements(By.ID, f"img-top-{hidden}"), "hidden model's top view removed")
+    ro = _hover(browser, "img-top-reference", 1, row, col)
+    assert not re.search(re.escape(hidden) + r"\s+\d", ro["text"]), "a hidden model is not read out"
 
     # change a material parameter: slab alpha0 0.2 -> 0.05, keeping the incident angle
     Select(browser.find_element(By.ID, "sel-category")).select_by_value("slab")
@@ -355,6 +549,11 @@ def test_html_browser_in_headless_chromium(report, browser):
     want = next(i for i in slab["incidents"] if i["theta"] == theta)
     _wait(browser, lambda d: _image_loaded(d, "img-plane", want["plane"]), "slab plane image at the same incidence")
     _wait(browser, lambda d: _image_loaded(d, "img-orders", want["orders"]), "slab bounce orders image")
+    _assert_fits(browser, "slab")
+    Select(browser.find_element(By.ID, "sel-category")).select_by_value("plastic")
+    _wait(browser, lambda d: d.execute_script("return document.body.dataset.material").startswith("plastic/"),
+          "plastic selected")
+    _assert_fits(browser, "plastic")
 
     severe = [e for e in browser.get_log("browser") if e.get("level") == "SEVERE"]
     assert not severe, severe
