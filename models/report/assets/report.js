@@ -338,8 +338,9 @@
           " ± " + num(se) + " 1/sr"]));
         const rows = visibleModels(m).filter(function (n) { return e.models[n]; }).map(function (n) {
           const v = codeText(h, codes(e.models[n])[k]);
-          const rel = (typeof v === "number" && typeof ref === "number" && ref > 0) ?
-            " (" + (v >= ref ? "+" : "−") + num(Math.abs(100 * (v / ref - 1))) + " %)" : "";
+          const q = (typeof v === "number" && typeof ref === "number" && ref > 0) ? v / ref : null;
+          const rel = q === null ? "" : (q >= 10 || q <= 0.1) ? " (×" + num(q) + ")" :
+            " (" + (q >= 1 ? "+" : "−") + num(Math.abs(100 * (q - 1))) + " %)";
           return el("tr", { "data-model": n }, [el("td", {}, [swatch(n), n]), el("td", { "class": "num", text: num(v) + rel })]);
         });
         if (rows.length) { lines.push(el("table", { "class": "ro-models" }, rows)); }
