@@ -24,7 +24,7 @@ from models.evaluation import comparison_side, evaluate
 from models.report.evaluation import cache_paths, judged_side, load_slices, read_reference
 from models.report.files import material_dir, read_json, safe_part, write_json, write_text
 from models.report.geometry import exposure, pixel_map, plane_cells, remap, unremap
-from models.report.hover import HOVER_PX, hover_incident, hover_script
+from models.report.hover import HOVER_PX, hover_incident, hover_plane, hover_script
 from models.report.panels import (DPI, ISO_LEVELS, colormap, compose, diverging_panel, iso_panel, mark_light,
                                   rgb_panel, save_figure, write_png)
 from models.report.results import MaterialResult, ReportError
@@ -116,7 +116,8 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
         tag = f"theta{inc.theta:g}_phi{inc.phi:g}" if standalone else f"m{inc.m}"
         plane = f"plane_{tag}.png"
-        save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays), fig_dir / plane)
+        plane_fig, plane_values = _plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays)
+        save_figure(plane_fig, fig_dir / plane)
         labels = (ref.stack.name, side) if standalone else None
         tops, diff_scale, lum_scale, rgb_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
         orders = f"orders_{tag}.png"
@@ -127,7 +128,7 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
                         "diff_scale": diff_scale, "scale": lum_scale,
                         "legend": _legend(rgb_scale, lum_scale), "orders_legend": orders_legend})
         if not standalone:
-            hover.append(_hover_entry(inc, sd.grid))
+            hover.append({**_hover_entry(inc, sd.grid), "plane": plane_values})
     save_figure(_energy_figure(ref, sd, side), fig_dir / "energy.png")
     out = {"incidents": entries, "energy": f"{rel}/energy.png", "orders_k": int(sd.orders.shape[1])}
     if not standalone:
@@ -211,10 +212,11 @@ ZERO_HIT_BOUND = 3.0
 
 
 def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, title: str, rays: int):
-    """The plane-of-incidence figure. The grey band is the reference +- 2 standard errors; where no
-    path reached a cell (value 0, standard error 0: tiny cells near the pole of half slices at low
-    ray counts) it spans [0, 3 / (N Omega)] instead, the 95 % upper limit, so an empty cell does not
-    look like a confident zero."""
+    """The plane-of-incidence figure and the values it plots (for the hover read-out,
+    :func:`models.report.hover.hover_plane`). The grey band is the reference +- 2 standard errors;
+    where no path reached a cell (value 0, standard error 0: tiny cells near the pole of half slices
+    at low ray counts) it spans [0, 3 / (N Omega)] instead, the 95 % upper limit, so an empty cell
+    does not look like a confident zero."""
     from matplotlib.figure import Figure
     x, rows, cols = plane_cells(grid, inc.light, inc.phi, inc.mask)
     # (title, reference cells, their standard error, the model part drawn from (top, internal))
@@ -233,9 +235,15 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
         return 0.5 * (cells[rows, cols[:, 0]] + cells[rows, cols[:, 1]])
 
     bound = along(ZERO_HIT_BOUND / (max(rays, 1) * np.where(inc.omega > 0, inc.omega, np.inf)))
+    size = fig.get_size_inches() * DPI
+    values = []
     for ax, (label, ref_cells, se_cells, pick) in zip(axes, parts):
         lum = along(_lum(ref_cells))
         se = along(_lum(se_cells))
+        box = ax.get_position()
+        values.append(hover_plane(label, [box.x0 * size[0], (1.0 - box.y1) * size[1], box.width * size[0],
+                                          box.height * size[1]], (-90.0, 90.0), x, lum, se,
+                                  {n: along(_lum(pick(t, i))) for n, (t, i) in inc.models.items()}))
         upper = np.where(lum > 0, lum + 2 * se, bound)
         ax.fill_between(x, remap(lum - 2 * se), remap(upper), color="0.8", lw=0,
                         label="reference ±2σ\n(no hit: 95% bound)")
@@ -254,7 +262,7 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
     fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°", fontsize=9)
-    return fig
+    return fig, values
 
 
 def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,

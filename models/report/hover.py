@@ -9,6 +9,9 @@ orthographic map as the images (:func:`models.report.geometry.pixel_map`: pixel 
 direction ``x = (2c + 1) / S - 1``, ``y = 1 - (2r + 1) / S``, ``+x`` right, ``+y`` up, seen from
 above; a BTDF seen through the surface), each coarse pixel a block of the image's pixels. Only the
 pixels inside the disk (``(2c + 1 - S)^2 + (2r + 1 - S)^2 < S^2``) are stored, row by row.
+The plane-of-incidence figure's panels (``plane``: :func:`hover_plane`) carry the plotted points:
+their signed elevation, the reference, its standard error and each model (total, or the internal
+paths in the BRDF's second panel), with each panel's axes box in pixels of the PNG.
 
 Values are coded as little-endian uint16, base64: codes 1 .. :data:`N_CODES` are log-spaced from
 :data:`F_MIN` to :data:`F_MAX` (relative rounding error <= :data:`RELATIVE_PRECISION`, about
@@ -29,7 +32,7 @@ from models.report.geometry import PixelMap
 HOVER_FORMAT = "goniometer.report-hover"
 HOVER_VERSION = 1
 #: side of the coarse hover grid (pixels); the top-view disk size must be a multiple of it
-HOVER_PX = 45
+HOVER_PX = 36
 F_MIN, F_MAX = 1e-7, 1e7            # 1/sr
 N_CODES = 65532                     # log-spaced codes 1 .. N_CODES
 BELOW, ABOVE, NEGATIVE, NO_VALUE = 0, 65533, 65534, 65535
@@ -83,6 +86,17 @@ def hover_incident(pm: PixelMap, theta: float, phi: float, index: int, reference
 
     return {"index": index, "theta": theta, "phi": phi, "reference": pack(reference),
             "reference_se": pack(reference_se), "models": {n: pack(c) for n, c in models.items()}}
+
+
+def hover_plane(label: str, box: list[float], xlim: tuple[float, float], x: np.ndarray, reference: np.ndarray,
+                reference_se: np.ndarray, models: dict[str, np.ndarray]) -> dict:
+    """One panel of the plane-of-incidence figure: ``box`` = its axes (left, top, width, height) in
+    pixels of the PNG, ``xlim`` its abscissa range (degrees), ``x`` the signed elevations of the
+    plotted points (degrees, ``docs/report.md``) and the luminance plotted there (1/sr): the
+    reference, its standard error and each model, coded like the top views."""
+    return {"label": label, "box": [round(float(b), 2) for b in box], "xlim": [float(v) for v in xlim],
+            "x": [round(float(v), 3) for v in x], "reference": encode(reference),
+            "reference_se": encode(reference_se), "models": {n: encode(v) for n, v in models.items()}}
 
 
 def hover_script(material: str, side: str, incidents: list[dict]) -> str:

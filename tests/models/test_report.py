@@ -175,8 +175,11 @@ def test_hover_codes_round_trip():
     assert special[0] == 0 and special[1] == 0 and special[2] == np.inf and special[3] == -np.inf
     assert np.isnan(special[4]) and math.isclose(special[5], hover_mod.F_MIN, rel_tol=1e-12)
     assert DISK_PX % hover_mod.HOVER_PX == 0, "a hover pixel is a block of image pixels"
-    inside = hover_mod.disk_pixels(45)
-    assert inside.sum() == 1597 and inside[22, 0] and not inside[0, 0]
+    S = hover_mod.HOVER_PX
+    inside = hover_mod.disk_pixels(S)
+    c = (np.arange(S) + 0.5) / S * 2 - 1
+    assert np.array_equal(inside, c[None, :] ** 2 + c[:, None] ** 2 < 1)
+    assert inside[S // 2, 0] and not inside[0, 0] and 0.75 < inside.mean() < math.pi / 4 + 0.01
 
 
 def _hover_doc(out: Path, rel: str) -> dict:
@@ -197,7 +200,7 @@ def test_hover_data_is_the_reference_at_the_pixel_direction(report, results_dir)
     m = next(x for x in data["materials"] if x["category"] == "metal")
     assert m["parametrization"] == "classic"
     doc = _hover_doc(out, m["hover"])
-    assert doc["format"] == hover_mod.HOVER_FORMAT and doc["material"] == m["name"] and doc["size"] == 45
+    assert doc["format"] == hover_mod.HOVER_FORMAT and doc["material"] == m["name"] and doc["size"] == hover_mod.HOVER_PX
     assert [i["index"] for i in doc["incidents"]] == [i["index"] for i in m["incidents"]]
     path = next(x.path for x in open_results(results_dir)[1] if x.name == m["name"])
     ref = store.read(path)
@@ -501,9 +504,8 @@ def test_html_browser_in_headless_chromium(report, browser, results_dir):
     order_bars = browser.find_elements(By.CSS_SELECTOR, '#orders-legend [data-colorbar="bands"]')
     assert len(order_bars) == metal["orders_k"]
 
-    # hover read-out: pick a coarse pixel whose 3 x 3 neighbourhood lies in one valid cell (so a
-    # pointer a pixel off reads the same value); the page must show that pixel's direction and the
-    # reference luminance of its cell
+    # hover read-out: aim at a coarse pixel whose 3 x 3 neighbourhood is valid; the page must name a
+    # pixel within one of it, and show that pixel's direction and the reference luminance of its cell
     from models.report.geometry import pixel_map
     ref = store.read(next(x.path for x in open_results(results_dir)[1] if x.name == metal["name"]))
     k = inc["index"]
@@ -511,9 +513,8 @@ def test_html_browser_in_headless_chromium(report, browser, results_dir):
     pm = pixel_map(ref.brdf.grid, light_direction(ref.theta_deg[k], ref.phi_deg[k]), ref.brdf.mask[k], S)
     lum = luminance(ref.brdf.value[k], axis=0, keepdims=False)
     cand = [(r, c) for r in range(2, S - 2) for c in range(2, S - 2)
-            if pm.ok[r - 1:r + 2, c - 1:c + 2].all() and len({(pm.ii[a, b], pm.jj[a, b]) for a in range(r - 1, r + 2)
-                                                              for b in range(c - 1, c + 2)}) == 1
-            and lum[pm.ii[r, c], pm.jj[r, c]] > 0]
+            if pm.ok[r - 1:r + 2, c - 1:c + 2].all() and (lum[pm.ii[r - 1:r + 2, c - 1:c + 2],
+                                                               pm.jj[r - 1:r + 2, c - 1:c + 2]] > 0).all()]
     assert cand
     row, col = cand[len(cand) // 3]
     for panel in (0, 2):
@@ -525,10 +526,32 @@ def test_html_browser_in_headless_chromium(report, browser, results_dir):
         got = re.search(r"θv = ([\d.]+)°, φv = ([\d.]+)°", ro["text"])
         assert got and abs(float(got.group(1)) - th) <= 0.051 and abs(float(got.group(2)) - ph) <= 0.051, ro["text"]
         value = float(re.search(r"reference L = (\S+) ± (\S+) 1/sr", ro["text"]).group(1))
-        want = lum[pm.ii[row, col], pm.jj[row, col]]
+        want = lum[pm.ii[r, c], pm.jj[r, c]]
         assert math.isclose(value, want, rel_tol=5e-3 + hover_mod.RELATIVE_PRECISION), (value, want)
         for name in metal["errors"]:
             assert re.search(re.escape(name) + r"\s+\d", ro["text"]), (name, ro["text"])
+    # the plane-of-incidence plot: the plotted point nearest the pointer, with the plotted value
+    grid, light = ref.brdf.grid, light_direction(ref.theta_deg[k], ref.phi_deg[k])
+    xs, prow, pcol = plane_cells(grid, light, float(ref.phi_deg[k]), ref.brdf.mask[k])
+    plotted = 0.5 * (lum[prow, pcol[:, 0]] + lum[prow, pcol[:, 1]])
+    part = next(e for e in _hover_doc(out, metal["hover"])["incidents"] if e["index"] == k)["plane"][0]
+    assert np.allclose(part["x"], xs, atol=1e-3)
+    j = int(np.argmax(np.where(xs > 0, plotted, -1)))    # the brightest point on the mirror side
+    box, (x0, x1) = part["box"], part["xlim"]
+    img = browser.find_element(By.ID, "img-plane")
+    browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", img)
+    w, h, nat = browser.execute_script("const r = arguments[0].getBoundingClientRect();"
+                                       "return [r.width, r.height, arguments[0].naturalWidth];", img)
+    px = box[0] + (xs[j] - x0) / (x1 - x0) * box[2]
+    py = box[1] + box[3] / 2
+    ActionChains(browser).move_to_element_with_offset(img, round(px * w / nat - w / 2),
+                                                      round(py * w / nat - h / 2)).perform()
+    _wait(browser, lambda d: d.execute_script("return document.getElementById('hover-readout').dataset.sample")
+          == str(j), "plane read-out at the aimed point")
+    text = browser.find_element(By.ID, "hover-readout").text
+    assert f"signed θv = {xs[j]:.1f}°" in text and "φv = 180°" in text, text
+    value = float(re.search(r"reference L = (\S+) ±", text).group(1))
+    assert math.isclose(value, plotted[j], rel_tol=5e-3 + hover_mod.RELATIVE_PRECISION), (value, plotted[j])
     ActionChains(browser).move_to_element(browser.find_element(By.ID, "material-title")).perform()
     _wait(browser, lambda d: d.execute_script("return document.getElementById('hover-readout').hidden"),
           "read-out hidden when the pointer leaves the image")

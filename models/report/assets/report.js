@@ -250,7 +250,8 @@
       const h = (window.GONIO_HOVER || {})[m.name];
       hoverState[m.name] = h ? "ready" : "failed";
       (hoverWaiting[m.name] || []).splice(0).forEach(function (cb) { if (h) { cb(h); } });
-      if (lastHover) { showReadout(lastHover.ev, lastHover.img, lastHover.m, lastHover.inc); }
+      if (lastHover && lastHover.plane) { showPlaneReadout(lastHover.ev); }
+      else if (lastHover) { showReadout(lastHover.ev, lastHover.img, lastHover.m, lastHover.inc); }
     };
     s.onerror = function () { hoverState[m.name] = "failed"; hoverWaiting[m.name] = []; };
     document.head.appendChild(s);
@@ -300,7 +301,6 @@
   }
 
   function showReadout(ev, img, m, inc) {
-    const box = $("hover-readout");
     const view = data.views.top, S = data.views.hover_px;
     const rect = img.getBoundingClientRect();
     if (!img.naturalWidth || !rect.width) { return; }
@@ -318,43 +318,81 @@
     const phi = ((Math.atan2(y, x) * 180 / Math.PI) + 360) % 360;
     const lines = [el("div", { "class": "ro-dir", text: "θv = " + theta.toFixed(1) + "°, φv = " + phi.toFixed(1) + "°" +
       (m.side === "btdf" ? " (below the surface)" : "") })];
-    const reg = window.GONIO_HOVER || {}, h = reg[m.name];
-    const e = h ? h.incidents.filter(function (i) { return i.index === inc.index; })[0] : null;
-    if (!m.hover) {
-      lines.push(el("div", { text: "no hover values in this report" }));
-    } else if (!h) {
+    const h = (window.GONIO_HOVER || {})[m.name];
+    const e = hoverEntry(m, inc, h, lines);
+    if (e) { valueBlock(h, m, e, diskIndex(S)[r * S + c]).forEach(function (l) { lines.push(l); }); }
+    placeReadout(ev, lines, { row: r, col: c, panel: panel, sample: "", part: "" });
+  }
+
+  // The material's hover entry of incident `inc`, or null with a line saying why.
+  function hoverEntry(m, inc, h, lines) {
+    if (!m.hover) { lines.push(el("div", { text: "no hover values in this report" })); return null; }
+    if (!h) {
       lines.push(el("div", { text: hoverState[m.name] === "failed" ? "hover values missing (" + m.hover + ")" : "loading values…" }));
       loadHover(m, function () {});
-    } else if (!e) {
-      lines.push(el("div", { text: "no hover values for this incident direction" }));
-    } else {
-      const k = diskIndex(S)[r * S + c];
-      const ref = codeText(h, codes(e.reference)[k]);
-      if (ref === null) {
-        lines.push(el("div", { text: "masked cell: not compared" }));
-      } else {
-        const se = codeText(h, codes(e.reference_se)[k]);
-        lines.push(el("div", { "class": "ro-ref" }, ["reference L = ", el("b", { text: num(ref) }),
-          " ± " + num(se) + " 1/sr"]));
-        const rows = visibleModels(m).filter(function (n) { return e.models[n]; }).map(function (n) {
-          const v = codeText(h, codes(e.models[n])[k]);
-          const q = (typeof v === "number" && typeof ref === "number" && ref > 0) ? v / ref : null;
-          const rel = q === null ? "" : (q >= 10 || q <= 0.1) ? " (×" + num(q) + ")" :
-            " (" + (q >= 1 ? "+" : "−") + num(Math.abs(100 * (q - 1))) + " %)";
-          return el("tr", { "data-model": n }, [el("td", {}, [swatch(n), n]), el("td", { "class": "num", text: num(v) + rel })]);
-        });
-        if (rows.length) { lines.push(el("table", { "class": "ro-models" }, rows)); }
-      }
+      return null;
     }
+    const e = h.incidents.filter(function (i) { return i.index === inc.index; })[0];
+    if (!e) { lines.push(el("div", { text: "no hover values for this incident direction" })); return null; }
+    return e;
+  }
+
+  // The reference ± its standard error and every shown model at stored sample k of `e`.
+  function valueBlock(h, m, e, k) {
+    const ref = codeText(h, codes(e.reference)[k]);
+    if (ref === null) { return [el("div", { text: "masked cell: not compared" })]; }
+    const se = codeText(h, codes(e.reference_se)[k]);
+    const out = [el("div", { "class": "ro-ref" }, ["reference L = ", el("b", { text: num(ref) }), " ± " + num(se) + " 1/sr"])];
+    const rows = visibleModels(m).filter(function (n) { return e.models[n]; }).map(function (n) {
+      const v = codeText(h, codes(e.models[n])[k]);
+      const q = (typeof v === "number" && typeof ref === "number" && ref > 0) ? v / ref : null;
+      const rel = q === null ? "" : (q >= 10 || q <= 0.1) ? " (×" + num(q) + ")" :
+        " (" + (q >= 1 ? "+" : "−") + num(Math.abs(100 * (q - 1))) + " %)";
+      return el("tr", { "data-model": n }, [el("td", {}, [swatch(n), n]), el("td", { "class": "num", text: num(v) + rel })]);
+    });
+    if (rows.length) { out.push(el("table", { "class": "ro-models" }, rows)); }
+    return out;
+  }
+
+  function placeReadout(ev, lines, marks) {
+    const box = $("hover-readout");
     box.innerHTML = "";
     lines.forEach(function (l) { box.appendChild(l); });
-    box.dataset.row = String(r);
-    box.dataset.col = String(c);
-    box.dataset.panel = String(panel);
+    Object.entries(marks).forEach(function (kv) { box.dataset[kv[0]] = String(kv[1]); });
     box.hidden = false;
     const w = box.offsetWidth, hh = box.offsetHeight;
     box.style.left = Math.max(4, Math.min(ev.clientX + 16, window.innerWidth - w - 8)) + "px";
     box.style.top = Math.max(4, Math.min(ev.clientY + 16, window.innerHeight - hh - 8)) + "px";
+  }
+
+  // The plane-of-incidence figure: the plotted point nearest the pointer's abscissa.
+  function showPlaneReadout(ev) {
+    const m = state.material, inc = m ? currentIncident(m) : null, img = $("img-plane");
+    const rect = img.getBoundingClientRect();
+    if (!inc || !img.naturalWidth || !rect.width) { return; }
+    const px = (ev.clientX - rect.left) * img.naturalWidth / rect.width;
+    const py = (ev.clientY - rect.top) * img.naturalHeight / rect.height;
+    const lines = [];
+    const h = (window.GONIO_HOVER || {})[m.name];
+    const e = hoverEntry(m, inc, h, lines);
+    lastHover = { ev: ev, img: img, m: m, inc: inc, plane: true };
+    if (!e) { placeReadout(ev, lines, { row: "", col: "", panel: "", sample: "", part: "" }); return; }
+    const parts = e.plane || [];
+    let p = -1;
+    parts.forEach(function (q, i) {
+      const b = q.box;
+      if (px >= b[0] && px <= b[0] + b[2] && py >= b[1] && py <= b[1] + b[3]) { p = i; }
+    });
+    if (p < 0 || !parts[p].x.length) { hideReadout(); return; }
+    const q = parts[p];
+    const xd = q.xlim[0] + (px - q.box[0]) / q.box[2] * (q.xlim[1] - q.xlim[0]);
+    let k = 0;
+    q.x.forEach(function (x, i) { if (Math.abs(x - xd) < Math.abs(q.x[k] - xd)) { k = i; } });
+    lines.push(el("div", { "class": "ro-dir", text: "signed θv = " + q.x[k].toFixed(1) + "° (" + q.label + ")" }));
+    lines.push(el("div", { "class": "hint", text: "> 0 on the " + (m.side === "btdf" ? "straight-through" : "mirror") +
+      " side: φv = " + num((inc.phi + (q.x[k] > 0 ? 180 : 0)) % 360) + "°" }));
+    valueBlock(h, m, q, k).forEach(function (l) { lines.push(l); });
+    placeReadout(ev, lines, { row: "", col: "", panel: "", sample: k, part: p });
   }
 
   function renderErrors(m) {
@@ -474,6 +512,9 @@
     if (!data.materials.length) { return; }
     buildCategorySelect();
     $("sel-incident").addEventListener("change", render);
+    $("img-plane").classList.add("hoverable");
+    $("img-plane").addEventListener("mousemove", showPlaneReadout);
+    $("img-plane").addEventListener("mouseleave", hideReadout);
     const h = fromHash();
     if (h.t !== undefined && !isNaN(parseFloat(h.t))) { state.theta = parseFloat(h.t); }
     setMaterial(byName.get(h.m) || data.materials[0]);
