@@ -240,10 +240,6 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
     for ax, (label, ref_cells, se_cells, pick) in zip(axes, parts):
         lum = along(_lum(ref_cells))
         se = along(_lum(se_cells))
-        box = ax.get_position()
-        values.append(hover_plane(label, [box.x0 * size[0], (1.0 - box.y1) * size[1], box.width * size[0],
-                                          box.height * size[1]], (-90.0, 90.0), x, lum, se,
-                                  {n: along(_lum(pick(t, i))) for n, (t, i) in inc.models.items()}))
         upper = np.where(lum > 0, lum + 2 * se, bound)
         ax.fill_between(x, remap(lum - 2 * se), remap(upper), color="0.8", lw=0,
                         label="reference ±2σ\n(no hit: 95% bound)")
@@ -258,6 +254,10 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
                       + " side", fontsize=8)
         ax.set_title(label, fontsize=9)
         ax.tick_params(labelsize=8)
+        box = ax.get_position()
+        values.append(hover_plane(label, [box.x0 * size[0], (1.0 - box.y1) * size[1], box.width * size[0],
+                                          box.height * size[1]], ax.get_xlim(), x, lum, se,
+                                  {n: along(_lum(pick(t, i))) for n, (t, i) in inc.models.items()}))
     axes[0].set_ylabel("log(1 + √f), luminance", fontsize=8)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
@@ -270,8 +270,8 @@ def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
     """Reference and model top views, one PNG each with three disks: RGB, luminance isovalues and
     the signed difference of g(L) to the reference (for the reference: its 2-sigma noise), all
     on scales shared by the reference and the models. Returns file names, the difference scale,
-    the luminance scale and the RGB scale (g units). ``labels`` = (material name, side): labelled figures instead of the
-    bare disks the HTML report frames."""
+    the luminance scale and the RGB scale (g units). ``labels`` = (material name, side): labelled
+    figures instead of the bare disks the HTML report frames."""
     pm = pixel_map(grid, inc.light, inc.mask, DISK_PX)
     scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
     lum_ref = _lum(inc.ref)
