@@ -37,6 +37,10 @@ _EXPORTS = {
     "light_direction": "goniometer.slices",
     "read": "goniometer.store", "write": "goniometer.store", "describe": "goniometer.store",
     "StoreError": "goniometer.store",
+    # tabulated BRDFs (the MERL grid)
+    "TabulationSettings": "goniometer.settings", "tabulate": "goniometer.tabulation",
+    "TabulatedBRDF": "goniometer.tabulated", "read_tabulated": "goniometer.tabulated",
+    "write_tabulated": "goniometer.tabulated", "write_merl": "goniometer.merl",
     # databases
     "load_database": "goniometer.database", "simulate_database": "goniometer.database",
     "DatabaseError": "goniometer.database",
