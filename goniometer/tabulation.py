@@ -33,7 +33,8 @@ from goniometer.slices import boundary_tables
 from goniometer.stack import Stack, pack
 from goniometer.tabulated import TabulatedBRDF, from_sums
 
-__all__ = ["TAB_STREAM", "TabulationError", "TabulationCheckpoint", "tabulate", "tabulation_description"]
+__all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabulable", "tabulate",
+           "tabulation_description", "warm_up"]
 
 #: the "incident index" of a tabulation's random streams (slices use 0 .. M - 1): a tabulation and
 #: a slices run of the same seed draw from unrelated streams
@@ -147,6 +148,17 @@ def _accumulate(exit_cell, exit_w, n_valid, sums, sums_sq, hits):
                     sums[c, k] += w
                     sums_sq[c, k] += w * w
                 hits[c] += 1
+
+
+def warm_up() -> float:
+    """Compile (or load from the on-disk cache) the kernel and the accumulation, and compute the
+    cell measures; returns the seconds spent."""
+    from goniometer.stack import Lambertian
+    from goniometer.tasks import warm_up as warm_up_slices
+    t0 = time.perf_counter()
+    warm_up_slices()
+    tabulate(Stack("warm-up", (Lambertian((0.5,) * 3),)), TabulationSettings(rays=8, chunk_rays=8, threads=1))
+    return time.perf_counter() - t0
 
 
 def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: TabulationCheckpoint | None = None,
