@@ -7,6 +7,9 @@ Stacks in, HDF5 BRDF/BTDF slices out. The public face, for notebooks and scripts
     result = g.simulate(stack, g.SimulationSettings(incident_deg=(30,), rays=300_000))
     g.write("material.h5", result); g.read("material.h5")
 
+Whole isotropic BRDFs on the MERL grid: ``g.tabulate(stack, g.TabulationSettings(...))``,
+``g.read_tabulated(path).eval(l, v)`` (``docs/tabulated-format.md``).
+
 Contracts: ``docs/material-format.md``, ``docs/slices-format.md``, ``docs/database-format.md``,
 ``docs/architecture.md``. Names are loaded on first use, so ``import goniometer`` stays light.
 """
