@@ -202,11 +202,15 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
     en.attrs["description"] = ("fractions of the flux of uniform diffuse illumination per channel (R, G, B); "
                                "reflected + transmitted + absorbed + masking_loss + roulette + capped = 1; "
                                "reflected_without_base is a part of reflected")
-    for name in TAB_ENERGY_TERMS:
-        en.create_dataset(name, data=t.energy[name])
-        en.create_dataset(f"{name}_stderr", data=t.energy_stderr[name])
-    en.create_dataset("roulette", data=t.roulette)
-    en.create_dataset("capped", data=t.capped)
+    channel = _scale(en, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+    for name, data, long_name in (
+            *((k, t.energy[k], f"{k.replace('_', ' ')} fraction") for k in TAB_ENERGY_TERMS),
+            *((f"{k}_stderr", t.energy_stderr[k], f"standard error of {k}") for k in TAB_ENERGY_TERMS),
+            ("roulette", t.roulette, "net weight booked by Russian roulette, per path"),
+            ("capped", t.capped, "weight of paths stopped by the event cap, per path")):
+        d = en.create_dataset(name, data=data)
+        d.dims[0].attach_scale(channel)
+        d.attrs["long_name"] = long_name
 
 
 # ---------------------------------------------------------------------- reading

@@ -10,6 +10,7 @@ probability 1e-6, ``tests/conftest.py``).
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import struct
 from pathlib import Path
@@ -227,6 +228,10 @@ def test_cli_tabulate_export_and_refusals(tmp_path, capsys):
     assert tab.stack.name == "plastic/P1-a0_0.05"
     assert not (tmp_path / ".p.h5.partial").exists()
     capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["format"] == "goniometer.tabulated" and info["settings"]["rays"] == 20000
+    np.testing.assert_allclose(info["energy"]["reflected"], tab.energy["reflected"])
     # anisotropic stacks are refused with the reason
     assert main(["tabulate", str(EXAMPLES / "aniso-metal.toml"), "--out", str(tmp_path / "a.h5")]) == 2
     err = capsys.readouterr().err
