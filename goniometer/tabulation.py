@@ -68,7 +68,7 @@ class _State:
     """The raw sums after ``next_chunk`` chunks."""
 
     def __init__(self) -> None:
-        self.next_chunk = 0
+        self.chunk = np.zeros(1, dtype=np.int64)  # [next chunk], updated with the sums (see _commit)
         self.sums = np.zeros((halfdiff.N_CELLS, 3))
         self.sums_sq = np.zeros((halfdiff.N_CELLS, 3))
         self.hits = np.zeros(halfdiff.N_CELLS, dtype=np.int64)
@@ -76,6 +76,10 @@ class _State:
         self.energy_sq = np.zeros((tracer.N_ENERGY_SQ, 3))
         self.counts = np.zeros(tracer.N_COUNTS, dtype=np.int64)
         self.elapsed_s = 0.0
+
+    @property
+    def next_chunk(self) -> int:
+        return int(self.chunk[0])
 
     def save(self, path: Path) -> None:
         nz = np.flatnonzero(self.hits)
@@ -88,7 +92,7 @@ class _State:
         s = cls()
         with np.load(path) as z:
             nz = z["cells"]
-            s.next_chunk = int(z["next_chunk"])
+            s.chunk[0] = int(z["next_chunk"])
             s.sums[nz] = z["sums"]
             s.sums_sq[nz] = z["sums_sq"]
             s.hits[nz] = z["hits"]
@@ -137,9 +141,20 @@ class TabulationCheckpoint:
 
 
 @numba.njit(cache=True)
-def _accumulate(exit_cell, exit_w, n_valid, sums, sums_sq, hits):
-    """Add the exit records of a batch to the cell sums: chunk by chunk, path by path."""
+def _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq, hits, acc_energy, acc_energy_sq,
+            acc_counts, chunk):
+    """Add a batch of chunks to the state: the exit records to the cell sums (chunk by chunk, path
+    by path), the energy sums chunk by chunk, and advance ``chunk[0]`` past the batch. One compiled
+    call, so a Ctrl-C (handled by Python between calls) never sees half of it."""
     for b in range(exit_cell.shape[0]):
+        for r in range(energy.shape[1]):
+            for k in range(3):
+                acc_energy[r, k] += energy[b, r, k]
+        for r in range(energy_sq.shape[1]):
+            for k in range(3):
+                acc_energy_sq[r, k] += energy_sq[b, r, k]
+        for r in range(counts.shape[1]):
+            acc_counts[r] += counts[b, r]
         for r in range(n_valid[b]):
             c = exit_cell[b, r]
             if c >= 0:
@@ -148,6 +163,7 @@ def _accumulate(exit_cell, exit_w, n_valid, sums, sums_sq, hits):
                     sums[c, k] += w
                     sums_sq[c, k] += w * w
                 hits[c] += 1
+    chunk[0] += exit_cell.shape[0]
 
 
 def warm_up() -> float:
@@ -167,7 +183,8 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     """Tabulate the isotropic BRDF of ``stack`` (raises :class:`TabulationError` for an
     anisotropic stack). ``checkpoint``: resume from it and save to it (the caller clears it once
     the file is written); ``on_resume(rays)`` is told how many rays were loaded. ``progress(rays)``
-    is called after every batch (a KeyboardInterrupt it raises saves the checkpoint first)."""
+    is called after every batch. A KeyboardInterrupt (from ``progress`` or a signal handler)
+    saves the checkpoint, then propagates."""
     check_tabulable(stack)
     settings.validate()
     state = checkpoint.load() if checkpoint is not None else None
@@ -194,32 +211,30 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     exit_w = np.empty((B, cr, 3))
     tables = boundary_tables("classic", 1, 1)
     last_save = time.monotonic()
-    while state.next_chunk < n_chunks:
-        t0 = time.perf_counter()
-        first = state.next_chunk
-        nb = min(B, n_chunks - first)
-        tracer.trace_batch(*p.as_tuple(), 0.0, 0.0, 1.0, settings.rays, cr, first, settings.seed, TAB_STREAM,
-                           tracer.P_TABULATE, 1, 1, *tables, 1, settings.masking == "height-correlated",
-                           settings.event_cap, brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb],
-                           exit_cell[:nb], exit_w[:nb])
-        n_valid = np.array([max(0, min(cr, settings.rays - (first + b) * cr)) for b in range(nb)], dtype=np.int64)
-        _accumulate(exit_cell[:nb], exit_w[:nb], n_valid, state.sums, state.sums_sq, state.hits)
-        for b in range(nb):
-            state.energy += energy[b]
-            state.energy_sq += energy_sq[b]
-            state.counts += counts[b]
-        state.next_chunk = first + nb
-        state.elapsed_s += time.perf_counter() - t0
-        if checkpoint is not None and time.monotonic() - last_save > CHECKPOINT_EVERY_S \
-                and state.next_chunk < n_chunks:
-            checkpoint.save(state)
-            last_save = time.monotonic()
-        if progress is not None:
-            try:
+    try:
+        while state.next_chunk < n_chunks:
+            t0 = time.perf_counter()
+            first = state.next_chunk
+            nb = min(B, n_chunks - first)
+            tracer.trace_batch(*p.as_tuple(), 0.0, 0.0, 1.0, settings.rays, cr, first, settings.seed, TAB_STREAM,
+                               tracer.P_TABULATE, 1, 1, *tables, 1, settings.masking == "height-correlated",
+                               settings.event_cap, brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb],
+                               exit_cell[:nb], exit_w[:nb])
+            n_valid = np.array([max(0, min(cr, settings.rays - (first + b) * cr)) for b in range(nb)],
+                               dtype=np.int64)
+            _commit(exit_cell[:nb], exit_w[:nb], n_valid, energy[:nb], energy_sq[:nb], counts[:nb], state.sums,
+                    state.sums_sq, state.hits, state.energy, state.energy_sq, state.counts, state.chunk)
+            state.elapsed_s += time.perf_counter() - t0
+            if checkpoint is not None and time.monotonic() - last_save > CHECKPOINT_EVERY_S \
+                    and state.next_chunk < n_chunks:
+                checkpoint.save(state)
+                last_save = time.monotonic()
+            if progress is not None:
                 progress(int(n_valid.sum()))
-            except KeyboardInterrupt:
-                if checkpoint is not None and state.next_chunk < n_chunks:
-                    checkpoint.save(state)
-                raise
+    except KeyboardInterrupt:
+        # the state is always whole chunks (_commit is one compiled call): keep it
+        if checkpoint is not None and 0 < state.next_chunk < n_chunks:
+            checkpoint.save(state)
+        raise
     return from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy, state.energy_sq,
                      state.counts, state.elapsed_s, threads, compile_s)
