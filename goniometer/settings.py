@@ -128,7 +128,7 @@ def _int_in(value: Any, name: str, lo: int, hi: int) -> None:
         raise SettingsError(f"{name}: {value} is outside [{lo}, {hi}]")
 
 
-#: default rays of a tabulation (``gonio tabulate``): about 150 paths per reachable cell of the
+#: default rays of a tabulation (``gonio tabulate``): about 180 paths per cell of non-zero measure of the
 #: MERL grid on average for a diffuse material (``docs/tabulated-format.md``)
 TABULATE_RAYS = 200_000_000
 
