@@ -12,6 +12,9 @@ def all_models() -> dict[str, Model]:
     from models.weidlich_wilkie import Elek10, WW09, WWBati19
     found: list[Model] = [WW09(), Elek10(), WWBati19(), BelcourForward(), BelcourSymmetric(), BelcourBati19(),
                           BelcourBTDF(), BelcourAniso(), MultilayerLUT()]
+    # production models (issue 13): Kulla-Conty GGX interface, Mitsuba 3's own BSDFs
+    from models.production import GGXKullaConty, MitsubaPrincipled, MitsubaRoughPlastic
+    found += [GGXKullaConty(), MitsubaRoughPlastic(), MitsubaPrincipled()]
     return {m.name: m for m in found}
 
 
