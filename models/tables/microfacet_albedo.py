@@ -63,10 +63,19 @@ def mu_nodes() -> np.ndarray:
     return MU_FLOOR + (1.0 - MU_FLOOR) * np.linspace(0.0, 1.0, N_MU) ** 2
 
 
+@lru_cache(maxsize=8)
+def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [-1, 1] (memoised, read-only)."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    x.setflags(write=False)
+    w.setflags(write=False)
+    return x, w
+
+
 def quadrature_rule(n_z: int = QUAD_Z, n_phi: int = QUAD_PHI) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(u2, w2, u1, w1)``: Gauss-Legendre nodes/weights on [0, 1] for the cap height and midpoint
     nodes on the half turn [0, 1/2] for the azimuth (weights ``1 / n_phi``); each set sums to 1."""
-    x, w = np.polynomial.legendre.leggauss(n_z)
+    x, w = gauss_legendre(n_z)
     u1 = (np.arange(n_phi) + 0.5) / (2.0 * n_phi)
     return 0.5 * (x + 1.0), 0.5 * w, u1, np.full(n_phi, 1.0 / n_phi)
 
@@ -210,11 +219,12 @@ def load_albedo_table(kind: str, alpha: float, eta: float = 1.0, height_correlat
 
 # --------------------------------------------------------------------------- Fresnel averages
 
+@lru_cache(maxsize=1024)
 def fresnel_average(eta: float, kappa: float = 0.0, n: int = 256) -> float:
     """``F_avg = 2 Int_0^1 F(mu) mu dmu`` of a smooth interface of relative index ``eta + i kappa``
     (Gauss-Legendre, split at the critical cosine when ``eta < 1`` and ``kappa = 0``, where
-    ``F = 1`` below it)."""
-    x, w = np.polynomial.legendre.leggauss(n)
+    ``F = 1`` below it). Memoised."""
+    x, w = gauss_legendre(n)
     if kappa == 0.0 and eta < 1.0:
         mu_c = math.sqrt(1.0 - eta * eta)
         mu = mu_c + 0.5 * (x + 1.0) * (1.0 - mu_c)
