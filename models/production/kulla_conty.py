@@ -13,8 +13,10 @@ Conventions (as :mod:`models.base`): ``l`` towards the light in air (``l_z > 0``
 the viewer; values without the cosine factor, in 1/sr, RGB last; BTDF values flux based. The
 single-scattering lobe is the Walter 2007 GGX BSDF of :mod:`goniometer.optics`; ``E(mu)`` and
 ``E_avg`` come from :mod:`models.tables.microfacet_albedo` (quadrature for the exact roughness and
-index of the interface). ``top`` is the single-scattering reflection, ``internal`` the
-compensation (for the BTDF, ``internal`` is the whole BTDF).
+index of the interface). The simulator counts a walk on a multiple-scattering microsurface as one
+event (``docs/material-format.md``, "Counting"), so all light the interface reflects is bounce
+order 1: ``top`` is the whole BRDF (single scattering + compensation) and ``internal`` is 0; for the
+BTDF, ``internal`` is the whole BTDF (:meth:`GGXKullaConty.parts` gives the two terms apart).
 """
 
 from __future__ import annotations
@@ -106,7 +108,9 @@ class GGXKullaConty(Model):
     Dielectric: the same lobe shape for reflection and transmission, with ``E`` the single-scattering
     albedo (R + T) of each side and the reciprocal split of :func:`dielectric_split`.
     Turquin: ``f = f_ss (1 + F0 (1 - E(mu_l)) / E(mu_l))`` (conductor, ``F0`` the Fresnel factor at
-    normal incidence) or ``f = f_ss / E_out(mu_l)`` (dielectric, BRDF and BTDF). Options:
+    normal incidence) or ``f = f_ss / E_out(mu_l)`` (dielectric, BRDF and BTDF). ``top`` is the
+    whole BRDF, ``internal`` the whole BTDF (module docstring); :meth:`parts` separates the single
+    scattering from the compensation. Options:
     :class:`KullaContyOptions`. Section references and choices: module docstring and
     ``docs/production-models.md``.
     """
@@ -136,22 +140,38 @@ class GGXKullaConty(Model):
         o = self.options
         return load_albedo_table(kind, alpha, eta, o.height_correlated, o.cache_dir)
 
+    def parts(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> tuple[np.ndarray, np.ndarray]:
+        """``(single, compensation)``, each ``v.shape[:-1] + (3,)``: the single-scattering lobe of
+        :mod:`goniometer.optics` and the compensation (the added lobe; for Turquin the added part
+        ``f - f_ss``). Their sum is the BRDF (``top``) or BTDF (``internal``) of :meth:`evaluate`.
+        Raises :class:`models.base.ModelError` like :meth:`evaluate`."""
+        self.evaluate(stack, l, np.zeros((0, 3)), side)  # the checks of Model.evaluate
+        return self._terms(stack, np.asarray(l, dtype=np.float64).reshape(3), np.asarray(v, dtype=np.float64), side)
+
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
+        single, compensation = self._terms(stack, l, v, side)
+        total = single + compensation
+        zero = np.zeros_like(total)
+        return ModelValue(total, zero) if side == "brdf" else ModelValue(zero, total)
+
+    def _terms(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`parts` for checked inputs."""
         x: Interface = stack.layers[0]
         shape = v.shape[:-1] + (3,)
-        top = np.zeros(shape)
-        internal = np.zeros(shape)
+        single = np.zeros(shape)
+        compensation = np.zeros(shape)
         alpha = float(x.roughness)
         if l[2] <= 0.0 or alpha <= 0.0:
             # a smooth interface is a Dirac lobe, which the model does not represent
-            return ModelValue(top, internal)
+            return single, compensation
         if x.is_conductor:
             if side == "brdf":
-                self._conductor(x, l, v, top, internal)
+                self._conductor(x, l, v, single, compensation)
         else:
-            self._dielectric(x, l, v, side, top, internal)
-        return ModelValue(top, internal)
+            self._dielectric(x, l, v, side, single, compensation)
+        return single, compensation
 
+    # both fill ``top`` with the single-scattering lobe and ``internal`` with the compensation
     def _conductor(self, x: Interface, l: np.ndarray, v: np.ndarray, top: np.ndarray, internal: np.ndarray) -> None:
         o = self.options
         alpha = float(x.roughness)
@@ -184,12 +204,12 @@ class GGXKullaConty(Model):
             if side == "brdf":
                 f_ss = optics.np_microfacet_reflection(l[0], l[1], l[2], v[..., 0], v[..., 1], v[..., 2], alpha,
                                                        alpha, eta, 0.0, o.height_correlated)
-                top[..., c] = f_ss
             else:
                 f_ss = optics.np_microfacet_transmission(l[0], l[1], l[2], v[..., 0], v[..., 1], v[..., 2], alpha,
                                                          alpha, eta, o.height_correlated)
+            top[..., c] = f_ss
             if o.compensation == "turquin":
-                internal[..., c] = f_ss * (1.0 - e_l) / e_l if side == "brdf" else f_ss / e_l
+                internal[..., c] = f_ss * (1.0 - e_l) / e_l
                 continue
             inside = self._table("dielectric", alpha, 1.0 / eta)
             split = dielectric_split(eta, out.e_avg, inside.e_avg, fresnel_average(eta), fresnel_average(1.0 / eta))
@@ -198,4 +218,4 @@ class GGXKullaConty(Model):
                 internal[..., c] = np.where(v[..., 2] > 0.0, lobe, 0.0)
             else:
                 lobe = split.t_out * (1.0 - e_l) * (1.0 - inside.at(v[..., 2])) / math.pi
-                internal[..., c] = f_ss + np.where(v[..., 2] < 0.0, lobe, 0.0)
+                internal[..., c] = np.where(v[..., 2] < 0.0, lobe, 0.0)
