@@ -12,7 +12,7 @@ DEMO_RAYS ?= 200000
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
 DB_OUT ?= results/bati2019
-# Bati 2019 appendix E (configs/appendix-e.toml): demo ~1 min, quick ~5 min, full < 1 h on 2 cores
+# Bati 2019 appendix E (configs/appendix-e.toml): demo ~1 min, quick ~3 min, full ~ 30 min on 2 cores
 APPE_QUALITY ?= full
 APPE_OUT ?= results/appendix-e-$(APPE_QUALITY)
 # multiple-scattering twins of the 2019 database (configs/bati2019-ms.toml), compared with $(DB_OUT)

@@ -80,6 +80,10 @@ class SimulationResult:
     threads: int
     compile_s: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
+    #: (M, 3) reflected fraction carried by paths that never had an event at the base (the bottom
+    #: layer), a part of ``energy["reflected"]``; None for files written before it was recorded
+    reflected_without_base: np.ndarray | None = None
+    reflected_without_base_stderr: np.ndarray | None = None
 
     @property
     def rays_per_s(self) -> float:
@@ -198,6 +202,15 @@ def cell_geometry(parametrization: str, n_theta: int, n_phi: int, theta_deg: flo
     return omega, mask
 
 
+def cell_geometries(settings: SimulationSettings) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(Omega, mask) of the grid of ``settings`` for each of its incident directions
+    (:func:`cell_geometry`, memoised). The CLI calls it before tracing, where Ctrl-C is deferred,
+    so that the numba kernels of the final assembly are compiled and run there."""
+    nt, nph = settings.resolution
+    return [cell_geometry(settings.parametrization, nt, nph, t, p)
+            for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+
+
 def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPart],
              compile_s: float = 0.0) -> SimulationResult:
     """Turn the raw per-incident sums into cell values, errors and energies."""
@@ -206,8 +219,7 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     nt, nph = settings.resolution
     grid = SliceGrid(settings.parametrization, nt, nph, "reflection")
     # |cos theta_v| and the validity of sub-cells are the same on both sides: computed once
-    geometry = [cell_geometry(settings.parametrization, nt, nph, t, p)
-                for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+    geometry = cell_geometries(settings)
     omegas = [g[0] for g in geometry]
     masks = [g[1] for g in geometry]
     brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n)
@@ -218,11 +230,8 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     energy: dict[str, np.ndarray] = {}
     energy_se: dict[str, np.ndarray] = {}
     for t, name in enumerate(ENERGY_TERMS):
-        s1 = np.array([p.energy[t] for p in parts])
-        s2 = np.array([p.energy_sq[t] for p in parts])
-        mean = s1 / n
-        energy[name] = mean
-        energy_se[name] = np.sqrt(np.maximum(s2 / n - mean * mean, 0.0) / max(n - 1, 1))
+        energy[name], energy_se[name] = _mean_stderr(parts, t, n)
+    unbased, unbased_se = _mean_stderr(parts, tracer.E_REFLECTED_WITHOUT_BASE, n)
     return SimulationResult(
         stack=stack, settings=settings,
         theta_deg=np.array(settings.incident_deg), phi_deg=np.array(settings.incident_phi_deg),
@@ -233,4 +242,13 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
         mean_events=np.array([p.counts[tracer.C_EVENTS] for p in parts]) / n,
         elapsed_s=np.array([p.elapsed_s for p in parts]),
         threads=settings.n_threads, compile_s=compile_s,
+        reflected_without_base=unbased, reflected_without_base_stderr=unbased_se,
     )
+
+
+def _mean_stderr(parts: list[IncidentPart], row: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-path mean of energy row ``row`` and its standard error, (M, 3) each."""
+    s1 = np.array([p.energy[row] for p in parts])
+    s2 = np.array([p.energy_sq[row] for p in parts])
+    mean = s1 / n
+    return mean, np.sqrt(np.maximum(s2 / n - mean * mean, 0.0) / max(n - 1, 1))

@@ -19,6 +19,8 @@ absorbed or masking loss, the weight it leaves with as reflected or transmitted;
 roulette books the weight it kills and the weight it adds (negative) in ``roulette``, and paths
 stopped by the event cap book their weight in ``capped``. Hence, per chunk,
 reflected + transmitted + absorbed + masking + roulette + capped = number of rays (to rounding).
+A reflected path that never had an event at the base (the bottom layer) also books its weight in
+``E_REFLECTED_WITHOUT_BASE`` (a part of reflected; ``docs/slices-format.md``, ``/energy``).
 
 Kernel inputs are flat arrays (see :class:`goniometer.stack.PackedStack`); outputs are
 per-chunk histograms, so results do not depend on the number of threads.
@@ -44,11 +46,13 @@ E_REFLECTED = 0
 E_TRANSMITTED = 1
 E_ABSORBED = 2
 E_MASKING = 3
-E_ROULETTE = 4
-E_CAPPED = 5
-N_ENERGY = 6
+#: reflected weight of paths that never had an event at the base (the bottom layer)
+E_REFLECTED_WITHOUT_BASE = 4
+E_ROULETTE = 5
+E_CAPPED = 6
+N_ENERGY = 7
 #: rows with a per-path second moment (for standard errors)
-N_ENERGY_SQ = 4
+N_ENERGY_SQ = 5
 # columns of the per-chunk counters
 C_CAPPED = 0
 C_EVENTS = 1
@@ -302,6 +306,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     # conductor channels that share their complex index share their Fresnel value
     cond_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
     cond_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
+    # the interface that is the base (the bottom layer), -1 when the base is Lambertian
+    base_k = -1 if base_kind == 2 else n_if - 1
     n_events_total = 0
     # the exit not yet deposited: none (0), in brdf (1) or in btdf (2); cell, order row, weight
     pend = 0
@@ -328,6 +334,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         mk2 = 0.0
         order = 0
         events = 0
+        based = False  # the path has had an event at the base
         # height in the current scattering region (0 bottom .. 1 top); < 0: at the boundary the
         # direction leaves (entering a region)
         hpos = -1.0
@@ -381,6 +388,13 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     energy_sq[E_REFLECTED, 0] += w0 * w0
                     energy_sq[E_REFLECTED, 1] += w1 * w1
                     energy_sq[E_REFLECTED, 2] += w2 * w2
+                    if not based:
+                        energy[E_REFLECTED_WITHOUT_BASE, 0] += w0
+                        energy[E_REFLECTED_WITHOUT_BASE, 1] += w1
+                        energy[E_REFLECTED_WITHOUT_BASE, 2] += w2
+                        energy_sq[E_REFLECTED_WITHOUT_BASE, 0] += w0 * w0
+                        energy_sq[E_REFLECTED_WITHOUT_BASE, 1] += w1 * w1
+                        energy_sq[E_REFLECTED_WITHOUT_BASE, 2] += w2 * w2
                     break
                 k = region - 1
                 from_above = False
@@ -408,6 +422,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 k = -1
                 from_above = True
                 events += 1
+                based = True
                 if n_if == 0:
                     order += 1
                 w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, rho[0], rho[1], rho[2])
@@ -423,6 +438,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 events += 1
                 if k == 0:
                     order += 1
+                if k == base_k and from_above:
+                    based = True
                 # incoming direction in the local frame of the arrival side (z > 0)
                 wx = -dx
                 wy = -dy

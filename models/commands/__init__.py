@@ -7,6 +7,7 @@ the host (:mod:`goniometer.cli`) calls it. Nothing below the application imports
 from __future__ import annotations
 
 from models.commands import evaluate, inverse, report, tables
+from models.commands import furnace
 
 
 def register(sub) -> None:
@@ -15,3 +16,4 @@ def register(sub) -> None:
     evaluate.register(sub)
     inverse.register(sub)
     tables.register(sub)
+    furnace.register(sub)

@@ -6,10 +6,11 @@ the paper's two claims about Belcour's forward-scattering operator, stated with 
    R, G, B and the incident directions of the file) is lowest; the claim holds at d when that g is
    >= 0.7. g = 0 is outside the model's domain (g >= 0.1, ``docs/belcour.md``) and not compared.
 2. **Bundles cannot "turn around" in the medium**: the fraction of the reflected energy that never
-   reached the base, per d, g, incident elevation and channel. It is measured by the companion
-   material ``other/E-black-d_*-g_*`` -- the same medium over a black base, where every path that
-   reaches the base ends -- as ``R_black / R_metal`` (two independent simulations; its standard
-   error from both). Belcour's operator gives this light no energy at all (``R = 0`` in a medium).
+   reached the base, per d, g, incident elevation and channel: ``U / R`` from the simulator's
+   per-path record (``/energy/reflected_without_base`` = U, a part of ``/energy/reflected`` = R;
+   ``docs/slices-format.md``). Its standard error accounts for U and R coming from the same paths
+   (per path U is either 0 or R, so their covariance is U's variance). Belcour's operator gives
+   this light no energy at all (``R = 0`` in a medium).
 
 :func:`appendix_e_section` returns the numbers (also written as ``appendix-e.json``) and
 :func:`appendix_e_markdown` the text (``appendix-e.md``); :func:`build_report` calls them when
@@ -37,17 +38,29 @@ def is_appendix_e(materials: list[ReportMaterial]) -> bool:
     return any(m.category == "metal" and "d" in m.params and "g" in m.params for m in materials)
 
 
-def _energy(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _energy(path) -> tuple[np.ndarray, ...] | None:
+    """(theta, R, se_R, U, se_U) of a file; None when it predates the per-path record U."""
     with h5py.File(path, "r") as f:
-        return (f["incident/theta_deg"][()], f["energy/reflected"][()], f["energy/reflected_stderr"][()])
+        en = f["energy"]
+        if "reflected_without_base" not in en:
+            return None
+        return (f["incident/theta_deg"][()], en["reflected"][()], en["reflected_stderr"][()],
+                en["reflected_without_base"][()], en["reflected_without_base_stderr"][()])
 
 
-def appendix_e_section(results: list[MaterialResult], black: list[ReportMaterial]) -> dict:
-    """The two claims' numbers from the evaluated metals ``results`` and the black-base companions
-    ``black`` (materials of category ``other`` with parameters d, g)."""
+def fraction_stderr(u: np.ndarray, su: np.ndarray, r: np.ndarray, sr: np.ndarray) -> np.ndarray:
+    """Standard error of ``u / r`` when ``u`` is a part of ``r`` measured on the same paths (per
+    path U is 0 or R, so cov(U, R) = var(U)): var(f) = ((1 - 2 f) var U + f^2 var R) / R^2 (delta
+    method; the O(1/n) term of the covariance is dropped)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = u / r
+        return np.sqrt(np.maximum((1.0 - 2.0 * f) * su**2 + f**2 * sr**2, 0.0)) / np.abs(r)
+
+
+def appendix_e_section(results: list[MaterialResult]) -> dict:
+    """The two claims' numbers from the evaluated appendix E metals ``results``."""
     metals = {(r.material.params["d"], r.material.params["g"]): r for r in results
               if r.material.category == "metal" and "d" in r.material.params and "g" in r.material.params}
-    blacks = {(m.params["d"], m.params["g"]): m for m in black if "d" in m.params and "g" in m.params}
     depths = sorted({d for d, _ in metals})
     # claim 1: belcour-fwd's error against g at each d
     claim1 = []
@@ -70,18 +83,16 @@ def appendix_e_section(results: list[MaterialResult], black: list[ReportMaterial
                        "holds": (best["g"] >= G_VALID) if best else None, "noise_limited": noise})
     n1 = [c for c in claim1 if c["holds"] is not None]
     # claim 2: reflected energy that never reached the base
-    claim2 = []
+    claim2, unrecorded = [], []
     for (d, g), r in sorted(metals.items()):
-        b = blacks.get((d, g))
-        if b is None:
+        e = _energy(r.material.path)
+        if e is None:
+            unrecorded.append(r.material.name)
             continue
-        th, rm, sm = _energy(r.material.path)
-        thb, rb, sb = _energy(b.path)
-        if not np.array_equal(th, thb):
-            continue
+        th, rm, sm, rb, sb = e
+        se = fraction_stderr(rb, sb, rm, sm)
         with np.errstate(divide="ignore", invalid="ignore"):
             frac = rb / rm
-            se = np.abs(frac) * np.sqrt((sb / rb) ** 2 + (sm / rm) ** 2)
             mean_frac = rb.mean(axis=1) / rm.mean(axis=1)
         for k, t in enumerate(th):
             claim2.append({"d": d, "g": g, "theta_deg": float(t), "reflected": rm[k].tolist(),
@@ -94,7 +105,7 @@ def appendix_e_section(results: list[MaterialResult], black: list[ReportMaterial
                              "verdict": _verdict(len(n1), sum(bool(c["holds"]) for c in n1))},
             "claim_turn_around": {"paper": "bundles cannot turn around in the medium: the blueish light reflected "
                                            "without reaching the red base is missing, more so toward grazing angles",
-                                  "rows": claim2}}
+                                  "rows": claim2, "unrecorded": unrecorded}}
 
 
 def _verdict(n: int, agree: int) -> str:
@@ -139,12 +150,16 @@ def appendix_e_markdown(sec: dict) -> str:
                    f"| {_f(max(nf)) if nf else '–'} | {'yes' if c.get('noise_limited') else 'no'} |")
     out.append(f"\n## Claim 2: {c2['paper']}\n")
     rows = c2["rows"]
+    if c2.get("unrecorded"):
+        out.append(f"{len(c2['unrecorded'])} file(s) predate the per-path record `/energy/reflected_without_base` "
+                   f"(re-simulate them): {', '.join(c2['unrecorded'][:5])}{' ...' if len(c2['unrecorded']) > 5 else ''}\n")
     if not rows:
-        out.append("Not testable: the black-base companions (`other/E-black-*`) are not simulated.\n")
+        out.append("Not testable: no file records the light that never reached the base.\n")
         return "\n".join(out) + "\n"
-    out.append("Fraction of the reflected energy that never reached the base, `R_black / R_metal` (companion "
-               "material over a black base / appendix E material), per channel; belcour-fwd gives this light "
-               "no energy (R = 0 in a medium), so this is energy it misses. ± is one standard error.\n")
+    out.append("Fraction of the reflected energy carried by paths that never reached the base, "
+               "`reflected_without_base / reflected` (the simulator's per-path record), per channel; belcour-fwd "
+               "gives this light no energy (R = 0 in a medium), so this is energy it misses. ± is one standard "
+               "error.\n")
     thetas = sorted({r["theta_deg"] for r in rows})
     summary = defaultdict(list)
     for r in rows:
@@ -157,7 +172,7 @@ def appendix_e_markdown(sec: dict) -> str:
         out.append(f"| {d:g} | {g:g} | " + " | ".join(
             f"{by_t[t]['fraction'][2]:.3f} ± {by_t[t]['fraction_stderr'][2]:.3f}" if t in by_t else "–"
             for t in thetas) + " |")
-    out.append("\nMean over R, G, B (energy-weighted: mean R_black / mean R_metal):\n")
+    out.append("\nMean over R, G, B (energy-weighted: mean of U over R, G, B / mean of R):\n")
     out.append("| d | g | " + " | ".join(f"{t:g}°" for t in thetas) + " |")
     out.append("|" + "---|" * (len(thetas) + 2))
     for (d, g), rs in sorted(summary.items()):

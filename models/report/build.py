@@ -97,9 +97,6 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     code, report_key = model_code_key(), report_code_key()
     styles = model_style([*registry.all_models(), *(models or ())])
     results: list[MaterialResult] = []
-    # appendix E: the black-base companions only give energies (no model applies to them)
-    black = [m for m in materials if m.category == "other" and "d" in m.params] if is_appendix_e(materials) else []
-    materials = [m for m in materials if m not in black]
     for k, mat in enumerate(materials):
         t1 = time.perf_counter()
         res, ref = evaluate_material(mat, out, models, subcells, code, isotropize)
@@ -125,8 +122,8 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         if unknown_angles:
             summary.warnings.append(f"no material has the incident direction(s) {unknown_angles} asked for figures")
     _write_outputs(results, manifest, out, styles, summary, rd, subcells, code)
-    if black or is_appendix_e([r.material for r in results]):
-        sec = appendix_e_section(results, black)
+    if is_appendix_e([r.material for r in results]):
+        sec = appendix_e_section(results)
         write_json(out / "appendix-e.json", sec)
         write_text(out / "appendix-e.md", appendix_e_markdown(sec))
         summary.appendix_e = sec
