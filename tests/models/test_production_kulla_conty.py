@@ -272,3 +272,19 @@ def test_tables_cached_on_disk(tmp_path):
     b = ma.load_albedo_table("white", 0.37, cache_dir=tmp_path)
     assert np.array_equal(a.e, b.e)
     assert ma.table_path("white", 0.37, 1.0, False, tmp_path) != ma.table_path("white", 0.37, 1.0, True, tmp_path)
+
+
+@pytest.mark.parametrize("compensation", ["kulla-conty", "turquin"])
+def test_white_furnace_through_the_harness_quadrature(compensation):
+    """The same claim with models.compare.albedo (gonio furnace's hemispherical rule, graded about
+    the lobes), on the model's evaluate as the harness calls it: white conductor E_brdf = 1,
+    dielectric E_brdf + E_btdf = 1."""
+    from models.compare.albedo import directional_albedo
+    m = GGXKullaConty(compensation=compensation)
+    metal = Stack("m", (Interface(0.3, (1e-9,) * 3, (1.0,) * 3),), "metal")
+    glass = dielectric(0.3)
+    for k in (20, 45, 64):
+        l = light(ma.mu_nodes()[k])
+        assert directional_albedo(m, metal, l, "brdf") == pytest.approx(np.ones(3), abs=TOL)
+        e = directional_albedo(m, glass, l, "brdf") + directional_albedo(m, glass, l, "btdf")
+        assert e == pytest.approx(np.ones(3), abs=TOL)
