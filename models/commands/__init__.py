@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from models.commands import evaluate, inverse, report, tables
 from models.commands import furnace
+from models.commands import production
 
 
 def register(sub) -> None:
@@ -17,3 +18,4 @@ def register(sub) -> None:
     inverse.register(sub)
     tables.register(sub)
     furnace.register(sub)
+    production.register(sub)

@@ -9,7 +9,7 @@ their cache files (:mod:`models.tables.cache`) and the build-and-check of ``goni
 """
 
 from models.tables.belcour import (FGD_ERROR, TIR_ERROR, BelcourTables, TableSlice, build_belcour_tables,
-                                   fgd_direct, fgd_slice, fgd_slice_from_table, load_belcour_tables, slice_lookup,
+                                   fgd_direct, fgd_direct_many, fgd_slice, fgd_slice_from_table, load_belcour_tables, slice_lookup,
                                    stacked_slice_lookup, tir_direct, tir_slice, tir_slice_from_table)
 from models.tables.cache import cache_directory, default_cache_dir
 from models.tables.check import MASKINGS, Check, TableEntry, check_tables
@@ -20,7 +20,7 @@ __all__ = [
     # Belcour FGD / TIR
     "BelcourTables", "load_belcour_tables", "build_belcour_tables", "TableSlice", "fgd_slice",
     "tir_slice", "fgd_slice_from_table", "tir_slice_from_table", "slice_lookup", "stacked_slice_lookup",
-    "fgd_direct", "tir_direct", "FGD_ERROR", "TIR_ERROR",
+    "fgd_direct", "fgd_direct_many", "tir_direct", "FGD_ERROR", "TIR_ERROR",
     # multilayer-lut
     "MultilayerTables", "load_multilayer_tables", "build_multilayer_tables",
     # directional albedo of one GGX interface (ggx-kulla-conty)
