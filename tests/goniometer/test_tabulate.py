@@ -232,6 +232,12 @@ def test_cli_tabulate_export_and_refusals(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["format"] == "goniometer.tabulated" and info["settings"]["rays"] == 20000
     np.testing.assert_allclose(info["energy"]["reflected"], tab.energy["reflected"])
+    # xarray: named dimensions, cells without data as NaN
+    pytest.importorskip("xarray")
+    ds = g.open_dataset(out)
+    assert dict(ds["value"].sizes) == {"channel": 3, "theta_h": 90, "theta_d": 90, "phi_d": 180}
+    assert int(ds["value"].isnull().sum()) == 3 * int(np.sum(tab.hits == 0))
+    assert dict(g.open_datatree(out)["energy"].dataset.sizes) == {"channel": 3}
     # anisotropic stacks are refused with the reason
     assert main(["tabulate", str(EXAMPLES / "aniso-metal.toml"), "--out", str(tmp_path / "a.h5")]) == 2
     err = capsys.readouterr().err
