@@ -64,6 +64,15 @@ def cos_sin_2pi(u: float):
     return cos_v, sin_v
 
 
+@numba.njit(cache=True)
+def sample_cosine(u1: float, u2: float):
+    """A direction of the upper hemisphere with density ``cos theta / pi`` from two uniforms in
+    [0, 1): ``sin theta = sqrt(u1)``, ``phi = 2 pi u2``; ``z = sqrt(1 - u1) > 0``."""
+    r = math.sqrt(u1)
+    cos_ph, sin_ph = cos_sin_2pi(u2)
+    return r * cos_ph, r * sin_ph, math.sqrt(1.0 - u1)
+
+
 # --------------------------------------------------------------------------- Fresnel
 
 @numba.njit(cache=True)

@@ -1,6 +1,8 @@
 """Precomputed tables of the analytic models, computed by our own quadratures: the FGD and TIR
 tables of Belcour's model and its material slices (:mod:`models.tables.belcour`), the
 mean-transmission / mean-refraction tables of ``multilayer-lut`` (:mod:`models.tables.multilayer`),
+the directional-albedo tables of one GGX interface of ``ggx-kulla-conty``
+(:mod:`models.tables.microfacet_albedo`, ``docs/production-models.md``),
 their cache files (:mod:`models.tables.cache`) and the build-and-check of ``gonio tables``
 (:mod:`models.tables.check`). Definitions, grids, numerics and stated error bounds:
 ``docs/tables.md``.
@@ -12,6 +14,7 @@ from models.tables.belcour import (FGD_ERROR, TIR_ERROR, BelcourTables, TableSli
 from models.tables.cache import cache_directory, default_cache_dir
 from models.tables.check import MASKINGS, Check, TableEntry, check_tables
 from models.tables.multilayer import MultilayerTables, build_multilayer_tables, load_multilayer_tables
+from models.tables.microfacet_albedo import AlbedoTable, fresnel_average, load_albedo_table
 
 __all__ = [
     # Belcour FGD / TIR
@@ -20,6 +23,8 @@ __all__ = [
     "fgd_direct", "fgd_direct_many", "tir_direct", "FGD_ERROR", "TIR_ERROR",
     # multilayer-lut
     "MultilayerTables", "load_multilayer_tables", "build_multilayer_tables",
+    # directional albedo of one GGX interface (ggx-kulla-conty)
+    "AlbedoTable", "load_albedo_table", "fresnel_average",
     # files and checks
     "cache_directory", "default_cache_dir", "MASKINGS", "Check", "TableEntry", "check_tables",
 ]
