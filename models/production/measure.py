@@ -25,8 +25,7 @@ from models.production.effective import (CoatedBase, Darkening, ProductionError,
                                          coat_albedo_rows, coated_base, darkening_from, effective_darkening,
                                          effective_roughness, layered_prediction,
                                          normal_incidence_index, roughness_from)
-from models.belcour import lobe_statistics
-from models.registry import get as get_model
+from models.belcour import BelcourForward, lobe_statistics
 
 #: the existing model the production formulas are compared with
 BELCOUR = "belcour-fwd"
@@ -57,7 +56,7 @@ def belcour_lobe_alpha(stack: Stack) -> float:
 def belcour_measure(coated: SimulationResult, bare: SimulationResult, cfg: CoatedBase
                     ) -> tuple[np.ndarray | None, Roughness | None, str | None]:
     """belcour-fwd's effective darkening and roughness by the reference's own estimators."""
-    model = get_model(BELCOUR)
+    model = BelcourForward()
     reason = model.reason(coated.stack)
     if reason is not None:
         return None, None, reason
