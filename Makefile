@@ -81,3 +81,19 @@ tables: $(STAMP)
 clean:
 	rm -rf $(VENV) build *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+# Issue 13 section 3 (configs/production.toml, docs/production.md): simulate the production coats
+# (resumable; add --scheduler via PRODUCTION_FLAGS for Dask), measure the effective darkening and
+# roughening, fit the replacement formulas and write $(PRODUCTION_OUT)/summary.json and production.md.
+# full: ~25 min on 2 idle cores (docs/production.md section 6); demo: configs/production-demo.toml, ~20 s.
+.PHONY: production
+PRODUCTION_QUALITY ?= full
+PRODUCTION_CONFIG ?= configs/production$(if $(filter demo,$(PRODUCTION_QUALITY)),-demo,).toml
+PRODUCTION_DB ?= results/production-db-$(PRODUCTION_QUALITY)
+PRODUCTION_OUT ?= results/production$(if $(filter full,$(PRODUCTION_QUALITY)),,-$(PRODUCTION_QUALITY))
+PRODUCTION_FLAGS ?=
+
+production: $(STAMP)
+	$(GONIO) database simulate $(PRODUCTION_CONFIG) --out $(PRODUCTION_DB) --quality $(PRODUCTION_QUALITY) $(PRODUCTION_FLAGS)
+	$(GONIO) production $(PRODUCTION_DB) --out $(PRODUCTION_OUT)
+	@echo "production coats: $(abspath $(PRODUCTION_OUT))/production.md"

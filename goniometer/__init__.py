@@ -6,9 +6,10 @@ Stacks in, HDF5 BRDF/BTDF slices out. The public face, for notebooks and scripts
     stack = g.stack_from_dict({...})            # or g.load_stack("material.toml")
     result = g.simulate(stack, g.SimulationSettings(incident_deg=(30,), rays=300_000))
     g.write("material.h5", result); g.read("material.h5")
+    ds = g.open_dataset("material.h5", side="brdf")   # xarray (extra "xarray"), masked cells NaN
 
 Contracts: ``docs/material-format.md``, ``docs/slices-format.md``, ``docs/database-format.md``,
-``docs/architecture.md``. Names are loaded on first use, so ``import goniometer`` stays light.
+``docs/xarray.md``, ``docs/architecture.md``. Names are loaded on first use, so ``import goniometer`` stays light.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ _EXPORTS = {
     "light_direction": "goniometer.slices",
     "read": "goniometer.store", "write": "goniometer.store", "describe": "goniometer.store",
     "StoreError": "goniometer.store",
+    # xarray views (optional extra "xarray")
+    "open_dataset": "goniometer.dataset", "open_datatree": "goniometer.dataset",
     # databases
     "load_database": "goniometer.database", "simulate_database": "goniometer.database",
     "DatabaseError": "goniometer.database",

@@ -202,6 +202,15 @@ def cell_geometry(parametrization: str, n_theta: int, n_phi: int, theta_deg: flo
     return omega, mask
 
 
+def cell_geometries(settings: SimulationSettings) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(Omega, mask) of the grid of ``settings`` for each of its incident directions
+    (:func:`cell_geometry`, memoised). The CLI calls it before tracing, where Ctrl-C is deferred,
+    so that the numba kernels of the final assembly are compiled and run there."""
+    nt, nph = settings.resolution
+    return [cell_geometry(settings.parametrization, nt, nph, t, p)
+            for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+
+
 def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPart],
              compile_s: float = 0.0) -> SimulationResult:
     """Turn the raw per-incident sums into cell values, errors and energies."""
@@ -210,8 +219,7 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     nt, nph = settings.resolution
     grid = SliceGrid(settings.parametrization, nt, nph, "reflection")
     # |cos theta_v| and the validity of sub-cells are the same on both sides: computed once
-    geometry = [cell_geometry(settings.parametrization, nt, nph, t, p)
-                for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+    geometry = cell_geometries(settings)
     omegas = [g[0] for g in geometry]
     masks = [g[1] for g in geometry]
     brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n)

@@ -29,6 +29,10 @@ from goniometer.tomlfile import read_toml
 
 RGB = tuple[float, float, float]
 CATEGORIES = ("plastic", "metal", "slab", "other")
+#: the base (``Stack.base``) each category requires; ``other`` goes with any stack
+CATEGORY_BASE = {"plastic": "lambertian", "metal": "conductor", "slab": "transmit"}
+_BASE_WORDS = {"lambertian": "a Lambertian base", "conductor": "a conductor interface",
+               "transmit": "a dielectric interface (light leaves below)"}
 
 #: base kinds in the packed form
 BASE_TRANSMIT = 0
@@ -175,7 +179,8 @@ class Stack:
 
     @classmethod
     def from_json(cls, text: str) -> "Stack":
-        return stack_from_dict(json.loads(text), source="json")
+        # files written before the category rule keep reading: no category check here
+        return stack_from_dict(json.loads(text), source="json", check_category=False)
 
     def to_toml(self) -> str:
         """The material as a TOML file (``docs/material-format.md``)."""
@@ -304,8 +309,21 @@ def load_stack(path: str | Path) -> Stack:
     return load_toml(path)[0]
 
 
-def stack_from_dict(data: dict[str, Any], source: str = "stack") -> Stack:
-    """Build and validate a :class:`Stack` from the TOML/JSON structure."""
+def validate_category(stack: Stack, source: str = "stack") -> None:
+    """Raise :class:`StackError` if ``stack.category`` contradicts its last layer
+    (:data:`CATEGORY_BASE`: a plastic ends on a Lambertian base, a metal on a conductor, a slab on
+    a dielectric interface; ``docs/material-format.md``)."""
+    want = CATEGORY_BASE.get(stack.category)
+    if want is not None and stack.base != want:
+        fits = [c for c, b in CATEGORY_BASE.items() if b == stack.base]
+        raise StackError(f"{source}: category: {stack.category!r} needs the last layer to be {_BASE_WORDS[want]}, "
+                         f"but this stack ends on {_BASE_WORDS[stack.base]} (use category "
+                         f"{' or '.join(repr(c) for c in fits + ['other'])})")
+
+
+def stack_from_dict(data: dict[str, Any], source: str = "stack", check_category: bool = True) -> Stack:
+    """Build and validate a :class:`Stack` from the TOML/JSON structure (``check_category``:
+    also refuse a category that contradicts the stack, see :func:`validate_category`)."""
     if not isinstance(data, dict):
         raise StackError(f"{source}: the material must be a table")
     unknown = sorted(set(data) - _TOP_KEYS)
@@ -322,7 +340,10 @@ def stack_from_dict(data: dict[str, Any], source: str = "stack") -> Stack:
         raise StackError(f"{source}: layers: required, a non-empty array of tables ([[layers]])")
     layers = tuple(_layer_from_dict(d, i, source) for i, d in enumerate(raw_layers))
     _validate_structure(layers, source)
-    return Stack(name=name, layers=layers, category=category)
+    stack = Stack(name=name, layers=layers, category=category)
+    if check_category:
+        validate_category(stack, source)
+    return stack
 
 
 def _layer_from_dict(d: Any, i: int, source: str) -> Layer:

@@ -13,6 +13,7 @@ import datetime as _dt
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 import h5py
 import numpy as np
@@ -80,9 +81,9 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     sim.create_dataset("capped_paths", data=r.capped_paths)
     sim.create_dataset("mean_events", data=r.mean_events)
 
-    _write_slices(f, "brdf", r.brdf, r.theta_deg)
+    _write_slices(f, "brdf", r.brdf, r.theta_deg, r.phi_deg)
     if r.btdf is not None:
-        _write_slices(f, "btdf", r.btdf, r.theta_deg)
+        _write_slices(f, "btdf", r.btdf, r.theta_deg, r.phi_deg)
 
     en = f.create_group("energy")
     en.attrs["description"] = ("fractions of the incident flux per channel (R, G, B); "
@@ -93,10 +94,12 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     en.create_dataset("roulette", data=r.roulette)
     en.create_dataset("capped", data=r.capped)
     if r.reflected_without_base is not None:
-        d = en.create_dataset("reflected_without_base", data=r.reflected_without_base)
-        d.attrs["description"] = ("part of `reflected` carried by paths that never had an event at the base "
-                                  "(the bottom layer: conductor, Lambertian or last interface)")
+        en.create_dataset("reflected_without_base", data=r.reflected_without_base)
         en.create_dataset("reflected_without_base_stderr", data=r.reflected_without_base_stderr)
+
+    # last: named dimensions for every dataset of the two per-incident groups (xarray without phony dims)
+    attach_incident_dims(sim, r.theta_deg, r.phi_deg, describe=SIMULATION_ATTRS.get)
+    attach_incident_dims(en, r.theta_deg, r.phi_deg, describe=energy_attrs)
 
 
 def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name: str | None = None):
@@ -109,11 +112,98 @@ def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name:
     return d
 
 
+#: name of the auxiliary coordinate holding phi_l along the ``incident`` dimension (§2 of the format page)
+INCIDENT_PHI = "incident_phi"
+_INCIDENT_LONG = "incident elevation theta_l"
+_INCIDENT_PHI_LONG = "incident azimuth phi_l"
+
+
+def _incident_phi(g: h5py.Group, incident: h5py.Dataset, phi_deg: np.ndarray) -> h5py.Dataset:
+    """The 1-D dataset ``incident_phi`` along the ``incident`` scale: phi_l of each incident direction."""
+    d = g.create_dataset(INCIDENT_PHI, data=np.asarray(phi_deg, dtype=np.float64))
+    d.dims[0].attach_scale(incident)
+    d.attrs["units"] = "deg"
+    d.attrs["long_name"] = _INCIDENT_PHI_LONG
+    d.attrs["description"] = ("azimuth phi_l of each incident direction, measured from +x towards +y; "
+                              "the incident dimension's coordinate holds theta_l only, so several "
+                              "azimuths at one elevation are told apart by this coordinate")
+    return d
+
+
+#: attributes of the energy terms: name -> (long_name, description); units are "1" (fractions)
+ENERGY_ATTRS = {
+    "reflected": ("reflected fraction", "fraction of the incident flux that leaves the stack upward"),
+    "transmitted": ("transmitted fraction", "fraction of the incident flux that leaves the stack downward "
+                    "(0 for opaque stacks)"),
+    "absorbed": ("absorbed fraction", "fraction of the incident flux absorbed by media, conductors (1 - F) "
+                 "and Lambertian bases (1 - rho)"),
+    "masking_loss": ("masking loss", "fraction of the incident flux lost to single-scattering microfacet "
+                     "masking and to wrong-side outgoing directions"),
+    "roulette": ("Russian roulette balance", "net weight booked by Russian roulette divided by the rays; "
+                 "zero in expectation"),
+    "capped": ("capped fraction", "weight of the paths stopped by the event cap divided by the rays"),
+    "reflected_without_base": ("reflected fraction that never reached the base",
+                               "part of `reflected` carried by paths that never had an event at the base "
+                               "(the bottom layer: conductor, Lambertian, or last interface of a transmitting "
+                               "stack); not a further term of the energy sum"),
+}
+
+
+#: attributes of the datasets of ``/simulation``
+SIMULATION_ATTRS = {
+    "elapsed_per_incident_s": {"long_name": "wall time per incident direction", "units": "s",
+                               "description": "wall time of the tracing of each incident direction"},
+    "capped_paths": {"long_name": "paths stopped by the event cap", "units": "1",
+                     "description": "number of paths of each incident direction stopped by the event cap"},
+    "mean_events": {"long_name": "mean events per path", "units": "1",
+                    "description": "mean number of scattering events per path"},
+}
+
+
+def energy_attrs(name: str) -> dict[str, str]:
+    """``long_name``, ``units`` and ``description`` of the energy dataset ``name`` (``<term>_stderr``
+    is the standard error of ``<term>``); an empty dict for a name without an entry in ENERGY_ATTRS."""
+    base = name[:-len("_stderr")] if name.endswith("_stderr") else name
+    if base not in ENERGY_ATTRS:
+        return {}
+    long_name, description = ENERGY_ATTRS[base]
+    if base != name:
+        return {"long_name": f"standard error of the {long_name}", "units": "1",
+                "description": f"Monte Carlo standard error of /energy/{base} ({description})"}
+    return {"long_name": long_name, "units": "1", "description": description}
+
+
+def attach_incident_dims(g: h5py.Group, theta_deg: np.ndarray, phi_deg: np.ndarray,
+                         describe: Callable[[str], dict | None] | None = None) -> None:
+    """Give every dataset of a per-incident group (``/energy``, ``/simulation``) named dimensions:
+    shape (M,) gets ``incident``, shape (M, 3) gets ``incident, channel``; ``incident`` holds theta_l
+    and the auxiliary coordinate ``incident_phi`` phi_l. Call it once every dataset is written; any
+    dataset of another shape raises ValueError. ``describe(name)`` returns attributes to set."""
+    data = [(name, d) for name, d in g.items() if isinstance(d, h5py.Dataset)]
+    M = len(theta_deg)
+    for name, d in data:
+        if d.shape not in ((M,), (M, len(CHANNELS))):
+            raise ValueError(f"{g.name}/{name}: shape {d.shape} is neither (M,) nor (M, 3) with M = {M}")
+    incident = _scaled(g, "incident", np.asarray(theta_deg, dtype=np.float64), "deg", _INCIDENT_LONG)
+    _incident_phi(g, incident, phi_deg)
+    channel = None
+    for name, d in data:
+        if d.ndim == 2 and channel is None:
+            channel = _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+        d.dims[0].attach_scale(incident)
+        if d.ndim == 2:
+            d.dims[1].attach_scale(channel)
+        d.attrs["coordinates"] = INCIDENT_PHI
+        for k, v in ((describe(name) or {}) if describe else {}).items():
+            d.attrs[k] = v
+
+
 class SliceGroupWriter:
     """Writes one group of slices (``/brdf``, ``/btdf``, or a model's group) with its dimension
     scales: ``incident``, ``order`` (if K is given), ``channel``, ``theta``, ``phi`` and cell edges."""
 
-    def __init__(self, parent: h5py.Group, name: str, grid: SliceGrid, theta_deg: np.ndarray, K: int | None = None):
+    def __init__(self, parent: h5py.Group, name: str, grid: SliceGrid, theta_deg: np.ndarray, K: int | None = None,
+                 phi_deg: np.ndarray | None = None):
         g = parent.create_group(name)
         self.group = g
         g.attrs["parametrization"] = grid.parametrization
@@ -123,7 +213,7 @@ class SliceGroupWriter:
         th_name = "theta_v" if grid.parametrization == "classic" else "theta_h"
         ph_name = "phi_v" if grid.parametrization == "classic" else "phi_h"
         self.scales = {
-            "incident": _scaled(g, "incident", theta_deg, "deg", "incident elevation theta_l"),
+            "incident": _scaled(g, "incident", theta_deg, "deg", _INCIDENT_LONG),
             "channel": _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
             "theta": _scaled(g, "theta", grid.theta_centers_deg(), "deg",
                              f"cell centre {th_name}" + (" (square-root mapped rows)" if grid.parametrization == "half" else "")),
@@ -134,16 +224,23 @@ class SliceGroupWriter:
                                            f"bounce order (events at the top layer); {K} means {K} or more")
         _scaled(g, "theta_edges_deg", grid.theta_edges_deg(), "deg", f"cell edges in {th_name}")
         _scaled(g, "phi_edges_deg", grid.phi_edges_deg(), "deg", f"cell edges in {ph_name}")
+        self.has_phi = phi_deg is not None
+        if self.has_phi:
+            _incident_phi(g, self.scales["incident"], phi_deg)
 
     def put(self, name: str, data: np.ndarray, dims: tuple[str, ...], units: str | None = None,
-            dtype=None, description: str | None = None) -> h5py.Dataset:
+            dtype=None, description: str | None = None, long_name: str | None = None) -> h5py.Dataset:
         d = self.group.create_dataset(name, data=data, dtype=dtype, chunks=True, **_COMPRESSION)
         for axis, dim in enumerate(dims):
             d.dims[axis].attach_scale(self.scales[dim])
         if units:
             d.attrs["units"] = units
+        if long_name:
+            d.attrs["long_name"] = long_name
         if description:
             d.attrs["description"] = description
+        if self.has_phi and "incident" in dims:
+            d.attrs["coordinates"] = INCIDENT_PHI
         return d
 
 
@@ -151,16 +248,35 @@ CELLS = ("incident", "channel", "theta", "phi")
 MAPS = ("incident", "theta", "phi")
 
 
-def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray) -> None:
-    w = SliceGroupWriter(f, name, sd.grid, theta_deg, K=sd.orders.shape[1])
-    w.put("value", sd.value, CELLS, "1/sr")
-    w.put("stderr", sd.stderr, CELLS, "1/sr")
+#: the ``description`` of ``mask`` (slices and model-slices files): masked cells hold meaningless values
+MASK_DESCRIPTION = (
+    "True where a cell may be used: comparisons sum only over these cells. Where False (half grid: "
+    "cells reaching past the horizon, and row 0), value, stderr and the other 1/sr data of the cell are "
+    "meaningless (they can reach thousands of 1/sr) and must be ignored; they are stored as numbers, "
+    "not NaN, so that summing value * proj_solid_angle over all cells gives the energy. "
+    "goniometer.open_dataset returns them as NaN. See docs/slices-format.md section 5.")
+_MASKED = " Meaningless where mask is False (see mask)."
+
+
+def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
+    w = SliceGroupWriter(f, name, sd.grid, theta_deg, K=sd.orders.shape[1], phi_deg=phi_deg)
+    what = "BRDF" if name == "brdf" else "BTDF"
+    v = w.put("value", sd.value, CELLS, "1/sr", long_name=f"{what} cell mean",
+              description=f"cosine-weighted mean of the {what} over the cell, Int f |cos theta_v| dw / "
+                          "proj_solid_angle, all bounce orders, without the cosine factor." + _MASKED)
+    v.attrs["ancillary_variables"] = "stderr mask"
+    w.put("stderr", sd.stderr, CELLS, "1/sr", long_name=f"standard error of the {what} cell mean",
+          description="Monte Carlo standard error of value." + _MASKED)
     if sd.stderr_internal is not None:
-        w.put("stderr_internal", sd.stderr_internal, CELLS, "1/sr",
-              description="standard error of the internal part (bounce orders >= 2)")
-    w.put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), "1/sr", dtype=np.float32)
-    w.put("mask", sd.mask, MAPS)
-    w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "sr")
+        w.put("stderr_internal", sd.stderr_internal, CELLS, "1/sr", long_name="standard error of the internal part",
+              description="standard error of the internal part (bounce orders >= 2)." + _MASKED)
+    w.put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), "1/sr", dtype=np.float32,
+          long_name=f"{what} cell mean per bounce order",
+          description="value of each bounce order (events at the top layer); the last order holds "
+                      "that order or more; float32." + _MASKED)
+    w.put("mask", sd.mask, MAPS, "1", long_name="cell valid for comparisons", description=MASK_DESCRIPTION)
+    w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "sr", long_name="projected solid angle of the cell",
+          description="Int over the part of the cell on this side of |cos theta_v| dw_v")
 
 
 def write_header(f: h5py.File, fmt: str, stack: Stack, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
@@ -174,8 +290,12 @@ def write_header(f: h5py.File, fmt: str, stack: Stack, theta_deg: np.ndarray, ph
     mat.attrs["category"] = stack.category
     mat.create_dataset("config", data=stack.to_json())
     inc = f.create_group("incident")
-    _scaled(inc, "theta_deg", theta_deg, units="deg")
-    _scaled(inc, "phi_deg", phi_deg, units="deg")
+    theta = _scaled(inc, "theta_deg", theta_deg, units="deg", long_name=_INCIDENT_LONG)
+    phi = inc.create_dataset("phi_deg", data=phi_deg)  # along theta_deg (it was a scale of its own before)
+    phi.dims[0].attach_scale(theta)
+    phi.attrs["units"] = "deg"
+    phi.attrs["long_name"] = _INCIDENT_PHI_LONG
+    inc.attrs["coordinates"] = "phi_deg"
 
 
 # ---------------------------------------------------------------------- reading

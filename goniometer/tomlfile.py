@@ -16,6 +16,9 @@ def read_toml(path: str | os.PathLike, error: type[Exception]) -> dict[str, Any]
         text = p.read_text(encoding="utf-8")
     except OSError as e:
         raise error(f"{p}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise error(f"{p}: cannot read: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
+                    f"save the file as UTF-8") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -28,6 +28,10 @@ _EXPORTS = {
     # the comparison harness
     "evaluate": ("models.evaluation", "evaluate"), "Evaluation": ("models.evaluation", "Evaluation"),
     "integrate": ("models.compare.integrate", "integrate"),
+    # white-furnace / directional-albedo tables (docs/furnace.md)
+    "run_furnace": ("models.furnace", "run_furnace"), "furnace_settings": ("models.furnace", "furnace_settings"),
+    "FurnaceResult": ("models.furnace", "FurnaceResult"),
+    "directional_albedo": ("models.compare.albedo", "directional_albedo"),
     # fitted models
     "fit": ("models.fitted.fit", "fit"),
     # the inverse method (Bati 2021)

@@ -154,12 +154,17 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
             f.attrs["reference_side"] = evaluation.side
             for name, ms in evaluation.slices.items():
                 g = f.create_group(name)
-                w = store.SliceGroupWriter(g, evaluation.side, ms.grid, reference.theta_deg)
+                w = store.SliceGroupWriter(g, evaluation.side, ms.grid, reference.theta_deg,
+                                           phi_deg=reference.phi_deg)
                 w.group.attrs["subcells"] = ms.subcells
-                w.put("value", ms.total, store.CELLS, "1/sr")
-                w.put("top", ms.top, store.CELLS, "1/sr", description="lobe reflected off the top interface")
-                w.put("internal", ms.internal, store.CELLS, "1/sr", description="everything but the top lobe")
-                w.put("mask", sd.mask, store.MAPS)
+                w.put("value", ms.total, store.CELLS, "1/sr", long_name=f"{name} cell mean",
+                      description="the model integrated over the reference's cells (top + internal)")
+                w.put("top", ms.top, store.CELLS, "1/sr", long_name=f"{name} top lobe",
+                      description="lobe reflected off the top interface")
+                w.put("internal", ms.internal, store.CELLS, "1/sr", long_name=f"{name} internal part",
+                      description="everything but the top lobe")
+                w.put("mask", sd.mask, store.MAPS, "1", long_name="cell valid for comparisons",
+                      description=store.MASK_DESCRIPTION)
                 w.put("proj_solid_angle", sd.proj_solid_angle, store.MAPS, "sr")
     return p
 

@@ -12,6 +12,11 @@ def all_models() -> dict[str, Model]:
     from models.weidlich_wilkie import Elek10, WW09, WWBati19
     found: list[Model] = [WW09(), Elek10(), WWBati19(), BelcourForward(), BelcourSymmetric(), BelcourBati19(),
                           BelcourBTDF(), BelcourAniso(), MultilayerLUT()]
+    # production coat models (issue 13): OpenPBR and Standard Surface coats, Kulla-Conty GGX interface,
+    # Mitsuba 3's own BSDFs
+    from models.production import (GGXKullaConty, MitsubaPrincipled, MitsubaRoughPlastic, OpenPBRCoat,
+                                   StandardSurfaceCoat)
+    found += [OpenPBRCoat(), StandardSurfaceCoat(), GGXKullaConty(), MitsubaRoughPlastic(), MitsubaPrincipled()]
     return {m.name: m for m in found}
 
 

@@ -8,18 +8,25 @@ The host never imports a plugin's package, so the simulator stands without the m
 ``gonio --help`` imports no model.
 
 Every user error prints one line ``gonio: error: ...`` on stderr and exits with status 2;
-an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output name.
+an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output name. Output cut
+short by its reader (``gonio database list ... | head``) ends quietly with status 141
+(128 + SIGPIPE, what a shell tool killed by the broken pipe reports).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from importlib.metadata import entry_points
 from typing import Callable, Sequence
 
 from goniometer.cli import database, simulate
+import goniometer
 from goniometer.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+
+#: exit status when stdout's reader went away (128 + SIGPIPE)
+EXIT_BROKEN_PIPE = 141
 
 __all__ = ["ENTRY_POINT_GROUP", "EXIT_INTERRUPTED", "EXIT_USAGE", "UsageError", "build_parser", "main"]
 
@@ -36,6 +43,7 @@ def plugins() -> list[Callable[[argparse._SubParsersAction], None]]:
 def build_parser() -> argparse.ArgumentParser:
     """The ``gonio`` parser: the simulator's commands, then every plugin's."""
     parser = argparse.ArgumentParser(prog="gonio", description="Monte Carlo virtual goniometer for layered materials.")
+    parser.add_argument("--version", action="version", version=f"gonio (goniometer) {goniometer.__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     simulate.register(sub)
     database.register(sub)
@@ -47,10 +55,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``gonio`` with ``argv`` (default: the process's arguments); returns the exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    func: Callable[[argparse.Namespace], int] = args.func
+    args = None
     try:
-        return func(args)
+        args = parser.parse_args(argv)
+        func: Callable[[argparse.Namespace], int] = args.func
+        code = func(args)
+        sys.stdout.flush()  # here, so that a broken pipe is caught below and not at exit
+        return code
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     except UsageError as e:
         print(f"gonio: error: {e}", file=sys.stderr)
         return EXIT_USAGE
@@ -59,3 +73,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         note = f"; nothing written to {out}" if out else ""
         print(f"gonio: interrupted{note}", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that Python's final flush of what is left in its buffer
+    does not fail again on the closed pipe (and print "Exception ignored ...")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # stdout without a file descriptor (captured in tests)
+        pass

@@ -13,6 +13,8 @@ import threading
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+#: the help of every ``--threads`` option
+THREADS_HELP = "numba threads; no effect on the results (default: all cores, NUMBA_NUM_THREADS)"
 
 
 class UsageError(Exception):
@@ -25,8 +27,11 @@ class Interrupts:
     def __init__(self) -> None:
         self.hit = False
         self.deferring = False
+        self.finished = False
 
     def handler(self, signum, frame) -> None:
+        if self.finished:
+            return
         self.hit = True
         if not self.deferring:
             raise KeyboardInterrupt
@@ -36,6 +41,12 @@ class Interrupts:
         """Raise KeyboardInterrupt if Ctrl-C was pressed since entry."""
         if self.hit:
             raise KeyboardInterrupt
+
+    def finish(self) -> None:
+        """From now on Ctrl-C is ignored: the result is safely written, and what remains
+        (removing checkpoints) must not be reported as an interrupted run."""
+        self.finished = True
+        self.hit = False
 
     @contextlib.contextmanager
     def deferred(self):
@@ -94,6 +105,13 @@ def incident_list(text: str) -> tuple[list[float], list[float] | None]:
     return thetas, (phis if any_phi else None)
 
 
+def at_least_one(value: int, option: str, what: str) -> int:
+    """``value`` if it is 1 or more, else a UsageError naming ``option`` and the allowed range."""
+    if value < 1:
+        raise UsageError(f"{option}: {value} is not allowed; {what} is 1 or more")
+    return value
+
+
 def resolution(text: str) -> tuple[int, int]:
     try:
         a, b = text.lower().split("x")
@@ -102,7 +120,73 @@ def resolution(text: str) -> tuple[int, int]:
         raise UsageError(f"--resolution: {text!r} is not of the form N_THETAxN_PHI (e.g. 90x360)") from None
 
 
-def progress_bar(total: int, desc: str):
+class LineProgress:
+    """Progress for a stderr that is not a terminal (a log file, a pipe, a batch job): one line
+    ``DESC: 40% (4.00M/10.0M ray) 1.23M ray/s, ETA 00:05 [postfix]`` each time another tenth of
+    ``total`` is done, and a last line at 100 %. The subset of tqdm's interface the commands use:
+    ``update``, ``write``, ``set_postfix_str``, ``refresh``, ``close``, the ``n`` and ``total``
+    attributes, and the context manager."""
+
+    def __init__(self, total: int | None, desc: str, unit: str = "ray", file=None, step: float = 0.1,
+                 clock=None, unit_scale: bool = True) -> None:
+        import time
+        self.total, self.desc, self.unit, self.n = total, desc, unit, 0
+        self.unit_scale = unit_scale
+        self.file = file if file is not None else sys.stderr
+        self.step = step
+        self.clock = clock or time.monotonic
+        self.start = self.clock()
+        self.postfix = ""
+        self.printed = 0  # tenths printed so far
+        self.closed = False
+
+    def __enter__(self) -> "LineProgress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+        self.refresh()
+
+    def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
+        self.postfix = s
+        if refresh:
+            self.refresh()
+
+    def write(self, s: str, file=None) -> None:
+        print(s, file=file if file is not None else self.file, flush=True)
+
+    def refresh(self) -> None:
+        if not self.total or self.closed:
+            return
+        reached = int(min(self.n / self.total, 1.0) / self.step + 1e-9)
+        if reached > self.printed:
+            self.printed = reached
+            self.file.write(self.line() + "\n")
+            self.file.flush()
+
+    def line(self) -> str:
+        from tqdm import tqdm
+        size = tqdm.format_sizeof if self.unit_scale else (lambda x: f"{x:.3g}" if x != int(x) else f"{int(x)}")
+        elapsed = max(self.clock() - self.start, 1e-9)
+        rate = self.n / elapsed
+        frac = self.n / self.total if self.total else 0.0
+        eta = tqdm.format_interval((self.total - self.n) / rate) if rate > 0 and self.total else "?"
+        text = (f"{self.desc}: {100 * frac:3.0f}% ({size(self.n)}/{size(self.total or 0)} {self.unit}) "
+                f"{size(rate)} {self.unit}/s, elapsed {tqdm.format_interval(elapsed)}, ETA {eta}")
+        return text + (f" [{self.postfix}]" if self.postfix else "")
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def progress_bar(total: int | None, desc: str, unit: str = "ray", **tqdm_options):
+    """A tqdm bar on a terminal; elsewhere a :class:`LineProgress` (a line every 10 % with the rate
+    and the time left), so that logs of batch runs show progress too."""
+    if not sys.stderr.isatty():
+        return LineProgress(total, desc, unit, unit_scale=tqdm_options.get("unit_scale", True))
     from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="ray", unit_scale=True, file=sys.stderr,
-                dynamic_ncols=True, disable=None, smoothing=0.1)
+    options = {"unit_scale": True, "dynamic_ncols": True, "smoothing": 0.1, **tqdm_options}
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, **options)

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from goniometer.cli.common import UsageError, sigint_latch
+from goniometer.cli.common import THREADS_HELP, UsageError, progress_bar, sigint_latch
 
 
 def register(sub) -> None:
@@ -15,17 +15,21 @@ def register(sub) -> None:
     dsub = p.add_subparsers(dest="database_command", required=True, metavar="ACTION")
     q = dsub.add_parser("list", help="list the materials a database definition expands to")
     q.add_argument("config", metavar="CONFIG.toml")
-    q.add_argument("--out", help="also show each material's status in this results directory")
-    q.add_argument("--quality", default="quick")
+    q.add_argument("--out", metavar="DIR",
+                   help="also show each material's status in this results directory (default: no status)")
+    q.add_argument("--quality", default="quick",
+                   help="the quality whose results --out holds (default: %(default)s)")
     q.add_argument("--json", action="store_true")
     q.set_defaults(func=cmd_database_list)
     q = dsub.add_parser("simulate", help="simulate every material (resumable) into one HDF5 file each")
     q.add_argument("config", metavar="CONFIG.toml")
-    q.add_argument("--out", required=True, metavar="DIR")
-    q.add_argument("--quality", default="quick", help="a quality of the definition's [quality] table (quick, paper)")
-    q.add_argument("--only", metavar="GLOB", help="materials whose name matches, e.g. 'metal/M2-*'")
-    q.add_argument("--threads", type=int)
-    q.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the tasks on a Dask distributed cluster")
+    q.add_argument("--out", required=True, metavar="DIR", help="the results directory (required)")
+    q.add_argument("--quality", default="quick",
+                   help="a quality of the definition's [quality] table (quick, paper) (default: %(default)s)")
+    q.add_argument("--only", metavar="GLOB", help="materials whose name matches, e.g. 'metal/M2-*' (default: all)")
+    q.add_argument("--threads", type=int, help=THREADS_HELP)
+    q.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run the tasks on a Dask distributed cluster (default: this machine)")
     q.add_argument("--resimulate-corrupted", action="store_true",
                    help="move unreadable finished files aside and simulate them again")
     q.set_defaults(func=cmd_database_simulate)
@@ -55,6 +59,7 @@ def cmd_database_list(args: argparse.Namespace) -> int:
 
 def cmd_database_simulate(args: argparse.Namespace) -> int:
     from goniometer.database import DatabaseError, load_database, simulate_database
+    from goniometer.results import cell_geometries
     from goniometer.settings import SettingsError
     from goniometer.tasks import warm_up
     try:
@@ -67,9 +72,7 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     print(f"{db.name}: {len(materials)} material(s), quality {args.quality} "
           f"({db.qualities[args.quality]:,} rays per slice), into {args.out}", file=sys.stderr)
-    from tqdm import tqdm
-    bar = tqdm(total=rays * len(materials), unit="ray", unit_scale=True, file=sys.stderr, dynamic_ncols=True,
-               disable=None, smoothing=0.05, desc=db.name)
+    bar = progress_bar(rays * len(materials), db.name, smoothing=0.05)
 
     try:
         with sigint_latch() as interrupts, bar:
@@ -84,6 +87,10 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
             if args.scheduler is None:
                 with interrupts.deferred():
                     warm_up()
+                    # the final assembly's numba kernels, for each grid of the run: compiled and run here
+                    grids = {m.parametrization: m for m in materials}
+                    for m in grids.values():
+                        cell_geometries(db.settings_for(m, args.quality))
             summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
                                         scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
                                         progress=progress, on_material=on_material)

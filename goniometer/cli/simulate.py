@@ -10,22 +10,37 @@ from typing import Any
 
 import numpy as np
 
-from goniometer.cli.common import UsageError, incident_list, progress_bar, resolution, sigint_latch
+from goniometer.cli.common import THREADS_HELP, UsageError, incident_list, progress_bar, resolution, sigint_latch
+
+
+#: the help's phrase for a setting the material file may give
+FROM_FILE = "the file's [simulation] table, else "
+#: the defaults of SimulationSettings as the help prints them (written out so that ``gonio --help``
+#: need not import numba; tests/goniometer/test_cli_edges.py checks them against SimulationSettings())
+SETTINGS_DEFAULTS = {"rays": "1,000,000", "incident_deg": "0,15,30,45,60,70,80", "parametrization": "classic",
+                     "resolution": "90x360", "seed": "1", "masking": "separable", "max_order": "5"}
 
 
 def register(sub) -> None:
     """Add ``simulate`` and ``info`` to the ``gonio`` sub-command parser."""
+    d = SETTINGS_DEFAULTS
     p = sub.add_parser("simulate", help="simulate a material file into an HDF5 slices file")
     p.add_argument("config", metavar="CONFIG.toml")
-    p.add_argument("--out", required=True, metavar="FILE.h5")
-    p.add_argument("--rays", type=int, help="rays per incident direction")
-    p.add_argument("--incident", metavar="LIST", help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth)")
-    p.add_argument("--parametrization", choices=("classic", "half"))
-    p.add_argument("--resolution", metavar="N_THETAxN_PHI", help="e.g. 90x360")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--threads", type=int)
-    p.add_argument("--masking", choices=("separable", "height-correlated"))
-    p.add_argument("--max-order", dest="max_order", type=int, help="bounce orders stored separately (K)")
+    p.add_argument("--out", required=True, metavar="FILE.h5", help="the slices file to write (required)")
+    p.add_argument("--rays", type=int, help=f"rays per incident direction (default: {FROM_FILE}{d['rays']})")
+    p.add_argument("--incident", metavar="LIST",
+                   help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth) "
+                        f"(default: {FROM_FILE}{d['incident_deg']})")
+    p.add_argument("--parametrization", choices=("classic", "half"),
+                   help=f"cell grid (default: {FROM_FILE}{d['parametrization']})")
+    p.add_argument("--resolution", metavar="N_THETAxN_PHI",
+                   help=f"cells per slice, e.g. 90x360 (default: {FROM_FILE}{d['resolution']})")
+    p.add_argument("--seed", type=int, help=f"random seed (default: {FROM_FILE}{d['seed']})")
+    p.add_argument("--threads", type=int, help=THREADS_HELP)
+    p.add_argument("--masking", choices=("separable", "height-correlated"),
+                   help=f"microfacet masking-shadowing (default: {FROM_FILE}{d['masking']})")
+    p.add_argument("--max-order", dest="max_order", type=int,
+                   help=f"bounce orders stored separately (K) (default: {FROM_FILE}{d['max_order']})")
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "the file's recorded stack shows it")
@@ -35,7 +50,7 @@ def register(sub) -> None:
 
     p = sub.add_parser("info", help="describe a simulated file")
     p.add_argument("file", metavar="FILE.h5")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_info)
 
 
@@ -43,7 +58,7 @@ def register(sub) -> None:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer import store
     from goniometer.checkpoint import Checkpoints, checkpoint_dir
-    from goniometer.results import run_description
+    from goniometer.results import cell_geometries, run_description
     from goniometer.settings import SettingsError, SimulationSettings
     from goniometer.run import run_incidents
     from goniometer.stack import StackError, load_toml
@@ -87,6 +102,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         with interrupts.deferred():
             compile_s = warm_up()
+            cell_geometries(settings)  # the final assembly's numba kernels: compiled and run here
         checkpoints = Checkpoints(checkpoint_dir(out), run_description(stack, settings))
         if args.restart:
             checkpoints.clear()
@@ -97,16 +113,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         try:
             result = run_incidents(stack, settings, checkpoints=checkpoints, progress=progress, on_resume=on_resume)
+            result.compile_s = compile_s
             interrupts.check()
+            store.write(out, result)  # atomic: interrupted, it leaves nothing under the name
         except KeyboardInterrupt:
             kept = len(list(checkpoints.directory.glob("m*.npz"))) if checkpoints.directory.is_dir() else 0
             if kept:
                 print(f"gonio: {kept} finished incident direction(s) kept in {checkpoints.directory}; "
                       f"rerun the same command to resume", file=sys.stderr)
             raise
-    result.compile_s = compile_s
-    store.write(out, result)
-    checkpoints.clear()
+        interrupts.finish()
+        checkpoints.clear()
     print(f"wrote {out}")
     _print_summary(result)
     return 0

@@ -6,7 +6,7 @@ the host (:mod:`goniometer.cli`) calls it. Nothing below the application imports
 
 from __future__ import annotations
 
-from models.commands import evaluate, inverse, report, tables
+from models.commands import evaluate, furnace, inverse, production, render, report, tables
 
 
 def register(sub) -> None:
@@ -15,3 +15,6 @@ def register(sub) -> None:
     evaluate.register(sub)
     inverse.register(sub)
     tables.register(sub)
+    furnace.register(sub)
+    production.register(sub)
+    render.register(sub)

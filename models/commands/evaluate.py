@@ -6,34 +6,37 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
-from goniometer.cli.common import UsageError, incident_list
+from goniometer.cli.common import UsageError, at_least_one, incident_list
 
 
 def register(sub) -> None:
     """Add ``fit``, ``models``, ``evaluate`` and ``plot`` to the ``gonio`` sub-command parser."""
     p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file")
     p.add_argument("file", metavar="FILE.h5")
-    p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"))
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"), help="the compact model (required)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.add_argument("--starts", type=int, default=4, help="optimiser starts (default 4)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the optimiser starts (default: %(default)s)")
     p.add_argument("--weighting", choices=("paper", "eq4"), default="paper",
                    help="the paper's eq. 29 weighting (default) or eq. 4 directly")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("models", help="list the analytic models and what they support")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_models)
 
     p = sub.add_parser("evaluate", help="integrate models onto a simulated file and print their errors")
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--model", action="append", metavar="NAME", help="a model to evaluate (repeatable; default: all that apply)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5", help="write the integrated model slices")
+    p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
+    p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5",
+                   help="write the integrated model slices (default: not written)")
     p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell axis (default 5)")
     p.add_argument("--isotropize", choices=("mean",),
-                   help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the output)")
+                   help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the "
+                        "output) (default: isotropic models skip anisotropic stacks)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
@@ -41,11 +44,16 @@ def register(sub) -> None:
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG figures")
     p.add_argument("--model", action="append", metavar="NAME",
-                   help="draw this model too (repeatable; 'all': every model that supports the stack)")
-    p.add_argument("--incident", metavar="THETAS", help="only these incident angles of the file, e.g. 0,60")
-    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell side when integrating models")
-    p.add_argument("--isotropize", choices=("mean",), help="feed isotropic models the mean roughness")
-    p.add_argument("--json", action="store_true", help="print the figure paths (and the model errors) as JSON")
+                   help="draw this model too (repeatable; 'all': every model that supports the stack) "
+                        "(default: the simulation alone)")
+    p.add_argument("--incident", metavar="THETAS",
+                   help="only these incident angles of the file, e.g. 0,60 (default: all of the file's)")
+    p.add_argument("--subcells", type=int, default=5,
+                   help="sub-cells per cell side when integrating models (default: %(default)s)")
+    p.add_argument("--isotropize", choices=("mean",),
+                   help="feed isotropic models the mean roughness (default: isotropic models skip anisotropic stacks)")
+    p.add_argument("--json", action="store_true",
+                   help="print the figure paths (and the model errors) as JSON (default: one path a line)")
     p.set_defaults(func=cmd_plot)
 
 
@@ -107,6 +115,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from models.base import ModelError
     from models.evaluation import evaluate, save_slices
 
+    at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     try:
         if args.save_slices:
             store.check_writable(args.save_slices)
@@ -123,13 +132,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     what = "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF"
     print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
           f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
-    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'total mean':>11s}  noise floor")
+    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
+          f"{'total mean':>11s} {'its floor':>9s}")
     for name, e in ev.errors.items():
-        i, t = e["internal"], e["total"]
-        rgb = " ".join(f"{x:9.3e}" for x in i["rmse"])
-        print(f"{name:16s} {i['rmse_mean']:13.4e} {rgb:>30s} {i['rmse_luminance']:10.3e} {t['rmse_mean']:11.4e}"
-              f"  {i['noise_floor_mean']:.2e}")
-    print(f"('internal' = {what}; noise floor = the error a perfect model would show against this reference)")
+        print(table_row(name, e["internal"], e["total"]))
+    print(f"('internal' = {what}; each floor = the error a perfect model would show against this reference "
+          f"on the part beside it, channel mean)")
     for name, note in ev.approximations.items():
         print(f"note {name}: {note}")
     for name, reason in ev.skipped.items():
@@ -139,10 +147,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def table_row(name: str, internal: dict, total: dict) -> str:
+    """One line of ``gonio evaluate``'s table: each part's channel-mean RMSE beside its own noise
+    floor (the total error is compared with the total floor, the internal error with the internal
+    floor; ``models.compare.errors``)."""
+    rgb = " ".join(f"{x:9.3e}" for x in internal["rmse"])
+    return (f"{name:16s} {internal['rmse_mean']:13.4e} {rgb:>30s} {internal['rmse_luminance']:10.3e} "
+            f"{internal['noise_floor_mean']:9.2e} {total['rmse_mean']:11.4e} {total['noise_floor_mean']:9.2e}")
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
     from models.report import ReportError, plot_file
 
+    at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UsageError(f"--out: {args.out} is an existing file; give a directory for the figures")
     incidents = None
     if args.incident is not None:
         thetas, _ = incident_list(args.incident)

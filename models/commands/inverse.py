@@ -16,7 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import UsageError
+from goniometer.cli.common import THREADS_HELP, UsageError
 
 EXIT_NOT_ACHIEVABLE = 1
 
@@ -194,7 +194,8 @@ def register(subparsers) -> None:
     """Register ``invert`` and ``validate-inverse`` on the ``gonio`` sub-command parser."""
     p = subparsers.add_parser("invert", help="lobes at normal incidence -> a layered material (Bati 2021 inverse)")
     p.add_argument("--lobe", action="append", metavar="SPEC",
-                   help='a lobe, top first, e.g. "R=0.03,0.06,0.09 sigma=0.05 layers=2" (repeatable)')
+                   help='a lobe, top first, e.g. "R=0.03,0.06,0.09 sigma=0.05 layers=2" (repeatable; at least one, '
+                        'no default)')
     p.add_argument("--base", choices=("dielectric", "conductor"), default="dielectric",
                    help="the last lobe ends on a dielectric (default) or a conductor")
     p.add_argument("--pick", default="center", metavar="center|PARAMS",
@@ -206,8 +207,8 @@ def register(subparsers) -> None:
                         "channel of maximal reflectance (the paper)")
     p.add_argument("--top-variance", dest="top_variance", choices=("exact", "paper"), default="exact",
                    help="first interface of a stacked 2-layer lobe: exact variance (default) or alg. 5 as printed")
-    p.add_argument("--out", metavar="STACK.toml", help="write the material file")
-    p.add_argument("--classes", metavar="OUT.png", help="plot the equivalence classes")
+    p.add_argument("--out", metavar="STACK.toml", help="write the material file (default: not written)")
+    p.add_argument("--classes", metavar="OUT.png", help="plot the equivalence classes (default: no plot)")
     p.add_argument("--name", default="inverse", help="material name (default inverse)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_invert)
@@ -215,15 +216,19 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("validate-inverse", help="run target lobe configurations through the inverse method "
                                                        "and check them (forward model, optional simulation)")
     p.add_argument("cases", metavar="CASES.toml")
-    p.add_argument("--json", metavar="OUT.json", help="write the results as JSON")
+    p.add_argument("--json", metavar="OUT.json", help="write the results as JSON (default: not written)")
     p.add_argument("--simulate", action="store_true", help="also simulate every stack at normal incidence")
-    p.add_argument("--report", metavar="DIR", help="write report.md, index.html and figures into DIR")
+    p.add_argument("--report", metavar="DIR",
+                   help="write report.md, index.html and figures into DIR (default: not written)")
     p.add_argument("--rays", type=int, help="rays per simulation (default 4,000,000)")
     p.add_argument("--resolution", metavar="N_THETAxN_PHI", help="half slices of the simulation (default 90x8)")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--threads", type=int)
-    p.add_argument("--only", metavar="GLOB", help="cases whose name matches")
-    p.add_argument("--eta-max", dest="eta_max", type=float, default=4.0)
-    p.add_argument("--variance-channel", dest="variance_channel", choices=("minimax", "max"), default="minimax")
-    p.add_argument("--top-variance", dest="top_variance", choices=("exact", "paper"), default="exact")
+    p.add_argument("--seed", type=int, default=1, help="seed of the simulations (default: %(default)s)")
+    p.add_argument("--threads", type=int, help=THREADS_HELP)
+    p.add_argument("--only", metavar="GLOB", help="cases whose name matches (default: all)")
+    p.add_argument("--eta-max", dest="eta_max", type=float, default=4.0,
+                   help="largest dielectric index (default: %(default)g)")
+    p.add_argument("--variance-channel", dest="variance_channel", choices=("minimax", "max"), default="minimax",
+                   help="as for gonio invert (default: %(default)s)")
+    p.add_argument("--top-variance", dest="top_variance", choices=("exact", "paper"), default="exact",
+                   help="as for gonio invert (default: %(default)s)")
     p.set_defaults(func=cmd_validate_inverse)

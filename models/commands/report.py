@@ -5,35 +5,38 @@ from __future__ import annotations
 import argparse
 import sys
 
-from goniometer.cli.common import UsageError, incident_list
+from goniometer.cli.common import UsageError, at_least_one, incident_list, progress_bar
 
 
 def register(sub) -> None:
     """Add ``report`` to the ``gonio`` sub-command parser."""
     p = sub.add_parser("report", help="error tables, figures and an HTML browser for a simulated database")
     p.add_argument("results", metavar="RESULTS_DIR")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR", help="the report directory (required)")
     p.add_argument("--model", action="append", metavar="NAME", help="models to evaluate (default: all that apply)")
-    p.add_argument("--subcells", type=int, default=5)
+    p.add_argument("--subcells", type=int, default=5,
+                   help="sub-cells per cell side when integrating models (default: %(default)s)")
     p.add_argument("--incidents", metavar="LIST", help="incident elevations to draw figures for (default: all)")
-    p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved")
+    p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved "
+                        "(default: the path recorded in the results' database.json)")
     p.add_argument("--fits", action="store_true", help="also fit hp15, ggx1 and ggx2 to every BRDF (slow)")
     p.add_argument("--isotropize", choices=("mean",),
-                   help="let isotropic models evaluate anisotropic stacks with the mean roughness")
+                   help="let isotropic models evaluate anisotropic stacks with the mean roughness "
+                        "(default: isotropic models skip anisotropic stacks)")
     p.add_argument("--compare-to", metavar="SS_RESULTS_DIR",
                    help="results of the single-scattering twin of this multiple-scattering database: "
-                        "adds multiple-scattering.md/.json")
+                        "adds multiple-scattering.md/.json (default: no comparison)")
     p.set_defaults(func=cmd_report)
 
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from models.report import ReportError, build_report
-    from tqdm import tqdm
+    at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     incidents = None
     if args.incidents:
         incidents, _ = incident_list(args.incidents)
-    bar = tqdm(total=None, unit="material", file=sys.stderr, dynamic_ncols=True, disable=None, desc="report")
+    bar = progress_bar(None, "report", unit="material", unit_scale=False)
 
     def progress(done: int, total: int, message: str) -> None:
         bar.total = total

@@ -7,15 +7,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
-from goniometer.cli.common import UsageError
+from goniometer.cli.common import UsageError, progress_bar
 
 
 def _bar(name: str):
-    from tqdm import tqdm
-    bar = tqdm(total=1000, desc=f"building {name}", file=sys.stderr, dynamic_ncols=True, disable=None,
-               bar_format="{l_bar}{bar}| {elapsed}<{remaining} {postfix}")
+    bar = progress_bar(1000, f"building {name}", unit="step", unit_scale=False,
+                       bar_format="{l_bar}{bar}| {elapsed}<{remaining} {postfix}")
 
     def update(stage: str, frac: float) -> None:
         bar.set_postfix_str(stage, refresh=False)
@@ -60,7 +58,8 @@ def register(sub) -> None:
     p.add_argument("--cache-dir", dest="cache_dir", metavar="DIR",
                    help="table directory (default $GONIOMETER_CACHE or ~/.cache/goniometer)")
     p.add_argument("--check", type=int, default=0, metavar="N",
-                   help="compare N random off-grid lookups per table with direct quadrature (exit 1 above bound)")
+                   help="compare N random off-grid lookups per table with direct quadrature (exit 1 above bound) "
+                        "(default: %(default)s, no check)")
     p.add_argument("--seed", type=int, default=1, help="seed of the --check points (default 1)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_tables)

@@ -1,10 +1,12 @@
 """The comparison harness's building blocks: analytic models integrated onto the cells of a
 simulated file (:func:`integrate`) and their errors against the reference (Bati 2019 eq. 4,
-noise floors: :func:`compare`). Cell values and errors are defined in ``docs/slices-format.md``
+noise floors: :func:`compare`) and their directional albedo by a hemispherical quadrature
+(:func:`directional_albedo`, ``docs/furnace.md``). Cell values and errors are defined in ``docs/slices-format.md``
 and ``docs/models.md``. Choosing the models of a file and running them is :mod:`models.evaluation`,
 above the model families (it asks the registry).
 """
 
+from models.compare.albedo import HemisphereRule, directional_albedo, hemisphere_rule
 from models.compare.errors import compare, error_object, noise_floor, reference_parts, rmse
 from models.compare.integrate import ModelSlices, integrate, integrate_slice
 
@@ -13,4 +15,6 @@ __all__ = [
     "ModelSlices", "integrate", "integrate_slice",
     # errors
     "compare", "error_object", "rmse", "noise_floor", "reference_parts",
+    # directional albedo (docs/furnace.md)
+    "directional_albedo", "hemisphere_rule", "HemisphereRule",
 ]

@@ -26,6 +26,7 @@ from models.report.html import html_data, render_html
 from models.report.panels import save_figure
 from models.report.reproduction import reproduction_checks, reproduction_markdown
 from models.report.results import MaterialResult, ReportError, open_results
+from models.report.spheres import figure1, material_spheres
 from models.report.tables import category_csv, category_markdown, error_records, errors_figure
 
 #: ``progress(done, total, message)``, called once per material
@@ -53,6 +54,8 @@ class ReportSummary:
     appendix_e: dict | None = None
     #: the multiple-scattering table (:mod:`models.report.multiple_scattering`) with ``compare_to``
     multiple_scattering: dict | None = None
+    #: Bati 2019 figure 1 (:func:`models.report.spheres.figure1`) when the results hold its material
+    figure1: dict | None = None
     elapsed_s: float = 0.0
 
 
@@ -102,6 +105,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         res, ref = evaluate_material(mat, out, models, subcells, code, isotropize)
         t2 = time.perf_counter()
         drawn = material_figures(res, ref, out, styles, incidents_for_figures, report_key)
+        res.figures = {**res.figures, **material_spheres(res, ref, out, report_key)}
         t3 = time.perf_counter()
         res.slices = None   # free memory: the figures are on disk
         results.append(res)
@@ -121,6 +125,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         unknown_angles = [w for w in incidents_for_figures if not any(abs(w - t) < 1e-6 for t in drawn_at)]
         if unknown_angles:
             summary.warnings.append(f"no material has the incident direction(s) {unknown_angles} asked for figures")
+    summary.figure1 = figure1(results, out, report_key)
     _write_outputs(results, manifest, out, styles, summary, rd, subcells, code)
     if is_appendix_e([r.material for r in results]):
         sec = appendix_e_section(results)
@@ -183,4 +188,4 @@ def _write_outputs(results: list[MaterialResult], manifest: dict, out: Path, sty
         lines.append(f"{len(summary.missing)} material(s) of the definition not simulated yet: "
                      + ", ".join(summary.missing[:8]) + (" …" if len(summary.missing) > 8 else ""))
     lines += [f"warning: {w}" for w in summary.warnings]
-    write_text(out / "index.html", render_html(data, checks, tables, lines))
+    write_text(out / "index.html", render_html(data, checks, tables, lines, summary.figure1))

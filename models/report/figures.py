@@ -24,8 +24,8 @@ from models.evaluation import comparison_side, evaluate
 from models.report.evaluation import cache_paths, judged_side, load_slices, read_reference
 from models.report.files import material_dir, read_json, safe_part, write_json
 from models.report.geometry import exposure, pixel_map, plane_cells, remap
-from models.report.panels import (DPI, colormap, compose, diverging_panel, iso_panel, mark_light, rgb_panel,
-                                  save_figure, write_png)
+from models.report.panels import (DPI, ISO_LEVELS, colormap, compose, diverging_panel, iso_panel, mark_light,
+                                  rgb_panel, save_figure, write_png)
 from models.report.results import MaterialResult, ReportError
 
 #: the paper's colours (figures 5-10) for its models; others get FALLBACK_COLOURS in name order
@@ -96,17 +96,23 @@ def _figure_incidents(ref: SimulationResult, wanted: Sequence[float] | None) -> 
 
 
 def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndarray, np.ndarray]],
-                          fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None) -> dict:
+                          fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None,
+                          standalone: bool = False) -> dict:
     """Draw every figure of one material into ``fig_dir``; returns their paths relative to the
-    report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``."""
+    report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``.
+    Files of incident direction m are named ``*_m<m>.png``. ``standalone`` (``gonio plot``, where
+    no HTML page explains the images): files named ``*_theta<θ_l>_phi<φ_l>.png`` (degrees), and
+    top views drawn as labelled figures (titles, colour bars, orientation; :func:`_labelled_top`)."""
     side = comparison_side(ref.stack)
     sd = ref.brdf if side == "brdf" else ref.btdf
     entries = []
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
-        plane = f"plane_m{inc.m}.png"
+        tag = f"theta{inc.theta:g}_phi{inc.phi:g}" if standalone else f"m{inc.m}"
+        plane = f"plane_{tag}.png"
         save_figure(_plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays), fig_dir / plane)
-        tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir)
-        orders = f"orders_m{inc.m}.png"
+        labels = (ref.stack.name, side) if standalone else None
+        tops, diff_scale, lum_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
+        orders = f"orders_{tag}.png"
         write_png(fig_dir / orders, _orders_image(inc, sd.grid))
         entries.append({"index": inc.m, "theta": inc.theta, "phi": inc.phi, "plane": f"{rel}/{plane}",
                         "orders": f"{rel}/{orders}", "top": {k: f"{rel}/{v}" for k, v in tops.items()},
@@ -127,6 +133,9 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
     "evaluation": the gonio evaluate --json object or None}``. Raises ReportError for a bad file or
     an incident angle the file does not hold, ModelError for an unknown or unsupported model.
     """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ReportError(f"{out}: the output directory names an existing file (give a directory)")
     ref = read_reference(Path(path))
     if incidents is not None:
         have = [float(t) for t in ref.theta_deg]
@@ -142,9 +151,11 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
         ev = evaluate(ref, names, s=subcells, isotropize=isotropize)
         slices = {n: (ms.top, ms.internal) for n, ms in ev.slices.items()}
         doc = ev.to_json()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ReportError(f"{out}: cannot create the output directory ({e.strerror or e})") from None
+    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents, standalone=True)
     paths = [out / "energy.png"]
     for e in figs["incidents"]:
         paths += [out / e["plane"], out / e["orders"]] + [out / t for t in e["top"].values()]
@@ -204,15 +215,17 @@ def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, titl
     axes[0].set_ylabel("log(1 + √f), luminance", fontsize=8)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
-    fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°", fontsize=9)
+    fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°", fontsize=9)
     return fig
 
 
-def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path) -> tuple[dict[str, str], float, float]:
+def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
+               labels: tuple[str, str] | None = None) -> tuple[dict[str, str], float, float]:
     """Reference and model top views, one PNG each with three disks: RGB, luminance isovalues and
     the signed difference of g(L) to the reference (for the reference: its 2-sigma noise), all
     on scales shared by the reference and the models. Returns file names, the difference scale
-    and the luminance scale."""
+    and the luminance scale. ``labels`` = (material name, side): labelled figures instead of the
+    bare disks the HTML report frames."""
     pm = pixel_map(grid, inc.light, inc.mask, DISK_PX)
     scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
     lum_ref = _lum(inc.ref)
@@ -230,10 +243,48 @@ def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path) -> tuple[dict[str
         a = mark_light(rgb_panel(cells, scale, pm), inc.light)
         b = mark_light(iso_panel(_lum(cells), lum_scale, pm), inc.light)
         c = mark_light(diverging_panel(third, lim, pm), inc.light)
-        fname = f"top_m{inc.m}_{safe_part(name)}.png"
-        write_png(fig_dir / fname, compose([[a, b, c]]))
+        fname = f"top_{tag}_{safe_part(name)}.png"
+        if labels is None:
+            write_png(fig_dir / fname, compose([[a, b, c]]))
+        else:
+            save_figure(_labelled_top((a, b, c), name, inc, labels, lum_scale, lim), fig_dir / fname)
         out[name] = fname
     return out, lim, lum_scale
+
+
+def _labelled_top(panels: tuple[np.ndarray, np.ndarray, np.ndarray], name: str, inc: _Incident,
+                  labels: tuple[str, str], lum_scale: float, lim: float):
+    """The three top-view disks of one panel set as a matplotlib figure: titles, the colour bars
+    of the luminance bands (g(L) = log(1 + sqrt L), 0 to the exposure ``lum_scale``) and of the
+    difference (-lim to lim), and the orientation (+x, phi = 0, to the right; +y up; the ring marks
+    the light direction l)."""
+    from matplotlib import colors
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+    material, side = labels
+    fig = Figure(figsize=(8.4, 3.3), dpi=DPI)
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.2, top=0.8, wspace=0.25)
+    axes = fig.subplots(1, 3)
+    third = "2σ noise of the reference: g(L + 2σ) − g(L)" if name == "reference" else "g(L) − g(L reference)"
+    titles = ("RGB, g(f) = log(1 + √f), one exposure", "luminance g(L), bands", third)
+    for ax, img, title in zip(axes, panels, titles):
+        ax.imshow(img, interpolation="nearest")
+        ax.set_title(title, fontsize=7.5)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_xlabel("+x (φ = 0°) →", fontsize=7)
+        ax.set_ylabel("+y (φ = 90°) →", fontsize=7)
+    bands = colors.BoundaryNorm(np.linspace(0.0, lum_scale, ISO_LEVELS + 1), ISO_LEVELS)
+    fig.colorbar(ScalarMappable(norm=bands, cmap=colormap("viridis").resampled(ISO_LEVELS)), ax=axes[1],
+                 orientation="horizontal", fraction=0.06, pad=0.12, format="%.3g").ax.tick_params(labelsize=6)
+    fig.colorbar(ScalarMappable(norm=colors.Normalize(-lim, lim), cmap=colormap("RdBu_r")), ax=axes[2],
+                 orientation="horizontal", fraction=0.06, pad=0.12, format="%.3g",
+                 ticks=[-lim, 0.0, lim]).ax.tick_params(labelsize=6)
+    what = "BRDF seen from above" if side == "brdf" else "BTDF, lower hemisphere seen from above"
+    fig.suptitle(f"{material} — {name}: {what}, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°\n"
+                 f"yellow ring: the light direction l; grey: cells outside the comparison mask; "
+                 f"white in the bands: above the exposure", fontsize=8)
+    return fig
 
 
 def _orders_image(inc: _Incident, grid: SliceGrid) -> np.ndarray:

@@ -128,8 +128,25 @@ def _asset(name: str) -> str:
         raise ReportError(f"{ASSETS / name}: report asset missing ({e.strerror or e})") from None
 
 
-def render_html(data: dict, checks: list[dict], tables: dict, summary_lines: list[str]) -> str:
-    """The static page: template + inlined CSS/JS + embedded data + static sections."""
+def _figure1_html(fig: dict | None) -> str:
+    """The static section of Bati 2019 figure 1 (:func:`models.report.spheres.figure1`)."""
+    if fig is None:
+        return ("<p class=\"hint\">The results hold no frosted metal with α0 = 0.05, α1 = 0.2, η1 = 1.2 and a "
+                "yellow-tinted τ (metal/M5-a0_0.05-a1_0.2 of configs/bati2019.toml), so figure 1 is not drawn.</p>")
+    rmse = ", ".join(f"{_esc(n)} {v:.3g}" for n, v in fig["rmse"].items() if v is not None)
+    missing = (f" Not evaluated for this material: {_esc(', '.join(fig['missing']))}." if fig["missing"] else "")
+    img = (f"<img id=\"img-figure1\" src=\"{_esc(fig['src'])}\" alt=\"Bati 2019 figure 1: {_esc(fig['material'])} "
+           f"on lit spheres\">") if fig["src"] else ""
+    return (f"<figure class=\"wide\">{img}<figcaption>{_esc(fig['material'])}: the reference (left), then "
+            f"{_esc(', '.join(fig['models']))} beside it (top row) and split with it (bottom row: left half "
+            f"reference, right half model). Reference: {_esc(fig['caption'])}. Image RMSE (display units, white = 1): "
+            f"{rmse or '–'}.{missing}</figcaption></figure>")
+
+
+def render_html(data: dict, checks: list[dict], tables: dict, summary_lines: list[str],
+                figure1: dict | None = None) -> str:
+    """The static page: template + inlined CSS/JS + embedded data + static sections (``figure1``:
+    Bati 2019 figure 1, :func:`models.report.spheres.figure1`)."""
     page = _asset("index.html")
     meta = data["meta"]
     subs = {
@@ -141,6 +158,7 @@ def render_html(data: dict, checks: list[dict], tables: dict, summary_lines: lis
         "<!--REPRODUCTION-->": _reproduction_html(checks),
         "<!--OVERVIEW-->": _overview_html(data["overview"]),
         "<!--TABLES-->": _tables_html(tables),
+        "<!--FIGURE1-->": _figure1_html(figure1),
         "<!--THRESHOLDS-->": _esc(f"holds: ≥ {HOLDS_AT:.0%} of the comparisons agree; partly: ≥ {PARTLY_AT:.0%}; "
                                   f"similar: ratio ≤ {SIMILAR_RATIO}; close: ≤ {CLOSE_RATIO}; indistinguishable: ≤ "
                                   f"{INDISTINGUISHABLE_RATIO}; identical: relative difference ≤ {IDENTICAL_REL:g}"),

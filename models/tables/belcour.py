@@ -666,6 +666,18 @@ def fgd_direct(mu: float, alpha: float, eta: float, kappa: float = 0.0, height_c
     return float(min(max(W[0, 0] @ fresnel_on(xs, eta, kappa), 0.0), 1.0))
 
 
+def fgd_direct_many(mus: np.ndarray, alpha: float, eta: float, kappa: float = 0.0,
+                    height_correlated: bool = False) -> np.ndarray:
+    """:func:`fgd_direct` at several cosines ``mus`` at once (one angular kernel for all of them)."""
+    mus = np.asarray(mus, dtype=np.float64).ravel()
+    rr, rw, pp, pw = _quadrature_rule()
+    x_c = fgd_split_point(eta, kappa)
+    xs = split_x_nodes(x_c)
+    W, _ = _angular_kernel(mus, np.array([float(alpha)]), x_c, np.zeros(0), rr, rw, pp, pw,
+                           bool(height_correlated))
+    return np.clip(W[:, 0] @ fresnel_on(xs, eta, kappa), 0.0, 1.0)
+
+
 def tir_direct(mu: float, alpha: float, eta_up: float, height_correlated: bool = False) -> float:
     """TIR (escaping fraction) at one point by the quadrature itself."""
     if eta_up >= 1.0:

@@ -265,6 +265,30 @@ def test_evaluate_json_contract(simulated, capsys, tmp_path):
     sl = read_slices(out, "ww-bati19", "brdf")
     assert sl["value"].shape == (2, 3, 18, 36)
     np.testing.assert_allclose(sl["value"], sl["top"] + sl["internal"])
+    _model_slices_open_in_xarray(out, sl)
+
+
+def _model_slices_open_in_xarray(path, sl):
+    """Every group of a model-slices file has named dimensions (h5netcdf strict mode raises on
+    unlabeled axes); goniometer.open_dataset reads a model's group with masked cells as NaN."""
+    import importlib.util
+    if not (importlib.util.find_spec("xarray") and importlib.util.find_spec("h5netcdf")):
+        pytest.skip("xarray and h5netcdf are not installed")
+    import h5netcdf
+    import goniometer
+
+    def walk(g):
+        for v in g.variables.values():
+            assert not any(d.startswith("phony_dim") for d in v.dimensions), (g.name, v.name)
+        for child in g.groups.values():
+            walk(child)
+    with h5netcdf.File(path, "r") as f:
+        walk(f)
+    ds = goniometer.open_dataset(path, side="brdf", model="ww-bati19")
+    assert ds["value"].dims == ("incident", "channel", "theta", "phi") and "incident_phi" in ds.coords
+    m = np.broadcast_to(sl["mask"][:, None], sl["value"].shape)
+    np.testing.assert_array_equal(ds["value"].values[m], sl["value"][m])
+    assert np.isnan(ds["top"].values[~m]).all()
 
 
 def test_evaluate_table_and_bad_input(simulated, capsys, tmp_path):
@@ -335,7 +359,8 @@ def test_plot_writes_the_figures_of_one_file(simulated, tmp_path, capsys):
                  "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
     names = sorted(Path(p).name for p in r["figures"])
-    assert names == ["energy.png", "orders_m1.png", "plane_m1.png", "top_m1_belcour-btdf.png", "top_m1_reference.png"]
+    assert names == ["energy.png", "orders_theta60_phi0.png", "plane_theta60_phi0.png",
+                     "top_theta60_phi0_belcour-btdf.png", "top_theta60_phi0_reference.png"]  # named by angle
     for p in r["figures"]:
         assert Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert r["evaluation"]["side"] == "btdf" and "belcour-btdf" in r["evaluation"]["models"]

@@ -116,7 +116,20 @@
     else { img.removeAttribute("src"); img.style.display = "none"; }
   }
 
+  function renderSpheres(m) {
+    const box = $("spheres");
+    if (!box) { return; }
+    box.innerHTML = "";
+    (m.spheres || []).forEach(function (s) {
+      box.appendChild(el("figure", { "class": "wide", "data-angle": String(s.angle) }, [
+        el("img", { src: s.src, alt: "lit spheres, light at " + s.angle + "°" }),
+        el("figcaption", { text: "Light at " + s.angle + "° from the view. Reference: " + s.reference + "." })]));
+    });
+    if (m.spheres_note) { box.appendChild(el("p", { "class": "hint", text: m.spheres_note })); }
+  }
+
   function renderFigures(m, inc) {
+    renderSpheres(m);
     setImage("img-plane", inc ? inc.plane : null);
     setImage("img-orders", inc ? inc.orders : null);
     setImage("img-energy", m.energy || null);

@@ -1,0 +1,140 @@
+"""``gonio furnace``: the white-furnace / directional-albedo table of one material file, simulated
+and per model (:mod:`models.furnace`; ``docs/furnace.md``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from goniometer.cli.common import UsageError, incident_list, progress_bar, sigint_latch
+
+
+def register(sub) -> None:
+    """Add ``furnace`` to the ``gonio`` sub-command parser."""
+    p = sub.add_parser("furnace", help="directional albedo E(theta) of a material file: simulation (with standard "
+                                       "errors and energy terms) and every model that applies (white-furnace tables)")
+    p.add_argument("config", metavar="CONFIG.toml")
+    p.add_argument("--json", action="store_true", help="print one JSON object (docs/furnace.md)")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw albedo vs incident angle into this PNG (default: no figure)")
+    p.add_argument("--incident", metavar="LIST",
+                   help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth); default: the "
+                        "file's [simulation] incident_deg, else 0,5,...,85")
+    p.add_argument("--rays", type=int,
+                   help="rays per incident direction; default: the file's [simulation] rays, else 100000")
+    p.add_argument("--seed", type=int, help="random seed; default: the file's [simulation] seed, else 1")
+    p.add_argument("--threads", type=int,
+                   help="tracing threads; default: the file's [simulation] threads, else all of numba's threads")
+    p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
+                   help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
+                        "default: as the file says")
+    p.set_defaults(func=cmd_furnace)
+
+
+def _check_plot_path(path: str) -> None:
+    from goniometer import store
+    if not path.lower().endswith(".png"):
+        raise UsageError(f"--plot: {path!r} must name a .png file")
+    try:
+        store.check_writable(path)
+    except store.StoreError as e:
+        raise UsageError(f"--plot: {e}") from None
+
+
+def cmd_furnace(args: argparse.Namespace) -> int:
+    from goniometer.settings import SettingsError
+    from goniometer.stack import StackError, load_toml
+    from goniometer.tasks import warm_up
+    from models.base import ModelError
+    from models.furnace import furnace_settings, run_furnace
+
+    try:
+        stack, table = load_toml(args.config)
+    except (StackError, OSError) as e:
+        raise UsageError(str(e)) from None
+    if args.multiple_scattering:
+        stack = stack.with_multiple_scattering()
+    thetas = phis = None
+    if args.incident is not None:
+        t, p = incident_list(args.incident)
+        thetas, phis = tuple(t), (tuple(p) if p is not None else None)
+    try:
+        settings = furnace_settings(table, incident_deg=thetas, incident_phi_deg=phis, rays=args.rays,
+                                    seed=args.seed, threads=args.threads, source=f"{args.config}: simulation")
+    except SettingsError as e:
+        raise UsageError(str(e) if str(e).startswith(str(args.config)) else _option_error(str(e))) from None
+    if args.plot:
+        _check_plot_path(args.plot)
+
+    quiet = args.json
+    total = settings.rays * len(settings.incident_deg)
+    if not quiet:
+        print(f"furnace {stack.name} ({stack.category}, {stack.base} base): {len(settings.incident_deg)} incident "
+              f"direction(s) x {settings.rays:,} rays, {settings.n_threads} thread(s)", file=sys.stderr)
+    with sigint_latch() as interrupts:
+        with interrupts.deferred():
+            warm_up()
+        try:
+            with progress_bar(total, stack.name) as bar:
+                def progress(n: int) -> None:
+                    interrupts.check()
+                    bar.update(n)
+
+                result = run_furnace(stack, settings, progress=progress,
+                                 model_progress=None if quiet else (lambda n: bar.write(f"integrating {n} ...",
+                                                                                        file=sys.stderr)))
+        except ModelError as e:
+            raise UsageError(f"{args.config}: {e}") from None
+    if args.plot:
+        from models.report.furnace import plot_furnace
+        plot_furnace(result, args.plot)
+    if args.json:
+        print(json.dumps(result.to_json(), indent=2))
+        return 0
+    _print_table(result)
+    if args.plot:
+        print(f"wrote {args.plot}")
+    return 0
+
+
+#: the option that sets each settings field
+OPTIONS = {"incident_deg": "--incident", "incident_phi_deg": "--incident", "rays": "--rays", "seed": "--seed",
+           "threads": "--threads"}
+
+
+def _option_error(message: str) -> str:
+    """A settings error about a command-line value, named by its option
+    (``rays: 0 is outside [1, ...]`` -> ``--rays: 0 is outside [1, ...]``)."""
+    field, _, rest = message.partition(":")
+    return f"{OPTIONS[field]}:{rest}" if field in OPTIONS else message
+
+
+def _rgb(a) -> str:
+    return " ".join(f"{x:7.4f}" for x in a)
+
+
+def _print_table(r) -> None:
+    print(f"{r.material} ({r.category}, {r.base} base): directional albedo E = reflected + transmitted, "
+          f"{r.rays:,} rays per angle, seed {r.seed}")
+    print(f"{'theta_l':>7}  {'simulated E (R G B)':>23}  {'std. error':>23}  {'reflected':>23}  {'transmitted':>23}  "
+          f"{'absorbed':>23}  {'masking_loss':>23}")
+    for m, t in enumerate(r.incident_deg):
+        cols = [_rgb(r.albedo[m]), " ".join(f"{x:7.1e}" for x in r.stderr[m])]
+        cols += [_rgb(r.energy[k][m]) for k in ("reflected", "transmitted", "absorbed", "masking_loss")]
+        print(f"{t:7.2f}  " + "  ".join(cols))
+    if any(abs(x) > 0 for k in ("roulette", "capped") for x in r.energy[k].ravel()):
+        worst = {k: float(abs(r.energy[k]).max()) for k in ("roulette", "capped")}
+        print(f"(roulette and capped weight, at most {worst['roulette']:.1e} and {worst['capped']:.1e}, "
+              f"close the bookkeeping; {r.capped_paths} path(s) reached the event cap)")
+    if r.models.albedo:
+        names = list(r.models.albedo)
+        print()
+        print(f"models' directional albedo ({' + '.join(s.upper() for s in r.sides)}; quadrature, docs/furnace.md), "
+              f"minus the simulation in brackets (R G B):")
+        for name in names:
+            print(f"  {name}")
+            for m, t in enumerate(r.incident_deg):
+                a = r.models.albedo[name][m]
+                print(f"    {t:7.2f}  {_rgb(a)}   [{' '.join(f'{x:+8.4f}' for x in a - r.albedo[m])}]")
+    for name, reason in r.models.skipped.items():
+        print(f"skipped {name}: {reason}")

@@ -1,0 +1,207 @@
+"""White-furnace / directional-albedo tables of a stack: the simulation's and every model's
+(``gonio furnace``; contract in ``docs/furnace.md``).
+
+The **directional albedo** ``E(l)`` is the fraction of the flux arriving from direction ``l``
+that leaves the stack, on either side, per RGB channel:
+
+* simulated: ``reflected + transmitted`` of the tracer's energy bookkeeping
+  (``docs/material-format.md``, transport). A path leaves the stack at most once, upward or
+  downward, so per path ``r * t = 0`` and the per-path second moment of the albedo is the sum of
+  those of ``reflected`` and ``transmitted``: its standard error needs no new kernel output
+  (:func:`simulated_albedo`). The slices are not needed, so the run uses a 1 x 1 classic grid
+  (:data:`GRID`).
+* a model's: ``E_brdf(l) + E_btdf(l)``, the hemispherical integrals of ``f * |cos theta_v|``
+  over the sides the stack emits into (:func:`models.compare.albedo.directional_albedo`). A model
+  must model every such side (both for a stack that transmits), otherwise it is skipped with
+  the reason, like every model whose ``reason(stack)`` refuses the stack and every model of a
+  stack with a perfectly smooth interface (a Dirac lobe is not an integrable function).
+
+Models are taken from :func:`models.registry.all_models` (every analytic model, whatever its
+name); fitted models need a simulated file's slices and are listed as skipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from goniometer.results import SimulationResult
+from goniometer.run import run_incidents
+from goniometer.settings import SimulationSettings
+from goniometer.slices import light_direction
+from goniometer.stack import Stack
+from models import registry
+from models.compare.albedo import MAX_PANEL, ORDER, directional_albedo, lobe_scale, smooth_interface
+
+#: default incident elevations of ``gonio furnace`` (degrees): 0, 5, ..., 85
+INCIDENT_DEG = tuple(float(x) for x in range(0, 90, 5))
+#: default rays per incident direction
+RAYS = 100_000
+#: the slice grid of a furnace run: one cell (only the energy rows are used)
+GRID = ("classic", (1, 1))
+#: the energy terms of the bookkeeping, in the order of the JSON object
+ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss", "roulette", "capped")
+
+
+def furnace_settings(table: Mapping[str, Any] | None = None, *, incident_deg: tuple[float, ...] | None = None,
+                     incident_phi_deg: tuple[float, ...] | None = None, rays: int | None = None,
+                     seed: int | None = None, threads: int | None = None,
+                     source: str = "simulation") -> SimulationSettings:
+    """The settings of a furnace run: the furnace defaults (:data:`INCIDENT_DEG`, :data:`RAYS`),
+    then a material file's ``[simulation]`` table, then the given values; the slice grid is
+    always :data:`GRID`. Raises :class:`goniometer.settings.SettingsError` naming the field."""
+    base: dict[str, Any] = {"incident_deg": list(INCIDENT_DEG), "rays": RAYS}
+    base.update(table or {})
+    s = SimulationSettings.from_mapping(base, source=source)
+    if incident_deg is not None and incident_phi_deg is None:
+        incident_phi_deg = tuple(0.0 for _ in incident_deg)
+    return s.with_overrides(incident_deg=incident_deg, incident_phi_deg=incident_phi_deg, rays=rays, seed=seed,
+                            threads=threads, parametrization=GRID[0], resolution=GRID[1])
+
+
+def simulated_albedo(result: SimulationResult) -> tuple[np.ndarray, np.ndarray]:
+    """(albedo, standard error), each (M, 3): ``reflected + transmitted`` and the standard error
+    of that mean from the per-path second moments (a path exits once, so ``E[(r + t)^2] =
+    E[r^2] + E[t^2]``; the second moments are recovered from the means and standard errors
+    :func:`goniometer.results.assemble` stores)."""
+    n = result.settings.rays
+    mean = result.energy["reflected"] + result.energy["transmitted"]
+    second = np.zeros_like(mean)
+    for k in ("reflected", "transmitted"):
+        m, se = result.energy[k], result.energy_stderr[k]
+        second += se * se * max(n - 1, 1) + m * m          # (sum of squared weights) / n
+    var = np.maximum(second - mean * mean, 0.0) / max(n - 1, 1)
+    return mean, np.sqrt(var)
+
+
+def needed_sides(stack: Stack) -> tuple[str, ...]:
+    """The sides a stack emits into: ``("brdf", "btdf")`` if it transmits, else ``("brdf",)``."""
+    return ("brdf", "btdf") if stack.transmits else ("brdf",)
+
+
+def model_reason(model, stack: Stack) -> str | None:
+    """Why ``model``'s directional albedo of ``stack`` cannot be computed (None if it can)."""
+    reason = model.reason(stack)
+    if reason is not None:
+        return reason
+    missing = [s for s in needed_sides(stack) if s not in model.sides]
+    if missing:
+        return (f"models the {'/'.join(s.upper() for s in model.sides)} only; the albedo of this stack needs its "
+                f"{' and '.join(s.upper() for s in needed_sides(stack))}")
+    i = smooth_interface(stack)
+    if i is not None:
+        return (f"layers[{i}] is perfectly smooth (roughness 0): its Dirac lobe is not a function a quadrature "
+                f"integrates (models return 0 there)")
+    return None
+
+
+@dataclass
+class ModelAlbedos:
+    """Models' directional albedos: ``albedo[name]`` (M, 3), ``sides[name][side]`` (M, 3), and the
+    models that were not evaluated with the reason."""
+
+    albedo: dict[str, np.ndarray] = field(default_factory=dict)
+    sides: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+
+
+def model_albedos(stack: Stack, theta_deg: tuple[float, ...], phi_deg: tuple[float, ...] | None = None,
+                  order: int = ORDER, progress: Callable[[str], None] | None = None) -> ModelAlbedos:
+    """Directional albedo of every registered analytic model that can represent ``stack``, at the
+    incident directions (``theta_deg``, ``phi_deg``); the others under ``skipped`` with their
+    reason. A model that fails while being evaluated raises :class:`models.base.ModelError`."""
+    phi_deg = phi_deg if phi_deg is not None else tuple(0.0 for _ in theta_deg)
+    out = ModelAlbedos()
+    for name, model in registry.all_models().items():
+        reason = model_reason(model, stack)
+        if reason is not None:
+            out.skipped[name] = reason
+            continue
+        if progress is not None:
+            progress(name)
+        per_side = {}
+        for side in needed_sides(stack):
+            per_side[side] = np.array([directional_albedo(model, stack, light_direction(t, p), side, order)
+                                       for t, p in zip(theta_deg, phi_deg)])
+        out.sides[name] = per_side
+        out.albedo[name] = sum(per_side.values())
+    for name in registry.fitted_models():
+        out.skipped[name] = "a fitted model is fitted to a simulated file's slices (gonio fit); a furnace run keeps none"
+    return out
+
+
+@dataclass
+class FurnaceResult:
+    """A furnace table: the simulated albedo with its standard error and energy terms, and the
+    models' albedos, at the incident directions (``docs/furnace.md``)."""
+
+    material: str
+    category: str
+    base: str
+    incident_deg: np.ndarray                 # (M,)
+    incident_phi_deg: np.ndarray             # (M,)
+    albedo: np.ndarray                       # (M, 3)
+    stderr: np.ndarray                       # (M, 3)
+    energy: dict[str, np.ndarray]            # ENERGY_TERMS -> (M, 3)
+    energy_stderr: dict[str, np.ndarray]     # reflected, transmitted, absorbed, masking_loss -> (M, 3)
+    models: ModelAlbedos
+    rays: int
+    seed: int
+    masking: str
+    capped_paths: int
+    quadrature: dict[str, Any]
+
+    @property
+    def sides(self) -> tuple[str, ...]:
+        return ("brdf", "btdf") if self.base == "transmit" else ("brdf",)
+
+    def to_json(self) -> dict[str, Any]:
+        """The object printed by ``gonio furnace --json`` (``docs/furnace.md``, JSON)."""
+        rows = (lambda a: np.asarray(a, dtype=float).tolist())
+        return {
+            "material": self.material, "category": self.category, "base": self.base,
+            "sides": list(self.sides),
+            "incident_deg": rows(self.incident_deg),
+            "incident_phi_deg": rows(self.incident_phi_deg),
+            "simulated": {
+                "albedo": rows(self.albedo),
+                "stderr": rows(self.stderr),
+                "energy": {k: rows(self.energy[k]) for k in ENERGY_TERMS},
+                "energy_stderr": {k: rows(v) for k, v in self.energy_stderr.items()},
+                "rays": self.rays, "seed": self.seed, "masking": self.masking, "capped_paths": self.capped_paths,
+            },
+            "models": {n: rows(a) for n, a in self.models.albedo.items()},
+            "model_sides": {n: {s: rows(a) for s, a in d.items()} for n, d in self.models.sides.items()},
+            "skipped": dict(self.models.skipped),
+            "quadrature": dict(self.quadrature),
+        }
+
+
+def run_furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[int], None] | None = None,
+            model_progress: Callable[[str], None] | None = None) -> FurnaceResult:
+    """Simulate ``stack`` at the incident directions of ``settings`` (its grid is replaced by
+    :data:`GRID`) and evaluate every model that applies. The models run first, so a model that
+    fails does so before the simulation. ``progress(rays)`` as in
+    :func:`goniometer.run.run_incidents` (which compiles the kernel on first use),
+    ``model_progress(name)`` before each model."""
+    if settings.resolution != GRID[1] or settings.parametrization != GRID[0]:
+        settings = settings.with_overrides(parametrization=GRID[0], resolution=GRID[1])
+    settings.validate()
+    theta, phi = settings.incident_deg, settings.incident_phi_deg
+    models = model_albedos(stack, theta, phi, progress=model_progress)
+    result = run_incidents(stack, settings, progress=progress)
+    albedo, stderr = simulated_albedo(result)
+    energy = {k: result.energy[k] for k in ("reflected", "transmitted", "absorbed", "masking_loss")}
+    energy["roulette"] = result.roulette
+    energy["capped"] = result.capped
+    quadrature = {"rule": "composite Gauss-Legendre in (theta, phi), graded about the mirror and Snell directions",
+                  "order": ORDER, "max_panel_rad": MAX_PANEL, "finest_panel_rad": lobe_scale(stack)}
+    return FurnaceResult(stack.name, stack.category, stack.base, np.array(theta), np.array(phi), albedo, stderr,
+                         energy, dict(result.energy_stderr), models, settings.rays, settings.seed, settings.masking,
+                         int(np.sum(result.capped_paths)), quadrature)
+
+
+__all__ = ["INCIDENT_DEG", "RAYS", "GRID", "ENERGY_TERMS", "furnace_settings", "simulated_albedo", "needed_sides",
+           "model_reason", "ModelAlbedos", "model_albedos", "FurnaceResult", "run_furnace"]

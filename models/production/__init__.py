@@ -1,0 +1,27 @@
+"""Production coat models in the harness (issue 13): the coats renderers ship, judged on our stacks.
+
+Formulas, sources and how our stacks map onto each model's inputs: ``docs/production-models.md``.
+"""
+
+# --- OpenPBR and Autodesk Standard Surface coats (openpbr, fresnel, layering, openpbr_coat, standard_surface)
+from models.production.openpbr import (alpha_from_roughness, coat_darkening, coat_internal_reflection,
+                                       coat_roughening, roughness_from_alpha)
+from models.production.openpbr_coat import OpenPBRCoat, OpenPBRParameters, evaluate_openpbr, openpbr_parameters
+from models.production.standard_surface import (StandardSurfaceCoat, StandardSurfaceParameters,
+                                                evaluate_standard_surface, standard_surface_parameters)
+
+# --- GGX interface with Kulla-Conty / Turquin energy compensation, and Mitsuba 3's own BSDFs (kulla_conty, mitsuba)
+from models.production.kulla_conty import (GGXKullaConty, KullaContyOptions, DielectricSplit, conductor_fresnel_term,
+                                           dielectric_split)
+from models.production.mitsuba import MitsubaBSDF, MitsubaPrincipled, MitsubaRoughPlastic, mitsuba_variant
+
+__all__ = [
+    # --- OpenPBR and Autodesk Standard Surface coats
+    "coat_darkening", "coat_roughening", "coat_internal_reflection", "alpha_from_roughness",
+    "roughness_from_alpha", "OpenPBRCoat", "OpenPBRParameters", "evaluate_openpbr", "openpbr_parameters",
+    "StandardSurfaceCoat", "StandardSurfaceParameters", "evaluate_standard_surface",
+    "standard_surface_parameters",
+    # --- GGX interface with Kulla-Conty / Turquin energy compensation, and Mitsuba 3's own BSDFs
+    "GGXKullaConty", "KullaContyOptions", "DielectricSplit", "conductor_fresnel_term", "dielectric_split",
+    "MitsubaBSDF", "MitsubaRoughPlastic", "MitsubaPrincipled", "mitsuba_variant",
+]

@@ -1,0 +1,270 @@
+"""Rough edges of the gonio command line (issue 14 §4): --version, defaults in every option's help,
+progress lines without a terminal, a broken pipe, one-line errors, Ctrl-C in the final assembly,
+and the noise floors of gonio evaluate's table."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import goniometer
+from goniometer.cli import build_parser, main
+from goniometer.cli.common import LineProgress
+
+ROOT = Path(__file__).resolve().parents[2]
+PLASTIC = """name = "p"
+category = "plastic"
+[[layers]]
+type = "interface"
+roughness = 0.2
+ior = 1.5
+[[layers]]
+type = "lambertian"
+albedo = 0.5
+[simulation]
+incident_deg = [0, 45]
+rays = 3000
+resolution = [9, 18]
+"""
+
+
+def _env() -> dict:
+    return {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def _one_line_error(capsys, argv, expected: str) -> str:
+    capsys.readouterr()
+    assert main(argv) == 2, argv
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gonio: error: ") and "\n" not in err and expected in err, err
+    return err
+
+
+# ----------------------------------------------------------------------------- --version, help
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out.strip() == f"gonio (goniometer) {goniometer.__version__}"
+
+
+def _options(parser: argparse.ArgumentParser, path: str):
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, sub in a.choices.items():
+                yield from _options(sub, f"{path} {name}")
+        elif a.option_strings and not isinstance(a, (argparse._HelpAction, argparse._VersionAction)):
+            yield path, a
+
+
+def test_every_option_states_its_default():
+    """Every optional argument of every sub-command (the models plugin's included): its help
+    says what happens when it is not given; when it has a value default, the help shows it."""
+    seen = set()
+    bad = []
+    for path, a in _options(build_parser(), "gonio"):
+        seen.add(path)
+        if a.required or isinstance(a, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+            continue  # nothing to default, or off unless given
+        text = (a.help or "") % {"default": a.default}
+        if "default" not in text:
+            bad.append(f"{path} {a.option_strings[-1]}: {a.help!r}")
+        elif a.default is not None:
+            shown = {str(a.default), f"{a.default:g}" if isinstance(a.default, float) else str(a.default)}
+            if not any(s in text for s in shown):
+                bad.append(f"{path} {a.option_strings[-1]}: default {a.default!r} not in {text!r}")
+    assert {"gonio simulate", "gonio database simulate", "gonio evaluate", "gonio report"} <= seen
+    assert not bad, "\n".join(bad)
+
+
+def test_simulate_help_defaults_are_the_settings_defaults():
+    from goniometer.cli.simulate import SETTINGS_DEFAULTS
+    from goniometer.settings import SimulationSettings
+    d = SimulationSettings()
+    assert SETTINGS_DEFAULTS == {
+        "rays": f"{d.rays:,}", "incident_deg": ",".join(f"{x:g}" for x in d.incident_deg),
+        "parametrization": d.parametrization, "resolution": f"{d.resolution[0]}x{d.resolution[1]}",
+        "seed": str(d.seed), "masking": d.masking, "max_order": str(d.max_order)}
+
+
+# ----------------------------------------------------------------------------- progress and pipes
+
+def test_line_progress_prints_every_tenth_with_rate_and_eta():
+    now = [0.0]
+    out = io.StringIO()
+    with LineProgress(1000, "metal", file=out, clock=lambda: now[0]) as bar:
+        for _ in range(40):
+            now[0] += 1.0
+            bar.update(25)  # 25 rays a second
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 10
+    assert lines[0].startswith("metal:  10% (100/1.00k ray)") and "25.0 ray/s" in lines[0]
+    assert "ETA 00:36" in lines[0]  # 900 rays left at 25 per second
+    assert lines[-1].startswith("metal: 100%") and lines[-1].endswith("ETA 00:00")
+
+
+def test_simulate_prints_progress_lines_when_stderr_is_a_file(tmp_path):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    p = subprocess.run([sys.executable, "-m", "goniometer.cli", "simulate", str(cfg), "--out", str(tmp_path / "p.h5"),
+                        "--rays", "300000", "--incident", "0", "--threads", "1"],
+                       capture_output=True, text=True, env=_env(), timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.startswith("p: ")]
+    # one task of 8 chunks of 131 072 rays covers the run: at least the last line, at 100 %
+    assert lines and lines[-1].startswith("p: 100% (300k/300k ray)") and "ray/s" in lines[-1], p.stderr
+    assert all(re.search(r"ETA \S+", ln) for ln in lines)
+
+
+def test_no_traceback_when_the_reader_goes_away():
+    r, w = os.pipe()
+    os.close(r)  # like `| head` that has already exited
+    try:
+        p = subprocess.run([sys.executable, "-m", "goniometer.cli", "database", "list",
+                            str(ROOT / "configs" / "bati2019.toml")], stdout=w, stderr=subprocess.PIPE, env=_env(),
+                           timeout=120)
+    finally:
+        os.close(w)
+    assert p.returncode == 141
+    assert p.stderr == b""
+
+
+# ----------------------------------------------------------------------------- one-line errors
+
+def test_material_file_not_utf8(tmp_path, capsys):
+    cfg = tmp_path / "latin1.toml"
+    cfg.write_bytes(PLASTIC.replace('name = "p"', 'name = "caf\u00e9"').encode("latin-1"))
+    err = _one_line_error(capsys, ["simulate", str(cfg), "--out", str(tmp_path / "x.h5")], "not UTF-8")
+    assert str(cfg) in err and "0xe9" in err
+    assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.parametrize("category, expected", [("metal", "'metal' needs the last layer to be a conductor"),
+                                                ("slab", "'slab' needs the last layer to be a dielectric")])
+def test_category_that_contradicts_the_stack(tmp_path, capsys, category, expected):
+    cfg = tmp_path / "m.toml"
+    cfg.write_text(PLASTIC.replace('category = "plastic"', f'category = "{category}"'))
+    err = _one_line_error(capsys, ["simulate", str(cfg), "--out", str(tmp_path / "x.h5")], expected)
+    assert "Lambertian base" in err and "'plastic' or 'other'" in err
+
+
+def test_category_other_goes_with_any_stack_and_old_files_keep_their_category():
+    from goniometer.stack import Stack, StackError, stack_from_dict
+    layers = [{"type": "interface", "roughness": 0.2, "ior": 1.5}, {"type": "lambertian", "albedo": 0.5}]
+    assert stack_from_dict({"name": "x", "category": "other", "layers": layers}).base == "lambertian"
+    with pytest.raises(StackError, match="category"):
+        stack_from_dict({"name": "x", "category": "metal", "layers": layers})
+    # a file written before the rule holds its stack as JSON: it still reads
+    old = Stack.from_json(json.dumps({"name": "x", "category": "metal", "layers": layers}))
+    assert old.category == "metal"
+
+
+@pytest.fixture(scope="module")
+def plastic_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("edges")
+    cfg = d / "p.toml"
+    cfg.write_text(PLASTIC)
+    assert main(["simulate", str(cfg), "--out", str(d / "p.h5"), "--threads", "1"]) == 0
+    return d / "p.h5"
+
+
+def test_subcells_zero(plastic_file, tmp_path, capsys):
+    for argv in (["evaluate", str(plastic_file), "--model", "ww09", "--subcells", "0"],
+                 ["plot", str(plastic_file), "--out", str(tmp_path / "figs"), "--subcells", "0"],
+                 ["report", str(tmp_path), "--out", str(tmp_path / "rep"), "--subcells", "0"]):
+        _one_line_error(capsys, argv, "--subcells: 0 is not allowed")
+    assert not (tmp_path / "figs").exists() and not (tmp_path / "rep").exists()
+
+
+def test_plot_out_naming_an_existing_file(plastic_file, tmp_path, capsys):
+    f = tmp_path / "figures.png"
+    f.write_bytes(b"keep")
+    _one_line_error(capsys, ["plot", str(plastic_file), "--out", str(f)], "is an existing file")
+    assert f.read_bytes() == b"keep"
+    from models.report import ReportError, plot_file
+    with pytest.raises(ReportError, match="existing file"):
+        plot_file(plastic_file, f)
+
+
+# ----------------------------------------------------------------------------- evaluate's floors
+
+def test_evaluate_table_puts_each_floor_beside_its_own_error(plastic_file, capsys):
+    capsys.readouterr()
+    assert main(["evaluate", str(plastic_file), "--model", "ww09", "--json"]) == 0
+    e = json.loads(capsys.readouterr().out)["models"]["ww09"]
+    assert main(["evaluate", str(plastic_file), "--model", "ww09"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    header = next(ln for ln in out if ln.startswith("model"))
+    row = next(ln for ln in out if ln.startswith("ww09")).split()
+    assert header.count("its floor") == 2 and header.index("total mean") < header.rindex("its floor")
+    internal_floor, total_mean, total_floor = (float(x) for x in row[-3:])
+    i, t = e["internal"], e["total"]
+    assert internal_floor == pytest.approx(i["noise_floor_mean"], rel=6e-3)
+    assert total_mean == pytest.approx(t["rmse_mean"], rel=1e-4)
+    assert total_floor == pytest.approx(t["noise_floor_mean"], rel=6e-3)
+    # the two floors differ (the total holds the first order too), so the placement matters
+    assert abs(t["noise_floor_mean"] - i["noise_floor_mean"]) > 0.02 * t["noise_floor_mean"]
+
+
+# ----------------------------------------------------------------------------- Ctrl-C
+
+@pytest.fixture
+def sigint_default():
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def _interrupting(real, reached: list):
+    def wrapper(*a, **k):
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(10_000):  # the handler runs at one of these bytecodes
+            pass
+        reached.append(True)
+        return real(*a, **k)
+    return wrapper
+
+
+def test_ctrl_c_in_the_final_assembly_is_130_and_resumable(tmp_path, capsys, monkeypatch, sigint_default):
+    import goniometer.run
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    out = tmp_path / "p.h5"
+    reached: list = []
+    monkeypatch.setattr(goniometer.run, "assemble", _interrupting(goniometer.run.assemble, reached))
+    capsys.readouterr()
+    assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1"]) == 130
+    err = capsys.readouterr().err
+    assert not reached and not out.exists()
+    assert "gonio: 2 finished incident direction(s) kept in" in err and "rerun the same command to resume" in err
+    assert err.strip().splitlines()[-1] == f"gonio: interrupted; nothing written to {out}"
+    monkeypatch.undo()
+    assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1"]) == 0
+    assert "resuming: 2 of 2" in capsys.readouterr().err and out.exists()
+
+
+def test_ctrl_c_while_the_assembly_kernels_run_waits_for_them(tmp_path, capsys, monkeypatch, sigint_default):
+    """The numba kernels of the assembly (cell geometry) run before tracing, inside the deferred
+    block: an interrupt there lets them finish (a KeyboardInterrupt inside numba's compiler can
+    break it), then stops with 130."""
+    import goniometer.results
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC.replace("resolution = [9, 18]", "resolution = [7, 18]\nparametrization = \"half\""))
+    out = tmp_path / "p.h5"
+    reached: list = []
+    monkeypatch.setattr(goniometer.results, "cell_geometries", _interrupting(goniometer.results.cell_geometries, reached))
+    capsys.readouterr()
+    assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1"]) == 130
+    err = capsys.readouterr().err
+    assert reached == [True] and not out.exists()
+    assert "interrupt received" in err and err.strip().splitlines()[-1].startswith("gonio: interrupted")
