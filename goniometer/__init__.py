@@ -8,6 +8,9 @@ Stacks in, HDF5 BRDF/BTDF slices out. The public face, for notebooks and scripts
     g.write("material.h5", result); g.read("material.h5")
     ds = g.open_dataset("material.h5", side="brdf")   # xarray (extra "xarray"), masked cells NaN
 
+Whole isotropic BRDFs on the MERL grid: ``g.tabulate(stack, g.TabulationSettings(...))``,
+``g.read_tabulated(path).eval(l, v)`` (``docs/tabulated-format.md``).
+
 Contracts: ``docs/material-format.md``, ``docs/slices-format.md``, ``docs/database-format.md``,
 ``docs/xarray.md``, ``docs/architecture.md``. Names are loaded on first use, so ``import goniometer`` stays light.
 """
@@ -38,6 +41,10 @@ _EXPORTS = {
     "light_direction": "goniometer.slices",
     "read": "goniometer.store", "write": "goniometer.store", "describe": "goniometer.store",
     "StoreError": "goniometer.store",
+    # tabulated BRDFs (the MERL grid)
+    "TabulationSettings": "goniometer.settings", "tabulate": "goniometer.tabulation",
+    "TabulatedBRDF": "goniometer.tabulated", "read_tabulated": "goniometer.tabulated",
+    "write_tabulated": "goniometer.tabulated", "write_merl": "goniometer.merl",
     # xarray views (optional extra "xarray")
     "open_dataset": "goniometer.dataset", "open_datatree": "goniometer.dataset",
     # databases

@@ -27,7 +27,10 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["open_dataset", "open_datatree"]
 
 SIDES = ("brdf", "btdf")
-_FORMATS = (store.FORMAT, "goniometer.model-slices")
+#: tabulated BRDFs (``docs/tabulated-format.md``): one ``/brdf`` group on the MERL grid, no incident
+#: directions; cells no path left through (``hits`` = 0) are NaN when masked
+TABULATED = "goniometer.tabulated"
+_FORMATS = (store.FORMAT, "goniometer.model-slices", TABULATED)
 #: the note left in the attributes of a group whose masked cells were replaced by NaN
 MASKED_NOTE = "cells with mask == False are NaN in every 1/sr variable (they are meaningless in the file)"
 
@@ -52,6 +55,8 @@ def _check_file(p: Path) -> tuple[str, np.ndarray]:
             fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
             if fmt not in _FORMATS:
                 raise store.StoreError(f"{p}: not a {' or '.join(_FORMATS)} file (format attribute {fmt!r})")
+            if fmt == TABULATED:
+                return fmt, np.zeros(0)
             return fmt, np.asarray(f["incident/phi_deg"][()], dtype=np.float64)
     except OSError as e:
         raise store.StoreError(f"{p}: not a readable HDF5 file ({e})") from None
@@ -66,12 +71,13 @@ def _finish(ds: "xarray.Dataset", phi_deg: np.ndarray, masked: bool) -> "xarray.
         # files written before the auxiliary coordinate existed: take it from /incident/phi_deg
         ds = ds.assign_coords({store.INCIDENT_PHI: ("incident", phi_deg,
                                                      {"units": "deg", "long_name": "incident azimuth phi_l"})})
-    if masked and "mask" in ds.data_vars:
-        valid = ds["mask"].astype(bool)
+    if masked and ("mask" in ds.data_vars or "hits" in ds.data_vars):
+        valid = ds["mask"].astype(bool) if "mask" in ds.data_vars else ds["hits"] > 0
         for name, var in ds.data_vars.items():
             if var.attrs.get("units") == "1/sr" and set(valid.dims) <= set(var.dims):
                 ds[name] = var.where(valid).assign_attrs(var.attrs)
-        ds.attrs["masked_cells"] = MASKED_NOTE
+        ds.attrs["masked_cells"] = MASKED_NOTE if "mask" in ds.data_vars else \
+            "cells no path left through (hits == 0) are NaN in every 1/sr variable"
     return ds
 
 
@@ -91,13 +97,14 @@ def open_dataset(path: str | Path, side: str = "brdf", model: str | None = None,
         raise ValueError(f"side: {side!r} is not one of {', '.join(SIDES)}")
     p = Path(path)
     fmt, phi = _check_file(p)
-    if (model is None) != (fmt == store.FORMAT):
+    if (model is None) != (fmt in (store.FORMAT, TABULATED)):
         raise ValueError(f"{p}: model: " + ("give the model's name for a model-slices file" if model is None
                                             else f"a {fmt} file holds no models"))
     group = side if model is None else f"{model}/{side}"
     with h5py.File(p, "r") as f:
         if group not in f:
-            have = "the stack is opaque" if model is None else f"groups: {', '.join(f)}"
+            have = ("a tabulated file holds the BRDF only" if fmt == TABULATED else
+                    "the stack is opaque" if model is None else f"groups: {', '.join(f)}")
             raise store.StoreError(f"{p}: no /{group} ({have})")
         mat = f["material"].attrs
         info = {"format": fmt, "material": str(mat.get("name", "")), "category": str(mat.get("category", ""))}

@@ -126,3 +126,38 @@ def _int_in(value: Any, name: str, lo: int, hi: int) -> None:
         raise SettingsError(f"{name}: {value!r} is not an integer")
     if not lo <= value <= hi:
         raise SettingsError(f"{name}: {value} is outside [{lo}, {hi}]")
+
+
+#: default rays of a tabulation (``gonio tabulate``): about 180 paths per cell of non-zero measure of the
+#: MERL grid on average for a diffuse material (``docs/tabulated-format.md``)
+TABULATE_RAYS = 200_000_000
+
+
+@dataclass(frozen=True)
+class TabulationSettings:
+    """What to tabulate (``docs/tabulated-format.md``): ``rays`` paths in all, each with its own
+    incident direction. ``seed`` and ``chunk_rays`` (rays per random stream) make the determinism
+    contract: the same pair gives the same bits whatever ``threads``. Fields mean what they mean
+    in :class:`SimulationSettings`, whose validation they share."""
+
+    rays: int = TABULATE_RAYS
+    seed: int = 1
+    masking: str = "separable"
+    threads: int | None = None
+    chunk_rays: int = 1 << 16
+    event_cap: int = EVENT_CAP
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        SimulationSettings(incident_deg=(0.0,), rays=self.rays, seed=self.seed, masking=self.masking,
+                           threads=self.threads, chunk_rays=self.chunk_rays, event_cap=self.event_cap)
+
+    @property
+    def n_threads(self) -> int:
+        return self.threads if self.threads is not None else numba.config.NUMBA_NUM_THREADS
+
+    def with_overrides(self, **kw: Any) -> "TabulationSettings":
+        """A copy with the given non-None fields replaced."""
+        return replace(self, **{k: v for k, v in kw.items() if v is not None})

@@ -280,15 +280,8 @@ def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray,
 
 
 def write_header(f: h5py.File, fmt: str, stack: Stack, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
-    """Root attributes, ``/material`` and ``/incident`` shared by every file the project writes."""
-    f.attrs["format"] = fmt
-    f.attrs["format_version"] = FORMAT_VERSION
-    f.attrs["software"] = f"goniometer {goniometer.__version__}"
-    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-    mat = f.create_group("material")
-    mat.attrs["name"] = stack.name
-    mat.attrs["category"] = stack.category
-    mat.create_dataset("config", data=stack.to_json())
+    """Root attributes, ``/material`` and ``/incident`` shared by every file of slices the project writes."""
+    write_material(f, fmt, FORMAT_VERSION, stack)
     inc = f.create_group("incident")
     theta = _scaled(inc, "theta_deg", theta_deg, units="deg", long_name=_INCIDENT_LONG)
     phi = inc.create_dataset("phi_deg", data=phi_deg)  # along theta_deg (it was a scale of its own before)
@@ -296,6 +289,19 @@ def write_header(f: h5py.File, fmt: str, stack: Stack, theta_deg: np.ndarray, ph
     phi.attrs["units"] = "deg"
     phi.attrs["long_name"] = _INCIDENT_PHI_LONG
     inc.attrs["coordinates"] = "phi_deg"
+
+
+def write_material(f: h5py.File, fmt: str, version: int, stack: Stack) -> None:
+    """Root attributes (format, version, software, date) and ``/material`` (the stack), shared by
+    every file the project writes."""
+    f.attrs["format"] = fmt
+    f.attrs["format_version"] = version
+    f.attrs["software"] = f"goniometer {goniometer.__version__}"
+    f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    mat = f.create_group("material")
+    mat.attrs["name"] = stack.name
+    mat.attrs["category"] = stack.category
+    mat.create_dataset("config", data=stack.to_json())
 
 
 # ---------------------------------------------------------------------- reading

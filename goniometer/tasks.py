@@ -47,6 +47,12 @@ def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[n
             np.empty((n, tracer.N_ENERGY_SQ, 3)), np.empty((n, tracer.N_COUNTS), dtype=np.int64))
 
 
+def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Empty per-path exit records for ``n`` chunks of slices (:func:`goniometer.tracer.trace_chunk`
+    writes them only for a tabulation)."""
+    return np.empty((n, 0), dtype=np.int64), np.empty((n, 0, 3))
+
+
 def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
                 parallel: bool = True, buffers: tuple[np.ndarray, ...] | None = None) -> list[Sums]:
     """Trace tasks ``first_task .. first_task + count - 1`` of incident direction ``m``.
@@ -76,7 +82,8 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
         tables = boundary_tables(settings.parametrization, nt, nph)
         kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
                first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
-               nt, nph, *tables, K, settings.masking == "height-correlated", settings.event_cap, *outs)
+               nt, nph, *tables, K, settings.masking == "height-correlated", settings.event_cap, *outs,
+               *no_exit_records(nb))
     results = []
     for t in range(count):
         first, last = t * cpt, min((t + 1) * cpt, nb)

@@ -38,6 +38,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from goniometer import optics
+from goniometer.halfdiff import cell_of as halfdiff_cell
 from goniometer.rng import next_disk, next_float, stream_state
 from goniometer.slices import cell_index_fast
 
@@ -64,6 +65,10 @@ RR_START = 3
 RR_THRESHOLD = 0.05
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
+#: ``param`` of :func:`trace_chunk` for a tabulation (``docs/tabulated-format.md``): every path
+#: draws its own incident direction (cosine-weighted), and a reflected exit is recorded per path as
+#: its MERL cell (:func:`goniometer.halfdiff.cell_of`) and weight instead of in a slice histogram
+P_TABULATE = 2
 #: ``tau_mode`` of a scattering medium region with achromatic extinction (+ 1: chromatic)
 TAU_SCATTER = 3
 
@@ -260,8 +265,15 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts):
+                height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace ``n_rays`` paths for light direction ``l`` and accumulate into the given arrays.
+
+    ``param`` is the slice parametrization (:data:`goniometer.slices.CLASSIC`, ``HALF``) or
+    :data:`P_TABULATE`: then path ``r`` first draws its own light direction ``l`` with density
+    ``cos theta_l / pi`` (a disk point of the stream, :func:`goniometer.optics.cosine_from_disk`), and
+    its reflected exit, if any, is written to ``exit_cell[r]`` (MERL cell, -1 if none) and
+    ``exit_w[r]`` (weight) instead of to ``brdf``; transmitted exits are booked in ``energy`` only.
+    Otherwise ``exit_cell``/``exit_w`` are not touched (they may be empty).
 
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3), cell-major so that one exit touches one or
     two cache lines: rows ``0 .. K-1`` sum the exit weights of bounce orders ``1 .. K`` (K
@@ -316,8 +328,13 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     pw0 = 0.0
     pw1 = 0.0
     pw2 = 0.0
+    tabulate = param == P_TABULATE
 
-    for _ in range(n_rays):
+    for ray in range(n_rays):
+        if tabulate:
+            qx, qy = next_disk(state)
+            lx, ly, lz = optics.cosine_from_disk(qx, qy)
+            exit_cell[ray] = -1
         dx = -lx
         dy = -ly
         dz = -lz
@@ -375,12 +392,18 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
             elif dz > 0.0:
                 if region == 0:
                     # leaves the stack upward: BRDF
-                    i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
-                                           row_cos, col_cos, col_sin)
-                    o = min(order, max_order) - 1
-                    _prefetch_exit(brdf, i, j, o, max_order)
-                    _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
-                    pend, pi, pj, po, pw0, pw1, pw2 = 1, i, j, o, w0, w1, w2
+                    if tabulate:
+                        exit_cell[ray] = halfdiff_cell(lx, ly, lz, dx, dy, dz)
+                        exit_w[ray, 0] = w0
+                        exit_w[ray, 1] = w1
+                        exit_w[ray, 2] = w2
+                    else:
+                        i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
+                                               row_cos, col_cos, col_sin)
+                        o = min(order, max_order) - 1
+                        _prefetch_exit(brdf, i, j, o, max_order)
+                        _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
+                        pend, pi, pj, po, pw0, pw1, pw2 = 1, i, j, o, w0, w1, w2
                     energy[E_REFLECTED, 0] += w0
                     energy[E_REFLECTED, 1] += w1
                     energy[E_REFLECTED, 2] += w2
@@ -402,12 +425,13 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 from_above = True
             elif transmit_base:
                 # leaves the stack downward: BTDF
-                i, j = cell_index_fast(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
-                                       row_cos, col_cos, col_sin)
-                o = min(order, max_order) - 1
-                _prefetch_exit(btdf, i, j, o, max_order)
-                _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
-                pend, pi, pj, po, pw0, pw1, pw2 = 2, i, j, o, w0, w1, w2
+                if not tabulate:
+                    i, j = cell_index_fast(param, True, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
+                                           row_cos, col_cos, col_sin)
+                    o = min(order, max_order) - 1
+                    _prefetch_exit(btdf, i, j, o, max_order)
+                    _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
+                    pend, pi, pj, po, pw0, pw1, pw2 = 2, i, j, o, w0, w1, w2
                 energy[E_TRANSMITTED, 0] += w0
                 energy[E_TRANSMITTED, 1] += w1
                 energy[E_TRANSMITTED, 2] += w2
@@ -561,8 +585,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-               brdf, btdf, energy, energy_sq, counts):
-    """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it.
+               brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+    """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
+    ``exit_w[b]``: see :func:`trace_chunk`).
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
     draws from the stream ``(seed, incident_index, c)``.
@@ -574,33 +599,35 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
     energy[b].fill(0.0)
     energy_sq[b].fill(0.0)
     counts[b].fill(0)
+    exit_cell[b].fill(-1)
     if n <= 0:
         return
     state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
     trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b])
+                height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b],
+                exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                 param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                brdf, btdf, energy, energy_sq, counts):
+                brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch)."""
     for b in numba.prange(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                    param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                   brdf, btdf, energy, energy_sq, counts)
+                   brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                        param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                       brdf, btdf, energy, energy_sq, counts):
+                       brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
@@ -610,4 +637,4 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
                    param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                   brdf, btdf, energy, energy_sq, counts)
+                   brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)

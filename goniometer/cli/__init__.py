@@ -1,6 +1,6 @@
 """The ``gonio`` command line host: it parses, dispatches, and prints user errors as one line.
 
-The simulator's own commands (``simulate``, ``info``, ``database``) live beside this module.
+The simulator's own commands (``simulate``, ``info``, ``database``, ``tabulate``, ``export``) live beside this module.
 Every other command is a plugin: an entry point of the group ``goniometer.commands`` (declared
 in ``pyproject.toml``) names a function ``register(subparsers)`` that adds its sub-commands.
 The host never imports a plugin's package, so the simulator stands without the models
@@ -21,7 +21,7 @@ import sys
 from importlib.metadata import entry_points
 from typing import Callable, Sequence
 
-from goniometer.cli import database, simulate
+from goniometer.cli import database, simulate, tabulate
 import goniometer
 from goniometer.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 
@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     simulate.register(sub)
     database.register(sub)
+    tabulate.register(sub)
     for register in plugins():
         register(sub)
     return parser

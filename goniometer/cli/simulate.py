@@ -48,7 +48,7 @@ def register(sub) -> None:
                    help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("info", help="describe a simulated file")
+    p = sub.add_parser("info", help="describe a simulated file (slices or tabulated)")
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_info)
@@ -179,6 +179,8 @@ def info_dict(path: Path) -> dict[str, Any]:
 
 def cmd_info(args: argparse.Namespace) -> int:
     from goniometer import store
+    if _is_tabulated(Path(args.file)):
+        return _info_tabulated(args)
     try:
         d = info_dict(Path(args.file))
     except store.StoreError as e:
@@ -204,3 +206,50 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+
+
+def _is_tabulated(path: Path) -> bool:
+    import h5py
+    from goniometer.tabulated import FORMAT
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("format") == FORMAT
+    except OSError:
+        return False
+
+
+def _info_tabulated(args: argparse.Namespace) -> int:
+    """``gonio info`` of a tabulated file (``docs/tabulated-format.md``)."""
+    from goniometer.tabulated import TabulatedError, read_tabulated
+    try:
+        t = read_tabulated(args.file)
+    except TabulatedError as e:
+        raise UsageError(str(e)) from None
+    s = t.settings
+    n_data = int(np.count_nonzero(t.hits))
+    d: dict[str, Any] = {
+        "file": str(args.file), "format": "goniometer.tabulated",
+        "material": {"name": t.stack.name, "category": t.stack.category, "base": t.stack.base,
+                     "config": json.loads(t.stack.to_json())},
+        "settings": {"rays": s.rays, "seed": s.seed, "masking": s.masking, "chunk_rays": s.chunk_rays},
+        "grid": {"name": "merl", "shape": list(t.hits.shape), "cells_with_data": n_data},
+        "energy": {k: [float(x) for x in v] for k, v in t.energy.items()},
+        "performance": {"threads": t.threads, "elapsed_s": t.elapsed_s, "rays_per_s": t.rays_per_s,
+                        "compile_s": t.compile_s},
+        "capped_paths": t.capped_paths, "mean_events": t.mean_events,
+    }
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    m = d["material"]
+    print(f"{d['file']}: {m['name']} ({m['category']}, {m['base']} base), tabulated BRDF on the MERL grid")
+    print(f"  stack: {json.dumps(m['config']['layers'])}")
+    print(f"  {s.rays:,} rays (cosine-weighted incident directions), seed {s.seed}, {s.masking} masking; "
+          f"cells with data: {n_data:,} of {t.hits.size:,}")
+    print(f"  {t.rays_per_s:,.0f} rays/s on {t.threads} thread(s) ({t.elapsed_s:.1f} s)")
+    print("  energy under uniform diffuse light (R G B):")
+    for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+        print(f"    {k:13s} " + " ".join(f"{x:7.4f}" for x in t.energy[k]))
+    if t.capped_paths:
+        print(f"  warning: {t.capped_paths} path(s) reached the event cap")
+    return 0

@@ -1,0 +1,267 @@
+"""Tabulated isotropic BRDFs on the MERL grid: what ``gonio tabulate`` produces, its HDF5 file
+(format "goniometer.tabulated", version 1) and the lookup ``f(l, v)`` (``docs/tabulated-format.md``).
+
+A cell's value is the mean of ``f`` over the cell's pairs of directions weighted by
+``cos theta_l cos theta_v`` (the cell measure of :mod:`goniometer.halfdiff`), estimated from paths
+whose incident directions have density ``cos theta_l / pi``: ``fbar = pi S / (N mu)`` with ``S``
+the sum of the exit weights in the cell, ``N`` the number of paths and ``mu`` the cell measure.
+Standard errors come from the per-cell sums of squared weights.
+
+    tab = read_tabulated("metal-tab.h5")
+    f = tab.eval(l, v)      # (..., 3) RGB, 1/sr, no cosine; l, v unit, pointing away from the surface
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from goniometer import halfdiff, tracer
+from goniometer.atomic import atomic_path
+from goniometer.results import ENERGY_TERMS
+from goniometer.settings import SettingsError, TabulationSettings
+from goniometer.stack import Stack, StackError
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "TabulatedBRDF", "TabulatedError", "from_sums", "read_tabulated",
+           "write_tabulated"]
+
+FORMAT = "goniometer.tabulated"
+FORMAT_VERSION = 1
+CHANNELS = ("R", "G", "B")
+#: energy terms of a tabulation: the four of a slices file and the part of ``reflected`` that never
+#: reached the base
+TAB_ENERGY_TERMS = ENERGY_TERMS + ("reflected_without_base",)
+_ENERGY_ROWS = {"reflected": tracer.E_REFLECTED, "transmitted": tracer.E_TRANSMITTED,
+                "absorbed": tracer.E_ABSORBED, "masking_loss": tracer.E_MASKING,
+                "reflected_without_base": tracer.E_REFLECTED_WITHOUT_BASE}
+_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+_DESCRIPTION = {
+    "value": "mean BRDF over the cell, weighted by cos(theta_l) cos(theta_v) (no cosine in the value); "
+             "0 where no path left through the cell",
+    "stderr": "standard error of value (0 where no path left through the cell)",
+    "hits": "number of paths that left through the cell (a cell has data when hits > 0)",
+    "measure": "integral of cos(theta_l) cos(theta_v) dw_l dw_v over the cell (folds included); sums to pi^2",
+}
+
+
+class TabulatedError(ValueError):
+    """A file that is not a readable tabulated BRDF (the message names the file and why)."""
+
+
+@dataclass
+class TabulatedBRDF:
+    """An isotropic BRDF tabulated on the MERL grid (``docs/tabulated-format.md``).
+
+    ``value``/``stderr``: (3, 90, 90, 180) in 1/sr, no cosine, indexed (channel, theta_h,
+    theta_d, phi_d); ``hits`` and ``measure`` (sr^2): (90, 90, 180). Energy terms are (3,)
+    fractions of the flux of uniform diffuse illumination (incident directions ``cos theta / pi``).
+    """
+
+    stack: Stack
+    settings: TabulationSettings
+    value: np.ndarray
+    stderr: np.ndarray
+    hits: np.ndarray
+    measure: np.ndarray
+    energy: dict[str, np.ndarray]
+    energy_stderr: dict[str, np.ndarray]
+    roulette: np.ndarray
+    capped: np.ndarray
+    capped_paths: int
+    mean_events: float
+    elapsed_s: float
+    threads: int
+    compile_s: float = 0.0
+
+    @property
+    def has_data(self) -> np.ndarray:
+        """(90, 90, 180) bool: at least one path left through the cell."""
+        return self.hits > 0
+
+    @property
+    def rays_per_s(self) -> float:
+        return self.settings.rays / self.elapsed_s if self.elapsed_s > 0 else float("nan")
+
+    def eval(self, l: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The BRDF ``f(l, v)``, RGB in 1/sr without the cosine, shape ``(..., 3)``.
+
+        ``l`` and ``v``: (..., 3) directions (normalised here) pointing away from the surface,
+        broadcast together. The value is that of the cell holding the pair (nearest cell, no
+        interpolation); 0 where ``l`` or ``v`` is at or below the horizon, and 0 in cells no path
+        left through (the estimate there; :attr:`has_data` tells them apart).
+        """
+        cells = halfdiff.cell_indices(l, v)
+        flat = self.value.reshape(3, halfdiff.N_CELLS)
+        out = np.zeros(cells.shape + (3,))
+        ok = cells >= 0
+        out[ok] = flat[:, cells[ok]].T
+        return out
+
+
+def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums_sq: np.ndarray,
+              hits: np.ndarray, energy: np.ndarray, energy_sq: np.ndarray, counts: np.ndarray,
+              elapsed_s: float, threads: int, compile_s: float = 0.0) -> TabulatedBRDF:
+    """Estimates from the raw sums of a tabulation: ``sums``/``sums_sq`` (N_CELLS, 3) exit weights
+    and their squares per flat MERL cell, ``hits`` (N_CELLS,), and the kernel's energy sums."""
+    n = settings.rays
+    mu = np.asarray(halfdiff.cell_measure()).reshape(-1)
+    scale = np.divide(np.pi, n * mu, out=np.zeros_like(mu), where=mu > 0)[:, None]
+    value = sums * scale
+    var = np.maximum(sums_sq - sums * sums / n, 0.0) / max(n - 1, 1)
+    stderr = np.sqrt(var * n) * scale
+
+    def planes(x: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(x.T).reshape((3,) + halfdiff.SHAPE)
+
+    en: dict[str, np.ndarray] = {}
+    en_se: dict[str, np.ndarray] = {}
+    for name in TAB_ENERGY_TERMS:
+        row = _ENERGY_ROWS[name]
+        mean = energy[row] / n
+        en[name] = mean
+        en_se[name] = np.sqrt(np.maximum(energy_sq[row] / n - mean * mean, 0.0) / max(n - 1, 1))
+    return TabulatedBRDF(
+        stack=stack, settings=settings, value=planes(value), stderr=planes(stderr),
+        hits=hits.reshape(halfdiff.SHAPE).astype(np.int64), measure=np.array(halfdiff.cell_measure()),
+        energy=en, energy_stderr=en_se, roulette=energy[tracer.E_ROULETTE] / n,
+        capped=energy[tracer.E_CAPPED] / n, capped_paths=int(counts[tracer.C_CAPPED]),
+        mean_events=float(counts[tracer.C_EVENTS]) / n, elapsed_s=elapsed_s, threads=threads,
+        compile_s=compile_s)
+
+
+# ---------------------------------------------------------------------- writing
+
+def write_tabulated(path: str | Path, tab: TabulatedBRDF) -> Path:
+    """Write ``tab`` to ``path`` atomically (the layout of ``docs/tabulated-format.md``)."""
+    from goniometer import store
+    p = store.check_writable(path)
+    with atomic_path(p) as tmp:
+        with h5py.File(tmp, "w") as f:
+            store.write_material(f, FORMAT, FORMAT_VERSION, tab.stack)
+            _write(f, tab)
+    return p
+
+
+def _scale(g: h5py.Group, name: str, data, units: str | None, long_name: str) -> h5py.Dataset:
+    d = g.create_dataset(name, data=data)
+    d.make_scale(name)
+    if units:
+        d.attrs["units"] = units
+    d.attrs["long_name"] = long_name
+    return d
+
+
+def _write(f: h5py.File, t: TabulatedBRDF) -> None:
+    s = t.settings
+    sim = f.create_group("simulation")
+    sim.attrs["rays"] = s.rays
+    sim.attrs["seed"] = s.seed
+    sim.attrs["masking"] = s.masking
+    sim.attrs["chunk_rays"] = s.chunk_rays
+    sim.attrs["event_cap"] = s.event_cap
+    sim.attrs["threads"] = t.threads
+    sim.attrs["elapsed_s"] = t.elapsed_s
+    sim.attrs["compile_s"] = t.compile_s
+    sim.attrs["rays_per_s"] = t.rays_per_s
+    sim.attrs["capped_paths"] = t.capped_paths
+    sim.attrs["mean_events"] = t.mean_events
+    sim.attrs["incident_density"] = "cos(theta_l) / pi over the upper hemisphere, one direction per path"
+
+    g = f.create_group("brdf")
+    g.attrs["grid"] = "merl"
+    g.attrs["shape"] = np.array(halfdiff.SHAPE, dtype=np.int64)
+    g.attrs["folds"] = "isotropy (phi_h dropped); reciprocity (phi_d and phi_d + 180 deg share a cell)"
+    g.attrs["estimator"] = "value = pi * (sum of exit weights in the cell) / (rays * measure)"
+    scales = {
+        "channel": _scale(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
+        "theta_h": _scale(g, "theta_h", halfdiff.theta_h_centers_deg(), "deg",
+                          "cell centre theta_h (square-root mapped rows)"),
+        "theta_d": _scale(g, "theta_d", halfdiff.theta_d_centers_deg(), "deg", "cell centre theta_d"),
+        "phi_d": _scale(g, "phi_d", halfdiff.phi_d_centers_deg(), "deg", "cell centre phi_d (folded to [0, 180))"),
+    }
+    _scale(g, "theta_h_edges_deg", halfdiff.theta_h_edges_deg(), "deg", "cell edges in theta_h")
+    _scale(g, "theta_d_edges_deg", halfdiff.theta_d_edges_deg(), "deg", "cell edges in theta_d")
+    _scale(g, "phi_d_edges_deg", halfdiff.phi_d_edges_deg(), "deg", "cell edges in phi_d")
+    for name, data, dims, units in (
+            ("value", t.value, ("channel", "theta_h", "theta_d", "phi_d"), "1/sr"),
+            ("stderr", t.stderr, ("channel", "theta_h", "theta_d", "phi_d"), "1/sr"),
+            ("hits", t.hits, ("theta_h", "theta_d", "phi_d"), None),
+            ("measure", t.measure, ("theta_h", "theta_d", "phi_d"), "sr^2")):
+        d = g.create_dataset(name, data=data, chunks=True, **_COMPRESSION)
+        for axis, dim in enumerate(dims):
+            d.dims[axis].attach_scale(scales[dim])
+        if units:
+            d.attrs["units"] = units
+        d.attrs["description"] = _DESCRIPTION[name]
+
+    en = f.create_group("energy")
+    en.attrs["description"] = ("fractions of the flux of uniform diffuse illumination per channel (R, G, B); "
+                               "reflected + transmitted + absorbed + masking_loss + roulette + capped = 1; "
+                               "reflected_without_base is a part of reflected")
+    channel = _scale(en, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+    for name, data, long_name in (
+            *((k, t.energy[k], f"{k.replace('_', ' ')} fraction") for k in TAB_ENERGY_TERMS),
+            *((f"{k}_stderr", t.energy_stderr[k], f"standard error of {k}") for k in TAB_ENERGY_TERMS),
+            ("roulette", t.roulette, "net weight booked by Russian roulette, per path"),
+            ("capped", t.capped, "weight of paths stopped by the event cap, per path")):
+        d = en.create_dataset(name, data=data)
+        d.dims[0].attach_scale(channel)
+        d.attrs["long_name"] = long_name
+
+
+# ---------------------------------------------------------------------- reading
+
+def read_tabulated(path: str | Path) -> TabulatedBRDF:
+    """Read a tabulated file (raises :class:`TabulatedError` naming the file and the reason)."""
+    p = Path(path)
+    if not p.is_file():
+        raise TabulatedError(f"{p}: no such file")
+    try:
+        with h5py.File(p, "r") as f:
+            return _read(f, p)
+    except TabulatedError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise TabulatedError(f"{p}: not a readable {FORMAT} file ({e})") from None
+
+
+def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
+    fmt = f.attrs.get("format")
+    if fmt != FORMAT:
+        hint = " (a slices file: gonio tabulate writes tabulated files)" if fmt == "goniometer.slices" else ""
+        raise TabulatedError(f"{p}: not a {FORMAT} file (format attribute {fmt!r}){hint}")
+    version = int(f.attrs.get("format_version", -1))
+    if version > FORMAT_VERSION:
+        raise TabulatedError(f"{p}: format version {version} is newer than this software reads "
+                             f"(versions 1 to {FORMAT_VERSION}); update goniometer")
+    if version < 1:
+        raise TabulatedError(f"{p}: format version {version} is not a version of {FORMAT}")
+    config = f["material/config"][()]
+    config = config.decode() if isinstance(config, bytes) else str(config)
+    try:
+        stack = Stack.from_json(config)
+    except (StackError, json.JSONDecodeError) as e:
+        raise TabulatedError(f"{p}: /material/config is not a valid stack ({e})") from None
+    sim = f["simulation"].attrs
+    try:
+        settings = TabulationSettings(rays=int(sim["rays"]), seed=int(sim["seed"]), masking=str(sim["masking"]),
+                                      chunk_rays=int(sim["chunk_rays"]), event_cap=int(sim["event_cap"]))
+    except SettingsError as e:
+        raise TabulatedError(f"{p}: /simulation: {e}") from None
+    g = f["brdf"]
+    cells = halfdiff.SHAPE
+    for name, shape in (("value", (3,) + cells), ("stderr", (3,) + cells), ("hits", cells), ("measure", cells)):
+        if name not in g or g[name].shape != shape:
+            raise TabulatedError(f"{p}: /brdf/{name} is missing or not of shape {shape}")
+    en = f["energy"]
+    return TabulatedBRDF(
+        stack=stack, settings=settings, value=g["value"][()], stderr=g["stderr"][()], hits=g["hits"][()],
+        measure=g["measure"][()],
+        energy={k: en[k][()] for k in TAB_ENERGY_TERMS}, energy_stderr={k: en[f"{k}_stderr"][()] for k in TAB_ENERGY_TERMS},
+        roulette=en["roulette"][()], capped=en["capped"][()], capped_paths=int(sim["capped_paths"]),
+        mean_events=float(sim["mean_events"]), elapsed_s=float(sim["elapsed_s"]), threads=int(sim["threads"]),
+        compile_s=float(sim.get("compile_s", 0.0)))

@@ -1,0 +1,252 @@
+"""Tabulated BRDFs on the MERL grid (``docs/tabulated-format.md``): the grid against MERL's own
+definition, the cell measure, a Lambertian base (rho / pi in every cell), determinism and resuming,
+the MERL ``.binary`` read back by a reader written here from the format's definition and compared
+with a classic slice, and the command line.
+
+Tolerances are statistical: z-scores within Z_TOL, chi-square within chi2_limit (false-alarm
+probability 1e-6, ``tests/conftest.py``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import goniometer as g
+from goniometer import halfdiff
+from goniometer.cli import main
+from goniometer.tabulation import TabulationCheckpoint, tabulate, tabulation_description
+from tests.conftest import Z_TOL, chi2_limit
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
+RHO = np.array([0.2, 0.5, 0.8])
+#: MERL's scale per channel (stored value x scale = BRDF)
+SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+
+
+# ------------------------------------------------------------------ an independent MERL reader
+
+def _rotate(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rodrigues' rotation of vectors v (n, 3) about a unit axis by angles (n,)."""
+    c = np.cos(angle)[:, None]
+    s = np.sin(angle)[:, None]
+    a = np.broadcast_to(axis, v.shape)
+    return v * c + a * np.sum(a * v, axis=1, keepdims=True) * (1.0 - c) + np.cross(a, v) * s
+
+
+def merl_index(l: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """MERL's index of (light, view) pairs, from the format's definition: half vector angles, the
+    difference vector (l rotated by -phi_h about z, then -theta_h about y), square-root mapped
+    theta_h, phi_d folded by pi."""
+    h = l + v
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    th = np.arccos(np.clip(h[:, 2], -1, 1))
+    ph = np.arctan2(h[:, 1], h[:, 0])
+    d = _rotate(_rotate(l, np.array([0.0, 0.0, 1.0]), -ph), np.array([0.0, 1.0, 0.0]), -th)
+    td = np.arccos(np.clip(d[:, 2], -1, 1))
+    pd = np.arctan2(d[:, 1], d[:, 0])
+    ih = np.clip(np.sqrt(th / (np.pi / 2)) * 90, 0, 89).astype(int)
+    idd = np.clip(td / (np.pi / 2) * 90, 0, 89).astype(int)
+    pd = np.where(pd < 0, pd + np.pi, pd)
+    ip = np.clip(pd / np.pi * 180, 0, 179).astype(int)
+    return ip + 180 * (idd + 90 * ih)
+
+
+def read_merl_binary(path: Path) -> np.ndarray:
+    """(3, 90*90*180) stored values of a MERL .binary file (R, G, B planes)."""
+    raw = path.read_bytes()
+    dims = struct.unpack("<3i", raw[:12])
+    assert dims == (90, 90, 180)
+    n = dims[0] * dims[1] * dims[2]
+    assert len(raw) == 12 + 3 * n * 8
+    return np.frombuffer(raw, dtype="<f8", offset=12).reshape(3, n)
+
+
+def cosine_directions(rng: np.random.Generator, n: int) -> np.ndarray:
+    u1, u2 = rng.random(n), rng.random(n)
+    r = np.sqrt(u1)
+    return np.stack([r * np.cos(2 * np.pi * u2), r * np.sin(2 * np.pi * u2), np.sqrt(1 - u1)], axis=-1)
+
+
+# ------------------------------------------------------------------ the grid
+
+def test_cells_follow_merl_definition():
+    rng = np.random.default_rng(4)
+    l, v = cosine_directions(rng, 200_000), cosine_directions(rng, 200_000)
+    ours = halfdiff.cell_indices(l, v)
+    theirs = merl_index(l, v)
+    # the two differ only within rounding of a cell boundary
+    assert np.mean(ours == theirs) > 0.9999
+    # reciprocity fold: exchanging l and v keeps the cell (except at boundaries)
+    assert np.mean(halfdiff.cell_indices(v, l) == ours) > 0.9999
+    assert np.all(halfdiff.cell_indices(l * [1, 1, -1], v) == -1)
+
+
+def test_cell_measure_sums_to_pi2_and_matches_sampling():
+    mu = halfdiff.cell_measure()
+    assert mu.sum() == pytest.approx(math.pi ** 2, rel=1e-12)
+    # pairs drawn with density cos(l) cos(v) / pi^2 fall in a cell with probability mu / pi^2
+    rng = np.random.default_rng(5)
+    n = 1_000_000
+    cells = halfdiff.cell_indices(cosine_directions(rng, n), cosine_directions(rng, n))
+    counts = np.bincount(cells, minlength=halfdiff.N_CELLS).reshape(halfdiff.SHAPE)
+    for axes in ((1, 2), (0, 2), (0, 1)):
+        expected = n * mu.sum(axis=axes) / math.pi ** 2
+        z = (counts.sum(axis=axes) - expected) / np.sqrt(expected)
+        assert np.sum(z * z) < chi2_limit(z.size)
+
+
+# ------------------------------------------------------------------ closed form: Lambertian
+
+def test_lambertian_base_tabulates_rho_over_pi():
+    stack = g.stack_from_dict({"name": "lambert", "layers": [{"type": "lambertian", "albedo": RHO.tolist()}]})
+    n = 1_000_000
+    tab = tabulate(stack, g.TabulationSettings(rays=n, seed=2, threads=2))
+    # every path is reflected once with weight rho
+    np.testing.assert_allclose(tab.energy["reflected"], RHO, rtol=1e-12)
+    assert tab.hits.sum() == n
+    # value x measure summed over the grid: pi x reflected (the estimator's normalisation)
+    np.testing.assert_allclose(np.einsum("cijk,ijk->c", tab.value, tab.measure), np.pi * RHO, rtol=1e-9)
+    # rows of theta_h, theta_d and phi_d: the measure-weighted mean of the cells is rho / pi
+    for axes in ((2, 3), (1, 3), (1, 2)):
+        w = tab.measure.sum(axis=tuple(a - 1 for a in axes))
+        mean = np.sum(tab.value * tab.measure, axis=axes) / w
+        se = np.sqrt(np.sum((tab.stderr * tab.measure) ** 2, axis=axes)) / w
+        keep = tab.hits.sum(axis=tuple(a - 1 for a in axes)) >= 50
+        z = (mean - RHO[:, None] / np.pi)[:, keep] / se[:, keep]
+        assert np.all(np.abs(z) < Z_TOL)
+        assert np.sum(z[0] ** 2) < chi2_limit(int(keep.sum()))
+    # the lookup returns the cell's value, rho / pi within its error where it has many paths
+    l = np.array([0.3, 0.1, 0.9]) / np.linalg.norm([0.3, 0.1, 0.9])
+    v = np.array([-0.4, 0.2, 0.7]) / np.linalg.norm([-0.4, 0.2, 0.7])
+    c = np.unravel_index(halfdiff.cell_indices(l, v), halfdiff.SHAPE)
+    np.testing.assert_array_equal(tab.eval(l, v), tab.value[(slice(None),) + c])
+    assert np.all(tab.eval(l, v * [1, 1, -1]) == 0.0)
+
+
+# ------------------------------------------------------------------ determinism, resuming
+
+def _digest(tab) -> str:
+    h = hashlib.sha256()
+    for a in (tab.value, tab.stderr, tab.hits, *tab.energy.values()):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def test_same_bits_whatever_threads_and_after_resuming(tmp_path):
+    stack = g.load_stack(EXAMPLES / "slab.toml")
+    base = dict(rays=150_000, seed=9, chunk_rays=8192)
+    one = tabulate(stack, g.TabulationSettings(threads=1, **base))
+    two = tabulate(stack, g.TabulationSettings(threads=2, **base))
+    assert _digest(one) == _digest(two)
+    # a slab: its BRDF is tabulated, the transmitted light booked; the energy terms add up to 1
+    total = sum(one.energy[k] for k in ("reflected", "transmitted", "absorbed", "masking_loss"))
+    np.testing.assert_allclose(total + one.roulette + one.capped, 1.0, atol=1e-9)
+    assert np.all(one.energy["transmitted"] > 0.3)
+    # interrupted after the first batch, then resumed from the checkpoint
+    settings = g.TabulationSettings(threads=2, **base)
+    cp = TabulationCheckpoint(tmp_path / "cp", tabulation_description(stack, settings))
+    calls = []
+
+    def stop(n):
+        calls.append(n)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        tabulate(stack, settings, checkpoint=cp, progress=stop)
+    assert (tmp_path / "cp" / "state.npz").exists()
+    resumed = []
+    again = tabulate(stack, settings, checkpoint=cp, on_resume=resumed.append)
+    assert resumed == [calls[0]]
+    assert _digest(again) == _digest(one)
+
+
+# ------------------------------------------------------------------ MERL export vs a classic slice
+
+ROUGH_METAL = {"name": "rough-metal", "category": "metal", "layers": [
+    {"type": "interface", "roughness": 0.25, "ior": 1.45, "extinction": [1.0, 0.5, 0.2]}]}
+
+
+def test_merl_export_reads_back_and_matches_a_classic_slice(tmp_path):
+    stack = g.stack_from_dict(ROUGH_METAL)
+    n = 1_000_000
+    tab = tabulate(stack, g.TabulationSettings(rays=n, seed=11))
+    h5 = g.write_tabulated(tmp_path / "t.h5", tab)
+    assert main(["export", str(h5), "--format", "merl", "--out", str(tmp_path / "t.binary")]) == 0
+    stored = read_merl_binary(tmp_path / "t.binary")
+    back = g.read_tabulated(h5)
+    data = back.hits.reshape(-1) > 0
+    assert np.all(stored[:, ~data] < 0)
+    np.testing.assert_allclose(stored[:, data] * SCALE[:, None], back.value.reshape(3, -1)[:, data], rtol=1e-14)
+    f_merl = np.where(stored < 0, 0.0, stored) * SCALE[:, None]
+    se = back.stderr.reshape(3, -1)
+
+    # the classic slice of the same material at theta_l = 30 deg (its own random streams), in
+    # groups of 10 deg of theta_v by 90 deg of phi_v: the table has ~1 path per cell, so its cells
+    # are aggregated over each group, weighted by the projected solid angle of the group's
+    # sub-directions that fall in them
+    settings = g.SimulationSettings(incident_deg=(30.0,), rays=n, resolution=(9, 4), seed=12)
+    sl = g.simulate(stack, settings).brdf
+    light = g.light_direction(30.0)
+    vs, ws = g.SliceGrid("classic", 9, 4).subcells(light, s=12)
+    z_all = []
+    total = np.zeros((4, 3))  # directional albedo at 30 deg: table, its variance, slice, its variance
+    for i in range(9):
+        for j in range(4):
+            v = vs[i, j].reshape(-1, 3)
+            w = ws[i, j].reshape(-1)
+            a = np.bincount(merl_index(np.broadcast_to(light, v.shape).copy(), v), weights=w,
+                            minlength=halfdiff.N_CELLS) / w.sum()
+            used = np.flatnonzero(a)
+            pred = f_merl[:, used] @ a[used]
+            pred_se = np.sqrt((se[:, used] ** 2) @ (a[used] ** 2))
+            ref, ref_se, om = sl.value[0, :, i, j], sl.stderr[0, :, i, j], sl.proj_solid_angle[0, i, j]
+            z_all.append((pred - ref) / np.hypot(pred_se, ref_se))
+            total += np.array([pred * om, (pred_se * om) ** 2, ref * om, (ref_se * om) ** 2])
+    z = np.array(z_all)
+    assert np.all(np.abs(z) < Z_TOL)
+    assert np.sum(z[:, 0] ** 2) < chi2_limit(len(z))
+    z_total = (total[0] - total[2]) / np.sqrt(total[1] + total[3])
+    assert np.all(np.abs(z_total) < Z_TOL)
+    assert np.all(total[0] > 0.02)
+
+
+# ------------------------------------------------------------------ command line
+
+def test_cli_tabulate_export_and_refusals(tmp_path, capsys):
+    out = tmp_path / "p.h5"
+    assert main(["tabulate", str(EXAMPLES / "plastic.toml"), "--out", str(out), "--rays", "20000",
+                 "--seed", "3", "--threads", "1"]) == 0
+    tab = g.read_tabulated(out)
+    assert tab.settings.rays == 20000 and tab.settings.seed == 3
+    assert tab.stack.name == "plastic/P1-a0_0.05"
+    assert not (tmp_path / ".p.h5.partial").exists()
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["format"] == "goniometer.tabulated" and info["settings"]["rays"] == 20000
+    np.testing.assert_allclose(info["energy"]["reflected"], tab.energy["reflected"])
+    # xarray: named dimensions, cells without data as NaN
+    pytest.importorskip("xarray")
+    ds = g.open_dataset(out)
+    assert dict(ds["value"].sizes) == {"channel": 3, "theta_h": 90, "theta_d": 90, "phi_d": 180}
+    assert int(ds["value"].isnull().sum()) == 3 * int(np.sum(tab.hits == 0))
+    assert dict(g.open_datatree(out)["energy"].dataset.sizes) == {"channel": 3}
+    # anisotropic stacks are refused with the reason
+    assert main(["tabulate", str(EXAMPLES / "aniso-metal.toml"), "--out", str(tmp_path / "a.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "anisotropic" in err and "isotropic BRDFs only" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "a.h5").exists()
+    # export needs a tabulated file, not a slices file
+    assert main(["simulate", str(EXAMPLES / "plastic.toml"), "--out", str(tmp_path / "s.h5"), "--rays", "2000",
+                 "--incident", "30", "--resolution", "9x18"]) == 0
+    capsys.readouterr()
+    assert main(["export", str(tmp_path / "s.h5"), "--format", "merl", "--out", str(tmp_path / "s.binary")]) == 2
+    assert "gonio tabulate" in capsys.readouterr().err
+    assert main(["tabulate", str(EXAMPLES / "plastic.toml"), "--out", str(out), "--rays", "0"]) == 2
