@@ -5,6 +5,10 @@ directions), the metal with multiple-scattering interfaces and a scattering medi
 appendix E), it measures rays per second of
 wall time and rays per CPU-second (the stable figure on a shared machine) and mean events per ray, with 1 and 2 threads, compile time excluded; and the compile time
 of the kernel from an empty numba cache (in a subprocess) and its load time from the cache.
+For the plastic, metal and slab it also times the yardstick (``reference_kernel.py``: a plain
+textbook kernel of the same physics, one thread) in the same run and reports the tracing speed
+as a ratio to it (1-thread rows), and the noise floor per second of the whole simulate,
+``1 / (noise floor^2 x CPU-s)`` (noise floor as in ``bench_accuracy.py``).
 Writes ``benchmarks/results/<date>-<host>.json`` and prints a table.
 
 Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE]
@@ -32,6 +36,9 @@ from goniometer.settings import SimulationSettings
 from goniometer.run import simulate
 from goniometer.tasks import warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack
+from goniometer.slices import light_direction
+
+from reference_kernel import trace_reference
 
 HERE = Path(__file__).resolve().parent
 INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
@@ -45,6 +52,8 @@ MATERIALS = {
     "slab/S1-a0_0.05-a1_0.2": Stack("slab/S1-a0_0.05-a1_0.2", (Interface(0.05, (1.5,) * 3), Medium(TAU_C),
                                                                 Interface(0.2, (1.0,) * 3)), "slab"),
 }
+#: materials timed against the yardstick kernel (``reference_kernel.py``)
+YARDSTICK = ("plastic/P1-a0_0.05", "metal/M2-a0_0.05-a1_0.2", "slab/S1-a0_0.05-a1_0.2")
 # the metal with multiple scattering on both interfaces (Heitz et al. 2016 random walks)
 MATERIALS["metal/M2-a0_0.05-a1_0.2+ms"] = MATERIALS["metal/M2-a0_0.05-a1_0.2"].with_multiple_scattering()
 # a scattering medium (Bati 2019 appendix E at d = 2, g = 0.8: sigma_s = (0.1, 0.1, 1), sigma_a = 0.1)
@@ -81,8 +90,18 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     and the conversion to cell values)."""
     from goniometer.tasks import trace_incident
     warm_up()
+    from bench_accuracy import floor_of
     rows = []
     for name, stack in MATERIALS.items():
+        yard = None
+        if name in YARDSTICK:
+            # the yardstick, one thread, the same rays and directions (compiled on the first call)
+            trace_reference(stack, light_direction(INCIDENT[0]), 1000, 1, 90, 360)
+            c0 = time.process_time()
+            for m, th in enumerate(INCIDENT):
+                trace_reference(stack, light_direction(th), rays_per_incident, 1, 90, 360, seed=1, incident_index=m)
+            yard = rays_per_incident * len(INCIDENT) / (time.process_time() - c0)
+            print(f"{name:28s} yardstick  tracing {yard / 1e6:5.2f} M rays/CPU-s (1 thread)", flush=True)
         for t in threads:
             s = SimulationSettings(incident_deg=INCIDENT, rays=rays_per_incident, parametrization="half",
                                    threads=t, seed=1)
@@ -95,16 +114,26 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
             c0, w0 = time.process_time(), time.perf_counter()
             r = simulate(stack, s)
             cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-            rows.append({
+            nf = floor_of(r)
+            row = {
                 "material": name, "threads": t, "rays": n,
                 "trace_wall_s": twall, "trace_cpu_s": tcpu,
                 "trace_rays_per_s": n / twall, "trace_rays_per_cpu_s": n / tcpu,
                 "simulate_wall_s": wall, "simulate_cpu_s": cpu,
                 "rays_per_s": n / wall, "rays_per_cpu_s": n / cpu,
                 "mean_events_per_ray": float(np.mean(r.mean_events)),
-            })
+                "noise_floor": nf, "noise_floor_per_cpu_s": 1.0 / (nf * nf * cpu),
+            }
+            extra = ""
+            if yard is not None and t == 1:
+                row["yardstick_rays_per_cpu_s"] = yard
+                row["trace_vs_yardstick"] = n / tcpu / yard
+                extra = f"  {n / tcpu / yard:4.2f}x the yardstick"
+            rows.append(row)
             print(f"{name:28s} threads={t}  tracing {n / twall / 1e6:5.2f} M rays/s wall, {n / tcpu / 1e6:5.2f} M rays/CPU-s;"
-                  f"  whole simulate {n / wall / 1e6:5.2f} M rays/s wall, {n / cpu / 1e6:5.2f} M rays/CPU-s", flush=True)
+                  f"  whole simulate {n / wall / 1e6:5.2f} M rays/s wall, {n / cpu / 1e6:5.2f} M rays/CPU-s;"
+                  f"  {row['mean_events_per_ray']:.2f} events/ray; 1/(nf^2 CPU-s) {row['noise_floor_per_cpu_s']:.3g}{extra}",
+                  flush=True)
     return rows
 
 

@@ -64,13 +64,12 @@ def cos_sin_2pi(u: float):
     return cos_v, sin_v
 
 
-@numba.njit(cache=True)
-def sample_cosine(u1: float, u2: float):
-    """A direction of the upper hemisphere with density ``cos theta / pi`` from two uniforms in
-    [0, 1): ``sin theta = sqrt(u1)``, ``phi = 2 pi u2``; ``z = sqrt(1 - u1) > 0``."""
-    r = math.sqrt(u1)
-    cos_ph, sin_ph = cos_sin_2pi(u2)
-    return r * cos_ph, r * sin_ph, math.sqrt(1.0 - u1)
+@numba.njit(cache=True, inline='always')
+def cosine_from_disk(x: float, y: float):
+    """A direction of the upper hemisphere with density ``cos theta / pi`` from a point ``(x, y)``
+    uniform in the open unit disk (Malley's method: the disk point lifted onto the hemisphere),
+    ``(x, y, sqrt(1 - x^2 - y^2))``, ``z > 0``."""
+    return x, y, math.sqrt(1.0 - (x * x + y * y))
 
 
 # --------------------------------------------------------------------------- Fresnel
@@ -182,7 +181,17 @@ def smith_g1(vx: float, vy: float, vz: float, v_dot_m: float, ax: float, ay: flo
     """
     if v_dot_m * vz <= 0.0:
         return 0.0
-    return 1.0 / (1.0 + ggx_lambda(vx, vy, vz, ax, ay))
+    return smith_g1_dir(vx, vy, vz, ax, ay)
+
+
+@numba.njit(cache=True, inline='always')
+def smith_g1_dir(vx: float, vy: float, vz: float, ax: float, ay: float) -> float:
+    """Smith masking of a direction, ``1 / (1 + Lambda(v))`` (GGX; uses ``|v_z|``, no microfacet
+    test), written ``2 |v_z| / (|v_z| + sqrt(v_z^2 + ax^2 v_x^2 + ay^2 v_y^2))``: one division,
+    no cancellation. 0 for a horizontal direction, 1 for the normal."""
+    z = abs(vz)
+    a2t2 = ax * ax * vx * vx + ay * ay * vy * vy
+    return 2.0 * z / (z + math.sqrt(z * z + a2t2)) if z > 0.0 else 0.0
 
 
 @numba.njit(cache=True)
@@ -214,11 +223,26 @@ def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float
 
     ``w`` is the direction the light arrives from (local frame, ``w_z > 0``);
     ``u1, u2`` uniform in [0, 1). The density of the returned normal m is
-    ``G1(w) max(0, w.m) D(m) / w_z`` (Heitz 2018). Sampling uses the spherical-cap
-    construction of Dupuy & Benyoub 2023, which draws exactly that density: in the
-    stretched (alpha = 1) configuration the visible normals of ``w`` are
-    ``normalize(w + c)`` with ``c`` uniform on the unit-sphere cap ``z > -w_z``.
-    ``ax = ay = 0`` returns the macro normal.
+    ``G1(w) max(0, w.m) D(m) / w_z`` (Heitz 2018). ``(u1, u2)`` is mapped to the point
+    ``sqrt(u2) (cos 2 pi u1, sin 2 pi u1)`` of the unit disk and passed to
+    :func:`sample_vndf_disk`. ``ax = ay = 0`` returns the macro normal.
+    """
+    cos_phi, sin_phi = cos_sin_2pi(u1)
+    r = math.sqrt(u2)
+    return sample_vndf_disk(wx, wy, wz, ax, ay, r * cos_phi, r * sin_phi)
+
+
+@numba.njit(cache=True, inline='always')
+def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: float, y: float):
+    """:func:`sample_vndf` from a point ``(x, y)`` uniform in the unit disk (the tracer draws it
+    by rejection, :func:`goniometer.rng.next_disk`: no trigonometry).
+
+    Spherical-cap construction of Dupuy & Benyoub 2023, which draws exactly the visible-normal
+    density: in the stretched (alpha = 1) configuration the visible normals of ``w`` are
+    ``normalize(s + c)`` with ``s`` the stretched unit ``w`` and ``c`` uniform on the unit-sphere
+    cap ``z > -s_z``. With ``t = x^2 + y^2`` (uniform in [0, 1), independent of the disk point's
+    azimuth) and ``b = 1 + s_z``, the cap point is ``z = 1 - t b`` and its horizontal part is the
+    disk point scaled by ``sqrt(1 - z^2) / sqrt(t) = sqrt(b (2 - t b))``; ``s_z + z = b (1 - t)``.
     """
     # stretch to the alpha = 1 configuration
     sx = ax * wx
@@ -226,14 +250,13 @@ def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float
     inv = 1.0 / math.sqrt(sx * sx + sy * sy + wz * wz)
     sx *= inv
     sy *= inv
-    sz = wz * inv
-    # uniform point on the spherical cap z in (-sz, 1]
-    cos_phi, sin_phi = cos_sin_2pi(u1)
-    z = (1.0 - u2) * (1.0 + sz) - sz
-    st = math.sqrt(max(0.0, 1.0 - z * z))
-    hx = st * cos_phi + sx
-    hy = st * sin_phi + sy
-    hz = z + sz
+    b = 1.0 + wz * inv
+    # uniform point on the spherical cap z in (-s_z, 1], plus s
+    t = x * x + y * y
+    k = math.sqrt(max(0.0, b * (2.0 - t * b)))
+    hx = k * x + sx
+    hy = k * y + sy
+    hz = b * (1.0 - t)
     # unstretch
     mx = ax * hx
     my = ay * hy

@@ -25,6 +25,9 @@ _U5 = np.uint64(5)
 _U9 = np.uint64(9)
 _U11 = np.uint64(11)
 _INV_2_53 = 1.0 / 9007199254740992.0
+_U32 = np.uint64(32)
+_LOW32 = np.uint64(0xFFFFFFFF)
+_INV_2_31 = 1.0 / 2147483648.0
 
 
 @numba.njit(cache=True)
@@ -50,6 +53,26 @@ def stream_state(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.n
 @numba.njit(cache=True)
 def next_float(s: np.ndarray) -> float:
     """Next uniform double in [0, 1) with 53 random bits; advances the state ``s`` in place."""
+    return float(next_u64(s) >> _U11) * _INV_2_53
+
+
+@numba.njit(cache=True)
+def next_disk(s: np.ndarray):
+    """A point ``(x, y)`` uniform in the unit disk (``x^2 + y^2 < 1``) by rejection from the
+    square: each trial takes one 64-bit output, its two 32-bit halves giving ``x`` and ``y`` on a
+    grid of step 2^-31 in [-1, 1) (exact in double precision). 4 / pi trials on average; no
+    trigonometry (``docs/kernel-precision.md``)."""
+    while True:
+        r = next_u64(s)
+        x = float(r >> _U32) * _INV_2_31 - 1.0
+        y = float(r & _LOW32) * _INV_2_31 - 1.0
+        if x * x + y * y < 1.0:
+            return x, y
+
+
+@numba.njit(cache=True)
+def next_u64(s: np.ndarray) -> np.uint64:
+    """Next 64-bit output of xoshiro256**; advances the state ``s`` in place."""
     s1 = s[1]
     r = s1 * _U5
     r = ((r << _U7) | (r >> _U57)) * _U9
@@ -61,4 +84,4 @@ def next_float(s: np.ndarray) -> float:
     s[2] ^= t
     s3 = s[3]
     s[3] = (s3 << _U45) | (s3 >> _U19)
-    return float(r >> _U11) * _INV_2_53
+    return r

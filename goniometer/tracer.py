@@ -39,7 +39,7 @@ from numba.extending import intrinsic
 
 from goniometer import optics
 from goniometer.halfdiff import cell_of as halfdiff_cell
-from goniometer.rng import next_float, stream_state
+from goniometer.rng import next_disk, next_float, stream_state
 from goniometer.slices import cell_index_fast
 
 # rows of the per-chunk energy array
@@ -202,7 +202,7 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     ``w`` is the direction the light arrives from, in the interface's tangent frame of the
     arrival side (``w_z > 0``); ``(ax, ay)`` its roughness. The ray starts above the microsurface
     (height CDF 1); each step draws the next hit height (:func:`goniometer.optics.ms_sample_height`),
-    a visible normal of the reversed ray direction (:func:`goniometer.optics.sample_vndf`, valid
+    a visible normal of the reversed ray direction (:func:`goniometer.optics.sample_vndf_disk`, valid
     for directions below the horizon too) and reflects there -- a conductor with its Fresnel
     weight per channel (complex index ``ce + i ck`` relative to the arrival side), a dielectric
     reflecting with probability F and otherwise refracting (relative index ``eta``; on the far
@@ -235,9 +235,8 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
         ix = -vx
         iy = -vy
         iz = -vz
-        u1 = next_float(state)
-        u2 = next_float(state)
-        mx, my, mz = optics.sample_vndf(ix, iy, iz, ax, ay, u1, u2)
+        qx, qy = next_disk(state)
+        mx, my, mz = optics.sample_vndf_disk(ix, iy, iz, ax, ay, qx, qy)
         im = ix * mx + iy * my + iz * mz
         if conductor:
             r0 = optics.fresnel_conductor(im, ce0, ck0)
@@ -271,7 +270,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
     ``param`` is the slice parametrization (:data:`goniometer.slices.CLASSIC`, ``HALF``) or
     :data:`P_TABULATE`: then path ``r`` first draws its own light direction ``l`` with density
-    ``cos theta_l / pi`` (two uniforms of the stream, :func:`goniometer.optics.sample_cosine`), and
+    ``cos theta_l / pi`` (a disk point of the stream, :func:`goniometer.optics.cosine_from_disk`), and
     its reflected exit, if any, is written to ``exit_cell[r]`` (MERL cell, -1 if none) and
     ``exit_w[r]`` (weight) instead of to ``brdf``; transmitted exits are booked in ``energy`` only.
     Otherwise ``exit_cell``/``exit_w`` are not touched (they may be empty).
@@ -333,8 +332,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
     for ray in range(n_rays):
         if tabulate:
-            u1 = next_float(state)
-            lx, ly, lz = optics.sample_cosine(u1, next_float(state))
+            qx, qy = next_disk(state)
+            lx, ly, lz = optics.cosine_from_disk(qx, qy)
             exit_cell[ray] = -1
         dx = -lx
         dy = -ly
@@ -450,8 +449,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 if n_if == 0:
                     order += 1
                 w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, rho[0], rho[1], rho[2])
-                u1 = next_float(state)
-                dx, dy, dz = optics.sample_cosine(u1, next_float(state))
+                qx, qy = next_disk(state)
+                dx, dy, dz = optics.cosine_from_disk(qx, qy)
             # ---- interface event
             if at_interface:
                 events += 1
@@ -496,9 +495,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                             continue
                         events += nb - 1
                     else:
-                        u1 = next_float(state)
-                        u2 = next_float(state)
-                        mx, my, mz = optics.sample_vndf(wx, wy, wz, ax, ay, u1, u2)
+                        qx, qy = next_disk(state)
+                        mx, my, mz = optics.sample_vndf_disk(wx, wy, wz, ax, ay, qx, qy)
                         wm = wx * mx + wy * my + wz * mz
                         transmitted = False
                         if is_cond:
@@ -525,12 +523,12 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                             w1 = 0.0
                             w2 = 0.0
                             break
-                        lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
                         if height_correlated:
+                            lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
                             lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
                             g = optics.smith_g2(lam_i, lam_o, transmitted, True) * (1.0 + lam_i)
                         else:
-                            g = 1.0 / (1.0 + lam_o)
+                            g = optics.smith_g1_dir(ox, oy, oz, ax, ay)
                         mk0 += w0 * (1.0 - g)
                         mk1 += w1 * (1.0 - g)
                         mk2 += w2 * (1.0 - g)

@@ -10,6 +10,7 @@ import pytest
 from scipy import integrate, stats
 
 from goniometer import optics
+from goniometer.rng import next_disk, stream_state
 from tests.conftest import P_FALSE_ALARM
 
 # ----------------------------------------------------------------------------- quadrature helpers
@@ -82,15 +83,32 @@ def _sample_many(wx, wy, wz, ax, ay, u):
     return out
 
 
+@numba.njit(cache=True)
+def _sample_many_disk(wx, wy, wz, ax, ay, n, seed):
+    """sample_vndf_disk from disk points of the tracer's random streams (rejection, rng.next_disk)."""
+    state = stream_state(np.uint64(seed), np.uint64(0), np.uint64(0))
+    out = np.empty((n, 3))
+    for i in range(n):
+        x, y = next_disk(state)
+        out[i, 0], out[i, 1], out[i, 2] = optics.sample_vndf_disk(wx, wy, wz, ax, ay, x, y)
+    return out
+
+
+@pytest.mark.parametrize("sampler", ["uniforms", "disk"])
 @pytest.mark.parametrize("ax, ay, theta_deg, phi_deg", [(0.3, 0.3, 0.0, 0.0), (0.3, 0.3, 60.0, 0.0),
                                                        (0.1, 0.1, 80.0, 30.0), (0.2, 0.6, 45.0, 70.0)])
-def test_vndf_samples_follow_visible_normal_density(ax, ay, theta_deg, phi_deg):
-    """Chi-square test of sample_vndf against the density G1(w) (w.m)+ D(m) / w_z integrated over bins."""
+def test_vndf_samples_follow_visible_normal_density(ax, ay, theta_deg, phi_deg, sampler):
+    """Chi-square test of sample_vndf (two uniforms) and of sample_vndf_disk fed by rng.next_disk
+    (the tracer's trigonometry-free form) against the density G1(w) (w.m)+ D(m) / w_z integrated
+    over bins."""
     rng = np.random.default_rng(7)
     n = 400_000
     t, p = math.radians(theta_deg), math.radians(phi_deg)
     w = (math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t))
-    m = _sample_many(w[0], w[1], w[2], ax, ay, rng.random((n, 2)))
+    if sampler == "disk":
+        m = _sample_many_disk(w[0], w[1], w[2], ax, ay, n, 7)
+    else:
+        m = _sample_many(w[0], w[1], w[2], ax, ay, rng.random((n, 2)))
     assert np.allclose(np.linalg.norm(m, axis=1), 1.0)
     # bins: 24 in psi (tan theta_m = a tan psi) x 24 in phi
     a = math.sqrt(ax * ay)
@@ -262,3 +280,35 @@ def test_cos_sin_2pi_matches_libm():
         assert abs(c - math.cos(2.0 * math.pi * u)) < 1e-15
         assert abs(s - math.sin(2.0 * math.pi * u)) < 1e-15
     assert optics.cos_sin_2pi(0.0) == (1.0, 0.0)
+
+
+@numba.njit(cache=True)
+def _disk_points(n, seed):
+    state = stream_state(np.uint64(seed), np.uint64(1), np.uint64(2))
+    out = np.empty((n, 3))
+    for i in range(n):
+        x, y = next_disk(state)
+        out[i, 0], out[i, 1], out[i, 2] = optics.cosine_from_disk(x, y)
+    return out
+
+
+def test_disk_points_are_uniform_and_lift_to_cosine_density():
+    """rng.next_disk: x^2 + y^2 uniform on [0, 1) and the azimuth uniform (Kolmogorov-Smirnov);
+    cosine_from_disk: unit directions with cos theta distributed as 2 z dz, i.e. z^2 uniform."""
+    d = _disk_points(200_000, 3)
+    t = d[:, 0] ** 2 + d[:, 1] ** 2
+    assert t.max() < 1.0
+    assert stats.kstest(t, "uniform").pvalue > P_FALSE_ALARM
+    assert stats.kstest(np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * math.pi) / (2 * math.pi), "uniform").pvalue > P_FALSE_ALARM
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-15)
+    assert np.all(d[:, 2] > 0.0)
+    assert stats.kstest(d[:, 2] ** 2, "uniform").pvalue > P_FALSE_ALARM
+
+
+def test_smith_g1_dir_is_one_over_one_plus_lambda():
+    rng = np.random.default_rng(5)
+    for v in _random_dirs(rng, 200):
+        for ax, ay in [(0.05, 0.05), (0.3, 0.7), (1.0, 0.2)]:
+            assert optics.smith_g1_dir(*v, ax, ay) == pytest.approx(1.0 / (1.0 + optics.ggx_lambda(*v, ax, ay)), rel=1e-13)
+    assert optics.smith_g1_dir(0.0, 0.0, 1.0, 0.3, 0.3) == 1.0
+    assert optics.smith_g1_dir(1.0, 0.0, 0.0, 0.3, 0.3) == 0.0
