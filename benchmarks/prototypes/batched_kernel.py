@@ -125,6 +125,24 @@ def _u64_as_double(typingctx, x):
     return sig, codegen
 
 
+@intrinsic
+def _prefetch_flat(typingctx, arr, idx):
+    """Hint the CPU to fetch the cache line of the 1-D ``arr[idx]`` for writing (``llvm.prefetch``;
+    no effect on results, no bounds check)."""
+    sig = types.void(arr, idx)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = builder.module.declare_intrinsic("llvm.prefetch", [i8p], ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]))
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 @numba.njit(inline="always", error_model="numpy")
 def _hash(key, n):
     """SplitMix64 finaliser of ``key + n * golden``: the ``n``-th 64-bit draw of a path."""
@@ -391,7 +409,7 @@ def make_chunk(event, lanes):
     @numba.njit(error_model="numpy", boundscheck=False)
     def batched_chunk(n_rays, ckey, lx, ly, lz, k_alpha, k_eta_dn, k_eta_up, r_tau, n_if, transmit_base,
                       conductor_base, cond, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                      brdf, btdf, energy, energy_sq, counts, xbuf):
+                      brdf, btdf, energy, energy_sq, counts, xbuf, cell, sqo):
         L = LN
         S = np.zeros(N_FIELDS * L)
         dx = S[F_DX * L:(F_DX + 1) * L]
@@ -442,6 +460,34 @@ def make_chunk(event, lanes):
             ctr[i] = 0.0
             key[i] = _u64_as_double(path_key(ckey, next_path))
             next_path += 1
+        # energy sums of the chunk in locals (array elements would be reloaded after every store)
+        rl_0 = 0.0
+        rl_1 = 0.0
+        rl_2 = 0.0
+        re_0 = 0.0
+        re_1 = 0.0
+        re_2 = 0.0
+        req_0 = 0.0
+        req_1 = 0.0
+        req_2 = 0.0
+        tr_0 = 0.0
+        tr_1 = 0.0
+        tr_2 = 0.0
+        trq_0 = 0.0
+        trq_1 = 0.0
+        trq_2 = 0.0
+        ab_0 = 0.0
+        ab_1 = 0.0
+        ab_2 = 0.0
+        abq_0 = 0.0
+        abq_1 = 0.0
+        abq_2 = 0.0
+        mk_0 = 0.0
+        mk_1 = 0.0
+        mk_2 = 0.0
+        mkq_0 = 0.0
+        mkq_1 = 0.0
+        mkq_2 = 0.0
         n_exit = 0
         n_events = 0
         while n > 0:
@@ -455,20 +501,27 @@ def make_chunk(event, lanes):
                     i += 1
                     continue
                 if st == ST_DEAD:
-                    energy[E_ROULETTE, 0] += rl0[i] + w0[i]
-                    energy[E_ROULETTE, 1] += rl1[i] + w1[i]
-                    energy[E_ROULETTE, 2] += rl2[i] + w2[i]
+                    rl_0 += rl0[i] + w0[i]
+                    rl_1 += rl1[i] + w1[i]
+                    rl_2 += rl2[i] + w2[i]
                 else:
-                    row = E_REFLECTED if st == ST_REFLECTED else E_TRANSMITTED
-                    energy[E_ROULETTE, 0] += rl0[i]
-                    energy[E_ROULETTE, 1] += rl1[i]
-                    energy[E_ROULETTE, 2] += rl2[i]
-                    energy[row, 0] += w0[i]
-                    energy[row, 1] += w1[i]
-                    energy[row, 2] += w2[i]
-                    energy_sq[row, 0] += w0[i] * w0[i]
-                    energy_sq[row, 1] += w1[i] * w1[i]
-                    energy_sq[row, 2] += w2[i] * w2[i]
+                    rl_0 += rl0[i]
+                    rl_1 += rl1[i]
+                    rl_2 += rl2[i]
+                    if st == ST_REFLECTED:
+                        re_0 += w0[i]
+                        re_1 += w1[i]
+                        re_2 += w2[i]
+                        req_0 += w0[i] * w0[i]
+                        req_1 += w1[i] * w1[i]
+                        req_2 += w2[i] * w2[i]
+                    else:
+                        tr_0 += w0[i]
+                        tr_1 += w1[i]
+                        tr_2 += w2[i]
+                        trq_0 += w0[i] * w0[i]
+                        trq_1 += w1[i] * w1[i]
+                        trq_2 += w2[i] * w2[i]
                     xbuf[n_exit, 0] = dx[i]
                     xbuf[n_exit, 1] = dy[i]
                     xbuf[n_exit, 2] = dz[i]
@@ -477,18 +530,18 @@ def make_chunk(event, lanes):
                     xbuf[n_exit, 5] = w2[i]
                     xbuf[n_exit, 6] = float(min(int(order[i]), max_order) - 1 + (0 if st == ST_REFLECTED else 1000))
                     n_exit += 1
-                energy[E_ABSORBED, 0] += ab0[i]
-                energy[E_ABSORBED, 1] += ab1[i]
-                energy[E_ABSORBED, 2] += ab2[i]
-                energy_sq[E_ABSORBED, 0] += ab0[i] * ab0[i]
-                energy_sq[E_ABSORBED, 1] += ab1[i] * ab1[i]
-                energy_sq[E_ABSORBED, 2] += ab2[i] * ab2[i]
-                energy[E_MASKING, 0] += mk0[i]
-                energy[E_MASKING, 1] += mk1[i]
-                energy[E_MASKING, 2] += mk2[i]
-                energy_sq[E_MASKING, 0] += mk0[i] * mk0[i]
-                energy_sq[E_MASKING, 1] += mk1[i] * mk1[i]
-                energy_sq[E_MASKING, 2] += mk2[i] * mk2[i]
+                ab_0 += ab0[i]
+                ab_1 += ab1[i]
+                ab_2 += ab2[i]
+                abq_0 += ab0[i] * ab0[i]
+                abq_1 += ab1[i] * ab1[i]
+                abq_2 += ab2[i] * ab2[i]
+                mk_0 += mk0[i]
+                mk_1 += mk1[i]
+                mk_2 += mk2[i]
+                mkq_0 += mk0[i] * mk0[i]
+                mkq_1 += mk1[i] * mk1[i]
+                mkq_2 += mk2[i] * mk2[i]
                 n_events += int(ev[i])
                 if next_path < n_rays:
                     dx[i] = -lx
@@ -538,29 +591,82 @@ def make_chunk(event, lanes):
                         ctr[i] = ctr[n]
                         key[i] = key[n]
                         status[i] = status[n]
-        # ---- exits deposited into the histograms in buffer order (scalar pass)
+        energy[E_ROULETTE, 0] += rl_0
+        energy[E_ROULETTE, 1] += rl_1
+        energy[E_ROULETTE, 2] += rl_2
+        energy[E_REFLECTED, 0] += re_0
+        energy[E_REFLECTED, 1] += re_1
+        energy[E_REFLECTED, 2] += re_2
+        energy_sq[E_REFLECTED, 0] += req_0
+        energy_sq[E_REFLECTED, 1] += req_1
+        energy_sq[E_REFLECTED, 2] += req_2
+        energy[E_TRANSMITTED, 0] += tr_0
+        energy[E_TRANSMITTED, 1] += tr_1
+        energy[E_TRANSMITTED, 2] += tr_2
+        energy_sq[E_TRANSMITTED, 0] += trq_0
+        energy_sq[E_TRANSMITTED, 1] += trq_1
+        energy_sq[E_TRANSMITTED, 2] += trq_2
+        energy[E_ABSORBED, 0] += ab_0
+        energy[E_ABSORBED, 1] += ab_1
+        energy[E_ABSORBED, 2] += ab_2
+        energy_sq[E_ABSORBED, 0] += abq_0
+        energy_sq[E_ABSORBED, 1] += abq_1
+        energy_sq[E_ABSORBED, 2] += abq_2
+        energy[E_MASKING, 0] += mk_0
+        energy[E_MASKING, 1] += mk_1
+        energy[E_MASKING, 2] += mk_2
+        energy_sq[E_MASKING, 0] += mkq_0
+        energy_sq[E_MASKING, 1] += mkq_1
+        energy_sq[E_MASKING, 2] += mkq_2
+        # ---- exits deposited into the histograms in buffer order (scalar passes): cells first,
+        # then the additions, the cell PF exits ahead prefetched
+        PF = 16
+        row = (max_order + 2) * 3
         for e in range(n_exit):
             code = int(xbuf[e, 6])
             transmission = code >= 1000
             o = code - 1000 if transmission else code
-            h = btdf if transmission else brdf
             i, j = cell_index_fast(param, transmission, lx, ly, lz, xbuf[e, 0], xbuf[e, 1], xbuf[e, 2], n_theta, n_phi,
                                    row_cos, col_cos, col_sin)
-            if i < 0:
+            # flat offset of the cell's order row (-1: outside the slice); BTDF cells offset by the BRDF size
+            cell[e] = -1 if i < 0 else (i * n_phi + j) * row + o * 3 + (n_theta * n_phi * row if transmission else 0)
+            sqo[e] = 0 if i < 0 else (i * n_phi + j) * row + max_order * 3 + (n_theta * n_phi * row if transmission else 0)
+        hb = brdf.reshape(-1)
+        ht = btdf.reshape(-1)
+        nb = n_theta * n_phi * row
+        for e in range(n_exit):
+            if e + PF < n_exit:
+                f = cell[e + PF]
+                if f >= 0:
+                    if f < nb:
+                        _prefetch_flat(hb, f)
+                        _prefetch_flat(hb, sqo[e + PF])
+                    else:
+                        _prefetch_flat(ht, f - nb)
+                        _prefetch_flat(ht, sqo[e + PF] - nb)
+            f = cell[e]
+            if f < 0:
                 continue
+            q = sqo[e]
+            h = hb
+            if f >= nb:
+                h = ht
+                f -= nb
+                q -= nb
             v0 = xbuf[e, 3]
             v1 = xbuf[e, 4]
             v2 = xbuf[e, 5]
-            h[i, j, o, 0] += v0
-            h[i, j, o, 1] += v1
-            h[i, j, o, 2] += v2
-            h[i, j, max_order, 0] += v0 * v0
-            h[i, j, max_order, 1] += v1 * v1
-            h[i, j, max_order, 2] += v2 * v2
-            if o > 0:
-                h[i, j, max_order + 1, 0] += v0 * v0
-                h[i, j, max_order + 1, 1] += v1 * v1
-                h[i, j, max_order + 1, 2] += v2 * v2
+            h[f] += v0
+            h[f + 1] += v1
+            h[f + 2] += v2
+            h[q] += v0 * v0
+            h[q + 1] += v1 * v1
+            h[q + 2] += v2 * v2
+            if f != q - max_order * 3:
+                # an internal exit (order row > 0): also its squares
+                h[q + 3] += v0 * v0
+                h[q + 4] += v1 * v1
+                h[q + 5] += v2 * v2
         counts[1] += n_events
 
     return batched_chunk
@@ -614,13 +720,15 @@ def trace_batched(stack: Stack, l, rays: int, param: int, n_theta: int, n_phi: i
     energy_sq = np.zeros((N_ENERGY_SQ, 3))
     counts = np.zeros(2, dtype=np.int64)
     xbuf = np.empty((min(chunk_rays, rays), 7))
+    cell = np.empty(min(chunk_rays, rays), dtype=np.int64)
+    sqo = np.empty(min(chunk_rays, rays), dtype=np.int64)
     n_chunks = (rays + chunk_rays - 1) // chunk_rays
     for c in range(n_chunks):
         n = min(chunk_rays, rays - c * chunk_rays)
         ckey = np.uint64(chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c)))
         run(n, ckey, float(l[0]), float(l[1]), float(l[2]), np.ascontiguousarray(p.if_alpha[:, 0]),
             eta_dn, eta_up, p.region_tau, n_if, p.base_kind == 0, p.base_kind == 1, p.cond, param, n_theta, n_phi,
-            row_cos, col_cos, col_sin, max_order, brdf, btdf, energy, energy_sq, counts, xbuf)
+            row_cos, col_cos, col_sin, max_order, brdf, btdf, energy, energy_sq, counts, xbuf, cell, sqo)
     return brdf, btdf, energy, energy_sq, int(counts[1])
 
 
