@@ -732,11 +732,58 @@ def trace_batched(stack: Stack, l, rays: int, param: int, n_theta: int, n_phi: i
     return brdf, btdf, energy, energy_sq, int(counts[1])
 
 
+def _chi2(h_a, h_b, rays: int, K: int) -> tuple[float, int]:
+    """Chi-square of two independent samples' BRDF cell sums (all orders, per channel, cells
+    with >= 100 effective exits in the two together), each cell's variance from both samples'
+    squared sums; and its degrees of freedom."""
+    a, qa = h_a[:, :, :K, :].sum(axis=2), h_a[:, :, K, :]
+    b, qb = h_b[:, :, :K, :].sum(axis=2), h_b[:, :, K, :]
+    var = (qa / rays - (a / rays) ** 2 + qb / rays - (b / rays) ** 2) / rays
+    hits = (a + b) ** 2 / np.maximum(qa + qb, 1e-300)
+    sel = hits >= 100.0
+    return float(np.sum(((a - b)[sel] / rays) ** 2 / var[sel])), int(sel.sum())
+
+
+def check(stack: Stack, l, rays: int, lanes: int, variant: str, res: tuple[int, int] = (90, 360)) -> int:
+    """Print the chi-square of the prototype's BRDF cell sums against the simulator's (seeds 2 and
+    1: independent samples of the same estimator), the same statistic for the simulator against
+    itself (seeds 2 and 1: what the statistic gives for identical physics, heavy-tailed cell
+    weights making it not exactly 1 per degree of freedom), the z-scores of the reflected energy
+    per channel and the prototype's energy closure."""
+    from goniometer.settings import SimulationSettings
+    from goniometer.tasks import n_tasks, trace_tasks
+    sims = []
+    for seed in (1, 2):
+        s = SimulationSettings(incident_deg=(30.0,), rays=rays, resolution=res, parametrization="classic", threads=1,
+                               seed=seed)
+        parts = trace_tasks(stack, s, 0, 0, n_tasks(s))
+        acc = parts[0]
+        for p in parts[1:]:
+            acc.add(p)
+        sims.append(acc)
+    acc = sims[0]
+    K = s.max_order
+    h, _, e, q, events = trace_batched(stack, l, rays, 0, *res, seed=2, lanes=lanes, max_order=K, variant=variant)
+    chi2, dof = _chi2(acc.brdf, h, rays, K)
+    chi2_s, dof_s = _chi2(acc.brdf, sims[1].brdf, rays, K)
+    e_var = (acc.energy_sq[0] / rays - (acc.energy[0] / rays) ** 2 + q[0] / rays - (e[0] / rays) ** 2) / rays
+    z = (acc.energy[0] - e[0]) / rays / np.sqrt(e_var)
+    closure = (e[E_REFLECTED] + e[E_TRANSMITTED] + e[E_ABSORBED] + e[E_MASKING] + e[E_ROULETTE]) / rays - 1.0
+    print(f"batched[{variant}, L={lanes}] vs simulator, {rays} rays each, {res[0]} x {res[1]}: chi2/dof "
+          f"{chi2 / dof:.3f} over {dof} cell-channels (simulator vs itself: {chi2_s / dof_s:.3f} over {dof_s}; "
+          f"sd {math.sqrt(2.0 / dof):.3f}); reflected energy {np.round(e[0] / rays, 5)} vs "
+          f"{np.round(acc.energy[0] / rays, 5)}, z {np.round(z, 2)}; energy closure {np.abs(closure).max():.1e}; "
+          f"events/ray {events / rays:.3f} vs {acc.counts[1] / rays:.3f}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description="time the batched prototype on issue 15's metal (one thread)")
     ap.add_argument("--rays", type=int, default=4_000_000)
     ap.add_argument("--lanes", type=int, default=64)
     ap.add_argument("--variant", choices=sorted(VARIANTS), default="plain")
+    ap.add_argument("--check", action="store_true",
+                    help="instead of timing, compare with the simulator (independent seeds) at the timed configuration")
     args = ap.parse_args()
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1]))
     from reference_kernel import issue15_metal
@@ -745,6 +792,8 @@ def main() -> int:
     stack = issue15_metal()
     numba.set_num_threads(1)
     l = light_direction(30.0, 0.0)
+    if args.check:
+        return check(stack, l, args.rays, args.lanes, args.variant)
     trace_batched(stack, l, 1000, 0, 90, 360, lanes=args.lanes, variant=args.variant)
     c0 = time.process_time()
     *_, events = trace_batched(stack, l, args.rays, 0, 90, 360, lanes=args.lanes, variant=args.variant)
