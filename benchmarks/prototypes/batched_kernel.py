@@ -684,6 +684,42 @@ def supported(stack: Stack) -> bool:
             and bool(np.all(p.region_albedo == 0.0)) and bool(np.all(p.if_alpha[:, 0] > 0.0)))
 
 
+def make_event32(fastmath, lanes):
+    """:func:`make_event` with the event's direction and microfacet arithmetic in float32 (the
+    VNDF's square roots and divisions, dielectric Fresnel, reflection / refraction, masking): the
+    source of :func:`make_event` with the directions, roughness and indices loaded as float32 and
+    its float literals made float32 (1e-300 becomes 1e-30); weights, energy sums, the Beer-Lambert exponentials, the
+    sin/cos polynomial, the conductor Fresnel and the random numbers stay float64 (the uniforms
+    are rounded to float32). Research only: an exit direction then carries float32 rounding."""
+    import inspect
+    import re
+    src = inspect.getsource(make_event)
+    head, body = src.split("        for i in range(n):\n", 1)
+    body = body.replace("1e-300", "1e-30")
+    body = re.sub(r"(?<![\w.])(\d+\.\d*(?:e-?\d+)?|\d+e-?\d+)", r"_F32(\1)", body)
+    for v in ("x", "y", "z"):
+        body = body.replace(f"            {v} = S[F_D{v.upper()} * LN + i]", f"            {v} = _F32(S[F_D{v.upper()} * LN + i])")
+    for v in ("alpha", "e_dn", "e_up"):
+        body = re.sub(rf"            {v} = (.*)\n", rf"            {v} = _F32(\1)\n", body, count=1)
+    body = body.replace("u1, u2 = _uniforms(", "u1, u2 = _uniforms32(").replace("u3, u4 = _uniforms(", "u3, u4 = _uniforms32(")
+    body = body.replace("cp, sp = _cos_sin_2pi(u1)", "cp64, sp64 = _cos_sin_2pi(np.float64(u1))\n            cp = _F32(cp64)\n            sp = _F32(sp64)")
+    src = (head + "        for i in range(n):\n" + body).replace("def make_event(", "def _make_event32(")
+    ns = dict(globals())
+    exec(compile(src, __file__ + ":make_event32", "exec"), ns)
+    return ns["_make_event32"](fastmath, lanes)
+
+
+_F32 = np.float32
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _uniforms32(h):
+    """:func:`_uniforms` rounded to float32 (a value that rounds up to 1 is clamped below 1)."""
+    a, b = _uniforms(h)
+    one_minus = np.float32(0.99999994)
+    return min(np.float32(a), one_minus), min(np.float32(b), one_minus)
+
+
 VARIANTS = {
     "plain": False,
     "arcp-contract": {"arcp", "contract"},
@@ -694,7 +730,11 @@ _compiled: dict = {}
 def kernel(variant: str = "plain", lanes: int = 64):
     """The compiled chunk driver of a fastmath ``variant`` (a key of :data:`VARIANTS`) over ``lanes``."""
     if (variant, lanes) not in _compiled:
-        _compiled[variant, lanes] = make_chunk(make_event(VARIANTS[variant], lanes), lanes)
+        if variant.startswith("f32-"):
+            event = make_event32(VARIANTS[variant[4:]], lanes)
+        else:
+            event = make_event(VARIANTS[variant], lanes)
+        _compiled[variant, lanes] = make_chunk(event, lanes)
     return _compiled[variant, lanes]
 
 
@@ -781,7 +821,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description="time the batched prototype on issue 15's metal (one thread)")
     ap.add_argument("--rays", type=int, default=4_000_000)
     ap.add_argument("--lanes", type=int, default=64)
-    ap.add_argument("--variant", choices=sorted(VARIANTS), default="plain")
+    ap.add_argument("--variant", choices=sorted(VARIANTS) + ["f32-" + v for v in sorted(VARIANTS)], default="plain")
     ap.add_argument("--check", action="store_true",
                     help="instead of timing, compare with the simulator (independent seeds) at the timed configuration")
     args = ap.parse_args()
