@@ -698,11 +698,13 @@ def make_event32(fastmath, lanes):
     body = body.replace("1e-300", "1e-30")
     body = re.sub(r"(?<![\w.])(\d+\.\d*(?:e-?\d+)?|\d+e-?\d+)", r"_F32(\1)", body)
     for v in ("x", "y", "z"):
-        body = body.replace(f"            {v} = S[F_D{v.upper()} * LN + i]", f"            {v} = _F32(S[F_D{v.upper()} * LN + i])")
+        load = f"S[F_D{v.upper()} * LN + i]"
+        body = body.replace(f"            {v} = {load}", f"            {v} = _F32({load})")
     for v in ("alpha", "e_dn", "e_up"):
         body = re.sub(rf"            {v} = (.*)\n", rf"            {v} = _F32(\1)\n", body, count=1)
-    body = body.replace("u1, u2 = _uniforms(", "u1, u2 = _uniforms32(").replace("u3, u4 = _uniforms(", "u3, u4 = _uniforms32(")
-    body = body.replace("cp, sp = _cos_sin_2pi(u1)", "cp64, sp64 = _cos_sin_2pi(np.float64(u1))\n            cp = _F32(cp64)\n            sp = _F32(sp64)")
+    body = body.replace("= _uniforms(", "= _uniforms32(")
+    body = body.replace("cp, sp = _cos_sin_2pi(u1)",
+                        "cp64, sp64 = _cos_sin_2pi(np.float64(u1))\n            cp = _F32(cp64)\n            sp = _F32(sp64)")
     src = (head + "        for i in range(n):\n" + body).replace("def make_event(", "def _make_event32(")
     ns = dict(globals())
     exec(compile(src, __file__ + ":make_event32", "exec"), ns)

@@ -2,9 +2,9 @@
 the simulator's physics: on the coated metal of issue 15 and a coated transmitting slab, with
 independent random streams, its per-cell BRDF weight sums (all bounce orders, and the single
 reflection alone) and its reflected energy agree with the simulator's within their Monte Carlo
-errors (also for the float32, fast-math variant on the metal); another base roughness is told apart (the test can fail); its energy bookkeeping closes
-exactly; and a path's result does not depend on the lane it ran in (lane counts 16 and 64 give
-the same sums to rounding)."""
+errors (also for the float32, fast-math variant on the metal); another base roughness is told
+apart (the test can fail); its energy bookkeeping closes exactly; and a path's result does not
+depend on the lane it ran in (lane counts 16 and 64 give the same sums to rounding)."""
 
 from __future__ import annotations
 
