@@ -11,20 +11,24 @@ weight 0.05. Bookkeeping as the real kernel's: histograms (n_theta, n_phi, K + 2
 orders (events at the top interface) and squared sums, energy sums and per-path squared sums of
 reflected, transmitted, absorbed and masking weight, roulette, events.
 
-Random numbers: counter-based, ``u = hash(key(path), draw)`` with ``key(path) = splitmix64(chunk
-key ^ path index)`` and the SplitMix64 finaliser as hash, two 32-bit uniforms per hash; every
+Random numbers: counter-based, ``u = hash(key(path), draw)`` with ``key(path)`` a SplitMix64-style
+mix of the chunk key and the path index and the SplitMix64 finaliser as hash, two 32-bit uniforms per hash; every
 event consumes exactly two hashes (draw counter += 2), so a path's numbers do not depend on the
 lane it runs in, the lane count, or the thread count.
 
-Structure of one chunk (:func:`batched_chunk`): lanes hold paths; a step runs the vectorised event
-loop over the active lanes (:func:`_event`), then a scalar pass over the lanes collects finished
+Structure of one chunk (``batched_chunk`` of :func:`make_chunk`): lanes hold paths in one flat
+state array; a step runs the vectorised event loop over the active lanes (:func:`make_event`), then a scalar pass over the lanes collects finished
 paths (exit direction, weight, order into a per-chunk exit buffer, losses into the energy sums)
 and refills them with the next path index; when no path is left, the finished lane is removed by
 moving the last active lane into it (stream compaction), so the tail shrinks the loop. The exit
-buffer is deposited into the histogram in one scalar pass in buffer order (deterministic).
+buffer is deposited into the histograms in buffer order (deterministic): one pass computes the
+cells, a second adds the weights, prefetching ahead.
 
 ``python benchmarks/prototypes/batched_kernel.py --rays N [--lanes L] [--variant V]`` times it on
-issue 15's metal like ``reference_kernel.py`` does (one thread, compile excluded, CPU time).
+issue 15's metal like ``reference_kernel.py`` does (one thread, compile excluded, CPU time);
+``--check`` compares it with the simulator instead. Variants: ``plain`` (no fast-math),
+``arcp-contract`` (numba ``fastmath={'arcp', 'contract'}``) and their ``f32-`` forms
+(:func:`make_event32`).
 """
 
 from __future__ import annotations
