@@ -38,6 +38,7 @@ from goniometer.tasks import warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from goniometer.slices import light_direction
 
+from models.compare import noise_floor, reference_parts
 from reference_kernel import trace_reference
 
 HERE = Path(__file__).resolve().parent
@@ -61,6 +62,16 @@ MATERIALS["metal/E-d_2-g_0.8"] = Stack("metal/E-d_2-g_0.8", (
     Interface(0.0, (1.0,) * 3), Medium((0.4, 0.4, 2.2), scattering_albedo=(0.5, 0.5, 1.0 / 1.1), g=0.8),
     Interface(0.2, (1.5,) * 3, (3.0, 0.0, 0.0))), "metal")
 
+
+def floor_of(result) -> float:
+    """Channel-mean noise floor of the side a model is judged on (internal BRDF, or BTDF)."""
+    if result.stack.transmits:
+        sd = result.btdf
+        se = sd.stderr
+    else:
+        sd = result.brdf
+        _, se = reference_parts(sd, internal=True)
+    return float(np.mean(noise_floor(se, sd.proj_solid_angle, sd.mask)))
 
 def cpu_model() -> str:
     try:
@@ -90,7 +101,6 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     and the conversion to cell values)."""
     from goniometer.tasks import trace_incident
     warm_up()
-    from bench_accuracy import floor_of
     rows = []
     for name, stack in MATERIALS.items():
         yard = None

@@ -35,23 +35,11 @@ from goniometer.results import cell_geometry
 from goniometer.settings import SimulationSettings
 from goniometer.run import simulate
 from goniometer.tasks import warm_up
-from models.compare import noise_floor, reference_parts
 
-from bench import INCIDENT, MATERIALS, cpu_model
+from bench import INCIDENT, MATERIALS, cpu_model, floor_of
 
 HERE = Path(__file__).resolve().parent
 QUALITIES = tomllib.loads((HERE.parent / "configs" / "bati2019.toml").read_text())["quality"]
-
-
-def floor_of(result) -> float:
-    """Channel-mean noise floor of the side a model is judged on (internal BRDF, or BTDF)."""
-    if result.stack.transmits:
-        sd = result.btdf
-        se = sd.stderr
-    else:
-        sd = result.brdf
-        _, se = reference_parts(sd, internal=True)
-    return float(np.mean(noise_floor(se, sd.proj_solid_angle, sd.mask)))
 
 
 def run(rays: list[int]) -> list[dict]:
