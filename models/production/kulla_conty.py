@@ -32,15 +32,17 @@ from goniometer.stack import Interface, Stack
 from models.base import Model, ModelValue
 from models.tables.microfacet_albedo import AlbedoTable, fresnel_average, load_albedo_table
 
-COMPENSATIONS = ("kulla-conty", "turquin")
+COMPENSATIONS = ("kulla-conty", "turquin", "turquin-light")
 #: below this lost energy ``1 - E_avg`` the compensation lobe is zero (the interface is smooth)
 LOSS_FLOOR = 1e-12
 
 
 @dataclass(frozen=True)
 class KullaContyOptions:
-    """``compensation``: ``"kulla-conty"`` (the added reciprocal lobe) or ``"turquin"`` (scaling
-    of the single-scattering lobe); ``height_correlated``: Smith masking of the lobe and of its
+    """``compensation``: ``"kulla-conty"`` (the added reciprocal lobe), ``"turquin"`` (scaling of
+    the single-scattering lobe by the albedo at the view direction, as Turquin 2019 and renderers
+    evaluate it) or ``"turquin-light"`` (the same scaling with the albedo at the light direction: the
+    form whose directional albedo, as the goniometer measures it, is exactly 1); ``height_correlated``: Smith masking of the lobe and of its
     tables; ``cache_dir``: where the albedo tables live (None: ``$GONIOMETER_CACHE``)."""
 
     compensation: str = "kulla-conty"
@@ -107,8 +109,10 @@ class GGXKullaConty(Model):
     albedo of the lobe with Fresnel 1 and ``F_ms`` :func:`conductor_fresnel_term` per channel.
     Dielectric: the same lobe shape for reflection and transmission, with ``E`` the single-scattering
     albedo (R + T) of each side and the reciprocal split of :func:`dielectric_split`.
-    Turquin: ``f = f_ss (1 + F0 (1 - E(mu_l)) / E(mu_l))`` (conductor, ``F0`` the Fresnel factor at
-    normal incidence) or ``f = f_ss / E_out(mu_l)`` (dielectric, BRDF and BTDF). ``top`` is the
+    Turquin: ``f = f_ss (1 + F0 (1 - E(mu_v)) / E(mu_v))`` (conductor, ``F0`` the Fresnel factor at
+    normal incidence) or ``f = f_ss / E(mu_v)`` (dielectric; ``E`` the albedo R + T of the viewer's
+    side: outside for the BRDF, inside for the BTDF); ``turquin-light`` puts ``mu_l`` (and the
+    outside table) in place of ``mu_v``. ``top`` is the
     whole BRDF, ``internal`` the whole BTDF (module docstring); :meth:`parts` separates the single
     scattering from the compensation. Options:
     :class:`KullaContyOptions`. Section references and choices: module docstring and
@@ -183,9 +187,10 @@ class GGXKullaConty(Model):
             f_ss = optics.np_microfacet_reflection(l[0], l[1], l[2], v[..., 0], v[..., 1], v[..., 2], alpha, alpha,
                                                    float(eta), float(kappa), o.height_correlated)
             top[..., c] = f_ss
-            if o.compensation == "turquin":
+            if o.compensation != "kulla-conty":
                 f0 = optics.fresnel_conductor(1.0, float(eta), float(kappa))
-                internal[..., c] = f_ss * f0 * (1.0 - e_l) / e_l
+                e = e_l if o.compensation == "turquin-light" else np.where(up, e_v, 1.0)
+                internal[..., c] = f_ss * f0 * (1.0 - e) / e
                 continue
             loss = 1.0 - table.e_avg
             if loss < LOSS_FLOOR:
@@ -208,8 +213,13 @@ class GGXKullaConty(Model):
                 f_ss = optics.np_microfacet_transmission(l[0], l[1], l[2], v[..., 0], v[..., 1], v[..., 2], alpha,
                                                          alpha, eta, o.height_correlated)
             top[..., c] = f_ss
-            if o.compensation == "turquin":
-                internal[..., c] = f_ss * (1.0 - e_l) / e_l
+            if o.compensation != "kulla-conty":
+                if o.compensation == "turquin-light":
+                    e = e_l
+                else:   # the albedo of the side the viewer looks from
+                    viewer = out if side == "brdf" else self._table("dielectric", alpha, 1.0 / eta)
+                    e = np.maximum(viewer.at(np.abs(v[..., 2])), 1e-300)
+                internal[..., c] = f_ss * (1.0 - e) / e
                 continue
             inside = self._table("dielectric", alpha, 1.0 / eta)
             split = dielectric_split(eta, out.e_avg, inside.e_avg, fresnel_average(eta), fresnel_average(1.0 / eta))

@@ -244,10 +244,10 @@ def test_alpha_to_zero_limit():
     assert np.all(smooth.total == 0.0)
 
 
-def test_turquin_white_furnace_and_dielectric():
-    """Turquin: f_ss (1 + F0 (1 - E) / E) with E at the light's cosine: albedo 1 for F = 1;
+def test_turquin_light_white_furnace_and_dielectric():
+    """turquin-light: f_ss (1 + F0 (1 - E) / E) with E at the light's cosine: albedo 1 for F = 1;
     dielectric f_ss / E_out: R + T = 1."""
-    m = GGXKullaConty(compensation="turquin")
+    m = GGXKullaConty(compensation="turquin-light")
     v, w = hemisphere()
     vd, wd = hemisphere(lower=True)
     for k in (30, 64):
@@ -274,7 +274,32 @@ def test_tables_cached_on_disk(tmp_path):
     assert ma.table_path("white", 0.37, 1.0, False, tmp_path) != ma.table_path("white", 0.37, 1.0, True, tmp_path)
 
 
-@pytest.mark.parametrize("compensation", ["kulla-conty", "turquin"])
+def test_turquin_scales_by_the_albedo_at_the_view():
+    """Turquin 2019 as renderers evaluate it: the factor is 1 / E(mu_v) for F = 1 (E at the viewer's
+    cosine, whatever the light), so the albedo seen from the viewer, Int f(l, v) cos(theta_l) dl =
+    R_ss(mu_v) / E(mu_v) by reciprocity of the single-scattering lobe, is 1 (R_ss from this file's own
+    half-vector quadrature); the BTDF is scaled by the albedo of the inside (the viewer's side)."""
+    m = GGXKullaConty(compensation="turquin")
+    table = ma.load_albedo_table("white", 0.5)
+    mus = ma.mu_nodes()
+    l = light(mus[40])
+    for k in (12, 30, 64):
+        v = light(mus[k])[None, :] * np.array([-1.0, 1.0, 1.0])   # the other side of the plane: off-specular
+        single, comp = m.parts(conductor(0.5), l, v)
+        assert ((single + comp) / single)[0, 0] == pytest.approx(1.0 / table.e[k], rel=1e-9)
+        R, _ = single_scattering_albedo(mus[k], 0.5, *WHITE)
+        assert R / table.e[k] == pytest.approx(1.0, abs=TOL)
+    inside = ma.load_albedo_table("dielectric", 1.0, 1.0 / 1.5)
+    vd = np.array([[0.3, 0.0, -math.sqrt(1.0 - 0.09)]])
+    rb = m.evaluate(dielectric(1.0), l, vd, "btdf")
+    ss = optics.np_microfacet_transmission(*l, vd[:, 0], vd[:, 1], vd[:, 2], 1.0, 1.0, 1.5, False)
+    assert rb.internal[0, 1] == pytest.approx(ss[0] / inside.at(vd[0, 2]), rel=1e-9)
+    # the option is not the light-side form
+    light_side = GGXKullaConty(compensation="turquin-light").evaluate(conductor(0.5), l, v)
+    assert not np.allclose(light_side.total, m.evaluate(conductor(0.5), l, v).total, rtol=1e-3)
+
+
+@pytest.mark.parametrize("compensation", ["kulla-conty", "turquin-light"])
 def test_white_furnace_through_the_harness_quadrature(compensation):
     """The same claim with models.compare.albedo (gonio furnace's hemispherical rule, graded about
     the lobes), on the model's evaluate as the harness calls it: white conductor E_brdf = 1,
