@@ -473,40 +473,31 @@ def hg_scatter(dx: float, dy: float, dz: float, g: float, u1: float, u2: float):
 
 
 @numba.njit(cache=True)
-def sample_free_flight(u1: float, u2: float, t0: float, t1: float, t2: float) -> float:
-    """Free-flight length drawn from the one-sample spectral MIS mixture of the three channels'
-    extinctions ``t_c`` (balance heuristic): density ``p(s) = mean_c t_c exp(-t_c s)``.
-    ``u1`` picks the channel (uniformly), ``u2`` the exponential length ``-log(1 - u2) / t_c``.
-    A channel with ``t_c = 0`` returns ``inf`` (no collision)."""
-    c = int(u1 * 3.0)
-    t = t0 if c == 0 else (t1 if c == 1 else t2)
-    if t <= 0.0:
+def hero_free_flight(u: float, t_hero: float) -> float:
+    """Free-flight length drawn with the extinction ``t_hero`` of the path's hero channel:
+    ``-log(1 - u) / t_hero``; ``inf`` (no collision) when ``t_hero = 0``."""
+    if t_hero <= 0.0:
         return math.inf
-    return -math.log1p(-u2) / t
+    return -math.log1p(-u) / t_hero
 
 
 @numba.njit(cache=True)
-def free_flight_pass_weights(s: float, t0: float, t1: float, t2: float):
-    """Channel weights of a flight of length ``s`` that reaches the boundary, under
-    :func:`sample_free_flight`: ``T_c(s) / P(S >= s)`` with ``T_c = exp(-t_c s)`` and
-    ``P(S >= s) = mean_c T_c``. Each is at most 3. ``s`` finite."""
-    e0 = math.exp(-t0 * s)
-    e1 = math.exp(-t1 * s)
-    e2 = math.exp(-t2 * s)
-    inv = 3.0 / (e0 + e1 + e2)
-    return e0 * inv, e1 * inv, e2 * inv
+def spectral_mis_update(p0: float, p1: float, p2: float, q0: float, q1: float, q2: float):
+    """One flight of path-level one-sample spectral MIS (``docs/material-format.md``, media).
 
-
-@numba.njit(cache=True)
-def free_flight_collision_weights(s: float, t0: float, t1: float, t2: float):
-    """Channel weights of a collision at length ``s`` under :func:`sample_free_flight`:
-    ``t_c exp(-t_c s) / p(s)`` (multiply by the scattering albedo for the scattered weight).
-    Each is at most 3."""
-    f0 = t0 * math.exp(-t0 * s)
-    f1 = t1 * math.exp(-t1 * s)
-    f2 = t2 * math.exp(-t2 * s)
-    inv = 3.0 / (f0 + f1 + f2)
-    return f0 * inv, f1 * inv, f2 * inv
+    Each path draws all its flight lengths with one hero channel, picked uniformly, so a path
+    prefix has density ``(1/3) sum_k P_k`` with ``P_k`` the product of its flights' densities
+    under channel k. ``q_k = P_k / sum_j P_j`` are the prefix's shares (1/3 each at the start);
+    ``p_k`` this flight's density under channel k (``t_k exp(-t_k s)`` for a collision at s,
+    ``exp(-t_k s)`` for a flight that reaches the boundary after s). Returns channel c's weight
+    factor ``p_c / sum_k q_k p_k`` (multiply by the albedo for a collision) and the new shares.
+    The resulting path weight ``f_c / ((1/3) sum_k P_k)`` never exceeds ``3 f_c / P_c``, i.e. 3
+    times the product of the albedos met: bounded, whatever the number of collisions."""
+    inv = 1.0 / (q0 * p0 + q1 * p1 + q2 * p2)
+    r0 = p0 * inv
+    r1 = p1 * inv
+    r2 = p2 * inv
+    return r0, r1, r2, q0 * r0, q1 * r1, q2 * r2
 
 
 # --------------------------------------------------------------------------- vectorised forms

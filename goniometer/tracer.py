@@ -141,21 +141,23 @@ def _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2):
 
 
 @numba.njit(cache=True, error_model='numpy')
-def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, state):
+def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2,
+                 hero, q0, q1, q2, state):
     """One free flight of a path in a scattering medium region (``docs/material-format.md``, media).
 
     The region is a slab of unit thickness whose extinction coefficients are the optical depths
     ``t_c``; ``hpos`` is the height of the path in it (1 top, 0 bottom; < 0: entering, at the
     boundary the direction leaves). The flight length is drawn from ``t0`` (achromatic
-    extinction: weights change only by the albedo at a collision) or from the spectral-MIS
-    mixture of the three channels (:func:`goniometer.optics.sample_free_flight`, weights from
-    the pass / collision ratios, each at most 3). A collision scatters with the albedo weights
-    and a Henyey-Greenstein direction; the weight each channel loses (or gains) is booked as
-    absorbed, which keeps the per-path bookkeeping exact.
+    extinction: weights change only by the albedo at a collision) or, with chromatic extinction,
+    from the path's hero channel ``hero`` (picked uniformly at the path's first chromatic flight;
+    -1 before) with path-level spectral MIS weights (:func:`goniometer.optics.spectral_mis_update`;
+    ``q`` the path's technique shares, bounded weights). A collision scatters with the albedo
+    weights and a Henyey-Greenstein direction; the weight each channel loses (or gains) is booked
+    as absorbed, which keeps the per-path bookkeeping exact.
 
-    Returns ``(scattered, hpos, d, w, absorbed)``: ``scattered`` False when the path reached the
-    boundary of the region (``hpos`` reset to -1); a path moving exactly horizontally that draws
-    no collision is lost (booked as absorbed, weights 0; measure zero).
+    Returns ``(scattered, hpos, d, w, absorbed, hero, q)``: ``scattered`` False when the path
+    reached the boundary of the region (``hpos`` reset to -1); a path moving exactly horizontally
+    that draws no collision is lost (booked as absorbed, weights 0; measure zero).
     """
     h = hpos if hpos >= 0.0 else (1.0 if dz < 0.0 else 0.0)
     if dz < 0.0:
@@ -167,22 +169,25 @@ def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1
     if achromatic:
         s = -math.log1p(-next_float(state)) / t0
     else:
-        u1 = next_float(state)
-        s = optics.sample_free_flight(u1, next_float(state), t0, t1, t2)
+        if hero < 0:
+            hero = min(int(next_float(state) * 3.0), 2)
+        s = optics.hero_free_flight(next_float(state), t0 if hero == 0 else (t1 if hero == 1 else t2))
     if s >= smax:
         if smax == math.inf:
-            return True, h, dx, dy, dz, 0.0, 0.0, 0.0, ab0 + w0, ab1 + w1, ab2 + w2
+            return True, h, dx, dy, dz, 0.0, 0.0, 0.0, ab0 + w0, ab1 + w1, ab2 + w2, hero, q0, q1, q2
         if achromatic:
-            return False, -1.0, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2
-        r0, r1, r2 = optics.free_flight_pass_weights(smax, t0, t1, t2)
+            return False, -1.0, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2
+        r0, r1, r2, q0, q1, q2 = optics.spectral_mis_update(math.exp(-t0 * smax), math.exp(-t1 * smax),
+                                                            math.exp(-t2 * smax), q0, q1, q2)
         return (False, -1.0, dx, dy, dz, w0 * r0, w1 * r1, w2 * r2,
-                ab0 + w0 * (1.0 - r0), ab1 + w1 * (1.0 - r1), ab2 + w2 * (1.0 - r2))
+                ab0 + w0 * (1.0 - r0), ab1 + w1 * (1.0 - r1), ab2 + w2 * (1.0 - r2), hero, q0, q1, q2)
     if achromatic:
         r0 = a0
         r1 = a1
         r2 = a2
     else:
-        c0, c1, c2 = optics.free_flight_collision_weights(s, t0, t1, t2)
+        c0, c1, c2, q0, q1, q2 = optics.spectral_mis_update(t0 * math.exp(-t0 * s), t1 * math.exp(-t1 * s),
+                                                            t2 * math.exp(-t2 * s), q0, q1, q2)
         r0 = a0 * c0
         r1 = a1 * c1
         r2 = a2 * c2
@@ -190,7 +195,7 @@ def _free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1
     h = min(1.0, max(0.0, h + s * dz))
     u1 = next_float(state)
     ox, oy, oz = optics.hg_scatter(dx, dy, dz, g, u1, next_float(state))
-    return True, h, ox, oy, oz, w0, w1, w2, ab0, ab1, ab2
+    return True, h, ox, oy, oz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -351,6 +356,11 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         order = 0
         events = 0
         based = False  # the path has had an event at the base
+        # path-level spectral MIS in chromatic scattering media: hero channel, technique shares
+        hero = -1
+        q0 = 1.0 / 3.0
+        q1 = 1.0 / 3.0
+        q2 = 1.0 / 3.0
         # height in the current scattering region (0 bottom .. 1 top); < 0: at the boundary the
         # direction leaves (entering a region)
         hpos = -1.0
@@ -365,10 +375,10 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
             tm = tau_mode[region]
             scattered = False
             if tm >= TAU_SCATTER:
-                scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2 = _free_flight(
+                scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2 = _free_flight(
                     tm == TAU_SCATTER, region_tau[region, 0], region_tau[region, 1], region_tau[region, 2],
                     region_albedo[region, 0], region_albedo[region, 1], region_albedo[region, 2], region_g[region],
-                    hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, state)
+                    hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2, state)
             elif tm != 0:
                 inv_mu = 1.0 / abs(dz)
                 a0 = math.exp(-region_tau[region, 0] * inv_mu)
