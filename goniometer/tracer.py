@@ -134,6 +134,17 @@ def _deposit_pending(brdf, btdf, pend, i, j, o, max_order, w0, w1, w2):
 
 
 @numba.njit(cache=True, inline="always")
+def _book(energy, energy_sq, row, x0, x1, x2):
+    """Add a path's per-channel amount to energy row ``row`` and its square to the second moments."""
+    energy[row, 0] += x0
+    energy[row, 1] += x1
+    energy[row, 2] += x2
+    energy_sq[row, 0] += x0 * x0
+    energy_sq[row, 1] += x1 * x1
+    energy_sq[row, 2] += x2 * x2
+
+
+@numba.njit(cache=True, inline="always")
 def _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2):
     """The path weight times ``(a0, a1, a2)`` per channel, what it loses booked as absorbed:
     ``(w0 a0, w1 a1, w2 a2, ab0 + w0 (1 - a0), ...)``."""
@@ -414,19 +425,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         _prefetch_exit(brdf, i, j, o, max_order)
                         _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
                         pend, pi, pj, po, pw0, pw1, pw2 = 1, i, j, o, w0, w1, w2
-                    energy[E_REFLECTED, 0] += w0
-                    energy[E_REFLECTED, 1] += w1
-                    energy[E_REFLECTED, 2] += w2
-                    energy_sq[E_REFLECTED, 0] += w0 * w0
-                    energy_sq[E_REFLECTED, 1] += w1 * w1
-                    energy_sq[E_REFLECTED, 2] += w2 * w2
+                    _book(energy, energy_sq, E_REFLECTED, w0, w1, w2)
                     if not based:
-                        energy[E_REFLECTED_WITHOUT_BASE, 0] += w0
-                        energy[E_REFLECTED_WITHOUT_BASE, 1] += w1
-                        energy[E_REFLECTED_WITHOUT_BASE, 2] += w2
-                        energy_sq[E_REFLECTED_WITHOUT_BASE, 0] += w0 * w0
-                        energy_sq[E_REFLECTED_WITHOUT_BASE, 1] += w1 * w1
-                        energy_sq[E_REFLECTED_WITHOUT_BASE, 2] += w2 * w2
+                        _book(energy, energy_sq, E_REFLECTED_WITHOUT_BASE, w0, w1, w2)
                     break
                 k = region - 1
                 from_above = False
@@ -442,12 +443,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     _prefetch_exit(btdf, i, j, o, max_order)
                     _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
                     pend, pi, pj, po, pw0, pw1, pw2 = 2, i, j, o, w0, w1, w2
-                energy[E_TRANSMITTED, 0] += w0
-                energy[E_TRANSMITTED, 1] += w1
-                energy[E_TRANSMITTED, 2] += w2
-                energy_sq[E_TRANSMITTED, 0] += w0 * w0
-                energy_sq[E_TRANSMITTED, 1] += w1 * w1
-                energy_sq[E_TRANSMITTED, 2] += w2 * w2
+                _book(energy, energy_sq, E_TRANSMITTED, w0, w1, w2)
                 break
             else:
                 # Lambertian base: weight *= rho, cosine-distributed new direction upward
@@ -575,18 +571,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         energy[E_ROULETTE, 2] += w2
                         break
         n_events_total += events
-        energy[E_ABSORBED, 0] += ab0
-        energy[E_ABSORBED, 1] += ab1
-        energy[E_ABSORBED, 2] += ab2
-        energy_sq[E_ABSORBED, 0] += ab0 * ab0
-        energy_sq[E_ABSORBED, 1] += ab1 * ab1
-        energy_sq[E_ABSORBED, 2] += ab2 * ab2
-        energy[E_MASKING, 0] += mk0
-        energy[E_MASKING, 1] += mk1
-        energy[E_MASKING, 2] += mk2
-        energy_sq[E_MASKING, 0] += mk0 * mk0
-        energy_sq[E_MASKING, 1] += mk1 * mk1
-        energy_sq[E_MASKING, 2] += mk2 * mk2
+        _book(energy, energy_sq, E_ABSORBED, ab0, ab1, ab2)
+        _book(energy, energy_sq, E_MASKING, mk0, mk1, mk2)
     _deposit_pending(brdf, btdf, pend, pi, pj, po, max_order, pw0, pw1, pw2)
     counts[C_EVENTS] += n_events_total
 
