@@ -27,6 +27,10 @@ from __future__ import annotations
 import math
 
 import numba
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 _INV_PI = 1.0 / math.pi
 
@@ -41,7 +45,7 @@ _C2, _C4, _C6, _C8 = -0.5, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0
 _C10, _C12, _C14, _C16 = -1.0 / 3628800.0, 1.0 / 479001600.0, -1.0 / 87178291200.0, 1.0 / 20922789888000.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def cos_sin_2pi(u: float):
     """``(cos(2 pi u), sin(2 pi u))`` for ``u`` in [0, 1], without a libm call or branch.
 
@@ -72,6 +76,56 @@ def cosine_from_disk(x: float, y: float):
     return x, y, math.sqrt(1.0 - (x * x + y * y))
 
 
+_LOG2E = 1.4426950408889634
+_LN2_HI = 0.693147180369123816490
+_LN2_LO = 1.90821492927058770002e-10
+
+
+@numba.njit(cache=True, inline='always')
+def exp_neg(x: float) -> float:
+    """``exp(x)`` for ``x <= 0`` without a libm call, so that loops using it vectorise (LLVM has
+    no vector form of libm's ``exp`` here): ``x = k ln 2 + r`` with ``|r| <= ln 2 / 2`` (Cody-Waite
+    split of ln 2), ``e^r`` by its Taylor series to degree 13 (truncation < 1e-17 relative) and
+    ``2^k`` built from the exponent bits. Within a few ulp of ``math.exp``; ``exp_neg(0) = 1``
+    exactly; arguments below -708 give ``exp(-708)`` (not denormals; callers use it for
+    attenuation factors, where the difference is below 1e-307)."""
+    x = max(x, -708.0)
+    kf = math.floor(x * _LOG2E + 0.5)
+    r = (x - kf * _LN2_HI) - kf * _LN2_LO
+    p = 1.0 / 6227020800.0
+    p = p * r + 1.0 / 479001600.0
+    p = p * r + 1.0 / 39916800.0
+    p = p * r + 1.0 / 3628800.0
+    p = p * r + 1.0 / 362880.0
+    p = p * r + 1.0 / 40320.0
+    p = p * r + 1.0 / 5040.0
+    p = p * r + 1.0 / 720.0
+    p = p * r + 1.0 / 120.0
+    p = p * r + 1.0 / 24.0
+    p = p * r + 1.0 / 6.0
+    p = p * r + 0.5
+    p = p * r + 1.0
+    p = p * r + 1.0
+    return p * _pow2(np.int64(kf))
+
+
+@intrinsic
+def _bits_as_double(typingctx, x):
+    """The float64 whose bits are the int64 ``x`` (a bit cast; vectorisable, unlike ``ldexp``)."""
+    sig = types.float64(types.int64)
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+
+    return sig, codegen
+
+
+@numba.njit(cache=True, inline='always')
+def _pow2(k: int) -> float:
+    """``2.0 ** k`` for ``-1022 <= k <= 1023``, from the exponent bits."""
+    return _bits_as_double((k + 1023) << 52)
+
+
 # --------------------------------------------------------------------------- Fresnel
 
 @numba.njit(cache=True)
@@ -86,22 +140,28 @@ def fresnel_dielectric_cos_t(cos_i: float, eta: float):
     return fresnel_dielectric_cos_t_inv(cos_i, eta, 1.0 / eta)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
     """:func:`fresnel_dielectric_cos_t` for callers that already hold ``inv_eta = 1 / eta``
-    (the tracer precomputes both per interface, which keeps divisions off its critical path)."""
+    (the tracer precomputes both per interface, which keeps divisions off its critical path).
+
+    Written without branches (selects only, square roots of ``max(0, x)``, one division:
+    ``F = (r_s^2 + r_p^2) / 2`` over a common denominator), so that the tracer's lane loop
+    vectorises with it inlined."""
     c = min(abs(cos_i), 1.0)
-    if eta == 1.0:
-        return 0.0, c
     sin2_t = (1.0 - c * c) * (inv_eta * inv_eta)
-    if sin2_t >= 1.0:
-        return 1.0, 0.0
-    cos_t = math.sqrt(1.0 - sin2_t)
-    if c == 0.0:
-        return 1.0, cos_t
-    rs = (c - eta * cos_t) / (c + eta * cos_t)
-    rp = (eta * c - cos_t) / (eta * c + cos_t)
-    return 0.5 * (rs * rs + rp * rp), cos_t
+    tir = sin2_t >= 1.0
+    cos_t = math.sqrt(max(0.0, 1.0 - sin2_t))
+    # r_s = a / b, r_p = p / q
+    a = c - eta * cos_t
+    b = c + eta * cos_t
+    p = eta * c - cos_t
+    q = eta * c + cos_t
+    bq = b * q
+    f = min(1.0, 0.5 * (a * a * (q * q) + p * p * (b * b)) / max(bq * bq, 1e-300))
+    matched = eta == 1.0
+    f = 0.0 if matched else (1.0 if tir else f)
+    return f, (c if matched else (0.0 if tir else cos_t))
 
 
 @numba.njit(cache=True)
@@ -112,7 +172,7 @@ def fresnel_dielectric(cos_i: float, eta: float) -> float:
     return fresnel_dielectric_cos_t(cos_i, eta)[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     """Exact unpolarised Fresnel reflectance for a complex relative index ``eta + i kappa``.
 
@@ -121,26 +181,24 @@ def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     (Born & Wolf): with ``a^2 + b^2 = sqrt((eta^2 - kappa^2 - sin^2)^2 + 4 eta^2 kappa^2)`` and
     ``a = sqrt((a^2 + b^2 + eta^2 - kappa^2 - sin^2) / 2)`` (``a + i b = sqrt(n^2 - sin^2)``),
     ``Rs = (a^2+b^2 - 2a cos + cos^2) / (a^2+b^2 + 2a cos + cos^2)`` and
-    ``Rp = Rs (a^2+b^2 cos^2 - 2a cos sin^2 + sin^4) / (a^2+b^2 cos^2 + 2a cos sin^2 + sin^4)``.
+    ``Rp = Rs (a^2+b^2 cos^2 - 2a cos sin^2 + sin^4) / (a^2+b^2 cos^2 + 2a cos sin^2 + sin^4)``,
+    so ``(Rs + Rp) / 2 = Rs t3 / (t3 + t4)`` with the last fraction's terms: one division, no
+    branch (selects only), so that the tracer's lane loop vectorises with it inlined.
     """
-    if eta == 1.0 and kappa == 0.0:
-        return 0.0
     c = min(abs(cos_i), 1.0)
-    if c == 0.0:
-        return 1.0
     c2 = c * c
     s2 = 1.0 - c2
     t = eta * eta - kappa * kappa - s2
-    a2b2 = math.sqrt(t * t + 4.0 * eta * eta * kappa * kappa)
+    a2b2 = math.sqrt(max(0.0, t * t + 4.0 * eta * eta * kappa * kappa))
     a = math.sqrt(max(0.0, 0.5 * (a2b2 + t)))
     t1 = a2b2 + c2
     t2 = 2.0 * a * c
-    rs = (t1 - t2) / (t1 + t2)
     t3 = a2b2 * c2 + s2 * s2
     t4 = t2 * s2
-    # t3 + t4 = 0 only for the degenerate index 0 at normal incidence, a perfect reflector
-    rp = rs * (t3 - t4) / (t3 + t4) if t3 + t4 > 0.0 else rs
-    return 0.5 * (rs + rp)
+    den = (t1 + t2) * (t3 + t4)
+    # den = 0 only for the degenerate index 0 at normal incidence, a perfect reflector
+    f = (t1 - t2) * t3 / den if den > 0.0 else 1.0
+    return 0.0 if (eta == 1.0 and kappa == 0.0) else f
 
 
 # --------------------------------------------------------------------------- GGX
@@ -191,7 +249,7 @@ def smith_g1_dir(vx: float, vy: float, vz: float, ax: float, ay: float) -> float
     no cancellation. 0 for a horizontal direction, 1 for the normal."""
     z = abs(vz)
     a2t2 = ax * ax * vx * vx + ay * ay * vy * vy
-    return 2.0 * z / (z + math.sqrt(z * z + a2t2)) if z > 0.0 else 0.0
+    return 2.0 * z / max(z + math.sqrt(max(0.0, z * z + a2t2)), 1e-300) if z > 0.0 else 0.0
 
 
 @numba.njit(cache=True)
@@ -247,7 +305,7 @@ def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: f
     # stretch to the alpha = 1 configuration
     sx = ax * wx
     sy = ay * wy
-    inv = 1.0 / math.sqrt(sx * sx + sy * sy + wz * wz)
+    inv = 1.0 / math.sqrt(max(1e-300, sx * sx + sy * sy + wz * wz))
     sx *= inv
     sy *= inv
     b = 1.0 + wz * inv
@@ -261,7 +319,7 @@ def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: f
     mx = ax * hx
     my = ay * hy
     mz = max(1e-300, hz)
-    inv = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+    inv = 1.0 / math.sqrt(max(1e-300, mx * mx + my * my + mz * mz))
     return mx * inv, my * inv, mz * inv
 
 
@@ -276,7 +334,7 @@ def vndf_pdf(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, a
 
 # --------------------------------------------------------------------------- geometry
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def reflect(wx: float, wy: float, wz: float, mx: float, my: float, mz: float):
     """Mirror ``w`` about ``m``: 2 (w.m) m - w (both pointing away from the surface)."""
     d = 2.0 * (wx * mx + wy * my + wz * mz)
@@ -299,7 +357,7 @@ def refract(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, et
     return x, y, z, True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def refract_known(wx: float, wy: float, wz: float, mx: float, my: float, mz: float,
                   inv_eta: float, cos_i: float, cos_t: float):
     """:func:`refract` when ``cos_i = w.m`` and the refracted cosine ``cos_t`` (e.g. from

@@ -1,8 +1,15 @@
-"""Counter-seeded random streams for the tracer (xoshiro256** seeded by SplitMix64).
+"""Random numbers of the tracer (``docs/kernel.md``, random numbers).
 
-Each chunk of rays owns one stream whose state depends only on
-``(seed, incident index, chunk index)``; this is what makes a simulation
-bit-identical whatever the number of threads. The state is a ``uint64[4]`` array.
+Every path owns its numbers, keyed by ``(seed, incident index, chunk index, path index)``,
+which is what makes a simulation bit-identical whatever the number of threads and whichever
+lane of the kernel traces the path:
+
+* counter-based draws, ``draw(key, n)``: the SplitMix64 finaliser of ``key + n * golden``, the
+  ``n``-th 64-bit number of the path whose key is ``key`` (:func:`path_key`); the kernel's
+  vectorised event takes two per event (:func:`uniform_pair`: two 32-bit uniforms each);
+* a xoshiro256** stream (state ``uint64[4]``), for the per-path steps of variable length
+  (free flights, microsurface walks), seeded from the path key by :func:`seed_state`, and for
+  code outside the kernel (:func:`stream_state`).
 """
 
 from __future__ import annotations
@@ -28,6 +35,10 @@ _INV_2_53 = 1.0 / 9007199254740992.0
 _U32 = np.uint64(32)
 _LOW32 = np.uint64(0xFFFFFFFF)
 _INV_2_31 = 1.0 / 2147483648.0
+_INV_2_32 = 1.0 / 4294967296.0
+#: constants that set the per-path keys apart from the per-chunk streams of :func:`stream_state`
+_CHUNK_SALT = np.uint64(0x5EED)
+_STREAM_SALT = np.uint64(0x243F6A8885A308D3)
 
 
 @numba.njit(cache=True)
@@ -51,6 +62,48 @@ def stream_state(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.n
 
 
 @numba.njit(cache=True)
+def seed_state(s: np.ndarray, key: np.uint64) -> None:
+    """Fill the xoshiro256** state ``s`` (``uint64[4]``) from a path key (SplitMix64 steps)."""
+    k = key ^ _STREAM_SALT
+    for i in range(4):
+        k = splitmix64(k)
+        s[i] = k
+
+
+@numba.njit(cache=True, inline='always')
+def draw(key: np.uint64, n: np.uint64) -> np.uint64:
+    """The ``n``-th 64-bit number of the path keyed ``key``: SplitMix64's finaliser of
+    ``key + n * golden`` (no state; vectorisable)."""
+    z = key + n * _GOLDEN
+    z = (z ^ (z >> _U30)) * _M1
+    z = (z ^ (z >> _U27)) * _M2
+    return z ^ (z >> _U31)
+
+
+@numba.njit(cache=True, inline='always')
+def uniform_pair(h: np.uint64):
+    """Two uniforms in [0, 1) on the grid 2^-32 from the two 32-bit halves of ``h``."""
+    a = np.int64(h >> _U32)
+    b = np.int64(h & _LOW32)
+    return float(a) * _INV_2_32, float(b) * _INV_2_32
+
+
+@numba.njit(cache=True)
+def path_key(chunk: np.uint64, path: np.uint64) -> np.uint64:
+    """The key of path ``path`` (index within its chunk) of the chunk keyed ``chunk``."""
+    z = chunk ^ (path * _M2)
+    z = (z ^ (z >> _U30)) * _M1
+    z = (z ^ (z >> _U27)) * _M2
+    return z ^ (z >> _U31)
+
+
+@numba.njit(cache=True)
+def chunk_key(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.uint64:
+    """The key of chunk ``chunk`` of incident direction ``incident`` of a run seeded ``seed``."""
+    return path_key(path_key(path_key(_CHUNK_SALT, seed), incident), chunk)
+
+
+@numba.njit(cache=True)
 def next_float(s: np.ndarray) -> float:
     """Next uniform double in [0, 1) with 53 random bits; advances the state ``s`` in place."""
     return float(next_u64(s) >> _U11) * _INV_2_53
@@ -61,7 +114,7 @@ def next_disk(s: np.ndarray):
     """A point ``(x, y)`` uniform in the unit disk (``x^2 + y^2 < 1``) by rejection from the
     square: each trial takes one 64-bit output, its two 32-bit halves giving ``x`` and ``y`` on a
     grid of step 2^-31 in [-1, 1) (exact in double precision). 4 / pi trials on average; no
-    trigonometry (``docs/kernel-precision.md``)."""
+    trigonometry."""
     while True:
         r = next_u64(s)
         x = float(r >> _U32) * _INV_2_31 - 1.0

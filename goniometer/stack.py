@@ -39,6 +39,9 @@ BASE_TRANSMIT = 0
 BASE_CONDUCTOR = 1
 BASE_LAMBERTIAN = 2
 BASE_KINDS = {BASE_TRANSMIT: "transmit", BASE_CONDUCTOR: "conductor", BASE_LAMBERTIAN: "lambertian"}
+#: most interfaces a stack may have (the tracer keeps the stack's tables in a fixed-size block on
+#: the stack of its lane loop, ``docs/kernel.md``)
+MAX_INTERFACES = 64
 
 
 class StackError(ValueError):
@@ -496,3 +499,6 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
         else:
             raise StackError(f"{where}.type: unknown layer {x!r}")
         prev = x
+    n_if = sum(isinstance(x, Interface) for x in layers)
+    if n_if > MAX_INTERFACES:
+        raise StackError(f"{source}: layers: {n_if} interfaces; at most {MAX_INTERFACES} are allowed")

@@ -218,7 +218,8 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
             nb = min(B, n_chunks - first)
             tracer.trace_batch(*p.as_tuple(), 0.0, 0.0, 1.0, settings.rays, cr, first, settings.seed, TAB_STREAM,
                                tracer.P_TABULATE, 1, 1, *tables, 1, settings.masking == "height-correlated",
-                               settings.event_cap, brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb],
+                               settings.event_cap, tracer.KERNEL_AUTO, brdf[:nb], btdf[:nb], energy[:nb],
+                               energy_sq[:nb], counts[:nb],
                                exit_cell[:nb], exit_w[:nb])
             n_valid = np.array([max(0, min(cr, settings.rays - (first + b) * cr)) for b in range(nb)],
                                dtype=np.int64)

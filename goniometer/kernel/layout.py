@@ -1,0 +1,130 @@
+"""The lane state and the stack table of the lane kernel (``docs/kernel.md``).
+
+Lane state: one flat float64 array ``S`` of :data:`N_FIELDS` rows of :data:`LANES` lanes, field
+``f`` of lane ``i`` at ``S[f * LANES + i]``; integers are stored exactly as doubles, path keys and
+generator states as the bits of doubles. The lane count is a compile-time constant: the rows are
+then a constant distance apart, which is what lets LLVM prove the lanes of the event loop
+independent (separate arrays would need a run-time alias check per pair).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: paths advanced in lock-step by one chunk's kernel
+LANES = 64
+
+# ---- outputs of a chunk
+# rows of the per-chunk energy array
+E_REFLECTED = 0
+E_TRANSMITTED = 1
+E_ABSORBED = 2
+E_MASKING = 3
+#: reflected weight of paths that never had an event at the base (the bottom layer)
+E_REFLECTED_WITHOUT_BASE = 4
+E_ROULETTE = 5
+E_CAPPED = 6
+N_ENERGY = 7
+#: rows with a per-path second moment (for standard errors)
+N_ENERGY_SQ = 5
+# columns of the per-chunk counters
+C_CAPPED = 0
+C_EVENTS = 1
+N_COUNTS = 2
+
+#: ``param`` of :func:`trace_chunk` for a tabulation (``docs/tabulated-format.md``): every path
+#: draws its own incident direction (cosine-weighted), and a reflected exit is recorded per path as
+#: its MERL cell (:func:`goniometer.halfdiff.cell_of`) and weight instead of in a slice histogram
+P_TABULATE = 2
+
+
+# ---- fields; those up to N_RESET - 1 are set from a template when a lane takes a new path
+F_DX, F_DY, F_DZ = 0, 1, 2          # direction of travel (world frame)
+F_W0, F_W1, F_W2 = 3, 4, 5          # path weight per channel
+F_AB0, F_AB1, F_AB2 = 6, 7, 8       # weight lost to absorption so far
+F_MK0, F_MK1, F_MK2 = 9, 10, 11     # weight lost to masking so far
+F_RL0, F_RL1, F_RL2 = 12, 13, 14    # roulette's net change of the weight (boosts, negative)
+F_REG = 15                          # region the path is in (0 air .. n_if)
+F_EV = 16                           # events so far
+F_ORDER = 17                        # events at the top interface (the bounce order)
+F_CTR = 18                          # next counter-based draw of the path
+F_STATUS = 19                       # ST_*
+F_BASED = 20                        # 1 once the path had an event at the base
+F_HERO = 21                         # hero channel of spectral MIS (-1: not drawn yet)
+F_Q0, F_Q1, F_Q2 = 22, 23, 24       # spectral-MIS technique shares of the path
+F_HPOS = 25                         # height in a scattering region (< 0: at its boundary)
+F_SEEDED = 26                       # 1 once the path's xoshiro state (F_X0..) is seeded
+N_RESET = 27
+F_KEY = 27                          # path key (bits)
+F_PATH = 28                         # index of the path in its chunk
+F_LX, F_LY, F_LZ = 29, 30, 31       # the path's light direction (a tabulation draws one per path)
+F_X0 = 32                           # xoshiro256** state, F_X0 .. F_X0 + 3 (bits)
+N_FIELDS = 36
+
+# ---- lane status after a step
+ST_ALIVE = 0        # travelling; its next action is the vectorised event
+ST_SCALAR = 1       # travelling; its next action is a per-lane step (free flight, walk)
+ST_REFLECTED = 2    # left the stack upward (BRDF)
+ST_TRANSMITTED = 3  # left a transmitting stack downward (BTDF)
+ST_DEAD = 4         # ended: masking loss (weight 0) or killed by roulette (weight kept for booking)
+ST_CAPPED = 5       # stopped by the event cap (weight kept for booking)
+
+# ---- the stack table the event reads per lane (copied to the stack of the event loop)
+#: per interface k, at k * IF_STRIDE: alpha_x, alpha_y, cos and sin of the tangent-frame rotation,
+#: relative index going down and up, 1.0 where index-matched (optically absent), 1.0 where
+#: multiple-scattering
+IF_STRIDE = 8
+T_AX, T_AY, T_RC, T_RS, T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS = range(8)
+#: per region r, at region_offset + r * RG_STRIDE: Beer-Lambert optical depths (0 in a scattering
+#: region: its free flights are per-lane steps), 1.0 where the region scatters
+RG_STRIDE = 4
+T_TAU0, T_TAU1, T_TAU2, T_SCAT = range(4)
+
+# tau_mode per region (as the steps read it): 0 clear, 1 achromatic absorption, 2 chromatic;
+# TAU_SCATTER (+ 1 chromatic extinction) a scattering medium
+TAU_SCATTER = 3
+
+
+@numba.njit(cache=True)
+def tau_modes(region_tau: np.ndarray, region_albedo: np.ndarray) -> np.ndarray:
+    """Per region: 0 clear, 1 achromatic absorption, 2 chromatic; a scattering medium (albedo > 0
+    where tau > 0): TAU_SCATTER with achromatic extinction, TAU_SCATTER + 1 chromatic."""
+    n = region_tau.shape[0]
+    mode = np.zeros(n, dtype=np.int64)
+    for r in range(n):
+        t0 = region_tau[r, 0]
+        if t0 > 0.0 or region_tau[r, 1] > 0.0 or region_tau[r, 2] > 0.0:
+            achromatic = region_tau[r, 1] == t0 and region_tau[r, 2] == t0
+            mode[r] = 1 if achromatic else 2
+            for c in range(3):
+                if region_albedo[r, c] > 0.0 and region_tau[r, c] > 0.0:
+                    mode[r] = TAU_SCATTER if achromatic else TAU_SCATTER + 1
+    return mode
+
+
+@numba.njit(cache=True)
+def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n_if, conductor_base):
+    """The flat table of the event (layout above) and the offset of its region part."""
+    n_k = max(n_if, 1)
+    off = n_k * IF_STRIDE
+    t = np.zeros(off + (n_if + 1) * RG_STRIDE)
+    for k in range(n_k):
+        b = k * IF_STRIDE
+        t[b + T_AX] = if_alpha[k, 0]
+        t[b + T_AY] = if_alpha[k, 1]
+        t[b + T_RC] = if_rot[k, 0]
+        t[b + T_RS] = if_rot[k, 1]
+        t[b + T_ETA_DN] = eta_dn[k]
+        t[b + T_ETA_UP] = eta_up[k]
+        is_cond = conductor_base and k == n_if - 1
+        t[b + T_MATCHED] = 1.0 if (k < n_if and not is_cond and eta_dn[k] == 1.0) else 0.0
+        t[b + T_MS] = 1.0 if (k < n_if and if_ms[k] and t[b + T_MATCHED] == 0.0) else 0.0
+    for r in range(n_if + 1):
+        b = off + r * RG_STRIDE
+        if tau_mode[r] == 1 or tau_mode[r] == 2:
+            t[b + T_TAU0] = region_tau[r, 0]
+            t[b + T_TAU1] = region_tau[r, 1]
+            t[b + T_TAU2] = region_tau[r, 2]
+        t[b + T_SCAT] = 1.0 if tau_mode[r] >= TAU_SCATTER else 0.0
+    return t, off

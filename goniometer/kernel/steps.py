@@ -1,0 +1,319 @@
+"""What a lane of the kernel does alone (``docs/kernel.md``, per-lane steps): free flights in
+scattering media and random walks on multiple-scattering interfaces, whose number of random
+numbers varies from path to path. A lane comes here when the vectorised event
+(:mod:`goniometer.kernel.event`) found its next action to be one of these, and leaves when its
+next action is the vectorised event again, or when its path ends. Random numbers come from the
+path's own xoshiro256** stream, seeded from its key the first time (:func:`goniometer.rng.seed_state`).
+
+Directions as in :mod:`goniometer.kernel.event` (world frame, direction of travel).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from goniometer import optics
+from goniometer.kernel.codegen import u64_as_double, u64_bits
+from goniometer.kernel.event import RR_START, RR_THRESHOLD
+from goniometer.kernel.layout import (F_AB0, F_AB1, F_AB2, F_BASED, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY,
+                                      F_ORDER, F_Q0, F_Q1, F_Q2, F_REG, F_RL0, F_RL1, F_RL2, F_SEEDED, F_W0, F_W1,
+                                      F_W2, F_X0, IF_STRIDE, LANES, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED,
+                                      ST_TRANSMITTED, T_MS, TAU_SCATTER)
+from goniometer.rng import next_disk, next_float, seed_state
+
+LN = LANES
+
+
+@numba.njit(cache=True, inline="always")
+def _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2):
+    """The path weight times ``(a0, a1, a2)`` per channel, what it loses booked as absorbed:
+    ``(w0 a0, w1 a1, w2 a2, ab0 + w0 (1 - a0), ...)``."""
+    return w0 * a0, w1 * a1, w2 * a2, ab0 + w0 * (1.0 - a0), ab1 + w1 * (1.0 - a1), ab2 + w2 * (1.0 - a2)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2,
+                 hero, q0, q1, q2, state):
+    """One free flight of a path in a scattering medium region (``docs/material-format.md``, media).
+
+    The region is a slab of unit thickness whose extinction coefficients are the optical depths
+    ``t_c``; ``hpos`` is the height of the path in it (1 top, 0 bottom; < 0: entering, at the
+    boundary the direction leaves). The flight length is drawn from ``t0`` (achromatic
+    extinction: weights change only by the albedo at a collision) or, with chromatic extinction,
+    from the path's hero channel ``hero`` (picked uniformly at the path's first chromatic flight;
+    -1 before) with path-level spectral MIS weights (:func:`goniometer.optics.spectral_mis_update`;
+    ``q`` the path's technique shares, bounded weights). A collision scatters with the albedo
+    weights and a Henyey-Greenstein direction; the weight each channel loses (or gains) is booked
+    as absorbed, which keeps the per-path bookkeeping exact.
+
+    Returns ``(scattered, hpos, d, w, absorbed, hero, q)``: ``scattered`` False when the path
+    reached the boundary of the region (``hpos`` reset to -1); a path moving exactly horizontally
+    that draws no collision is lost (booked as absorbed, weights 0; measure zero).
+    """
+    h = hpos if hpos >= 0.0 else (1.0 if dz < 0.0 else 0.0)
+    if dz < 0.0:
+        smax = h / -dz
+    elif dz > 0.0:
+        smax = (1.0 - h) / dz
+    else:
+        smax = math.inf
+    if achromatic:
+        s = -math.log1p(-next_float(state)) / t0
+    else:
+        if hero < 0:
+            hero = min(int(next_float(state) * 3.0), 2)
+        s = optics.hero_free_flight(next_float(state), t0 if hero == 0 else (t1 if hero == 1 else t2))
+    if s >= smax:
+        if smax == math.inf:
+            return True, h, dx, dy, dz, 0.0, 0.0, 0.0, ab0 + w0, ab1 + w1, ab2 + w2, hero, q0, q1, q2
+        if achromatic:
+            return False, -1.0, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2
+        r0, r1, r2, q0, q1, q2 = optics.spectral_mis_update(math.exp(-t0 * smax), math.exp(-t1 * smax),
+                                                            math.exp(-t2 * smax), q0, q1, q2)
+        return (False, -1.0, dx, dy, dz, w0 * r0, w1 * r1, w2 * r2,
+                ab0 + w0 * (1.0 - r0), ab1 + w1 * (1.0 - r1), ab2 + w2 * (1.0 - r2), hero, q0, q1, q2)
+    if achromatic:
+        r0 = a0
+        r1 = a1
+        r2 = a2
+    else:
+        c0, c1, c2, q0, q1, q2 = optics.spectral_mis_update(t0 * math.exp(-t0 * s), t1 * math.exp(-t1 * s),
+                                                            t2 * math.exp(-t2 * s), q0, q1, q2)
+        r0 = a0 * c0
+        r1 = a1 * c1
+        r2 = a2 * c2
+    w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, r0, r1, r2)
+    h = min(1.0, max(0.0, h + s * dz))
+    u1 = next_float(state)
+    ox, oy, oz = optics.hg_scatter(dx, dy, dz, g, u1, next_float(state))
+    return True, h, ox, oy, oz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2
+
+
+@numba.njit(cache=True, error_model='numpy')
+def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g,
+                      eta, inv_eta, max_bounces, state):
+    """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
+    GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
+
+    ``w`` is the direction the light arrives from, in the interface's tangent frame of the
+    arrival side (``w_z > 0``); ``(ax, ay)`` its roughness. The ray starts above the microsurface
+    (height CDF 1); each step draws the next hit height (:func:`goniometer.optics.ms_sample_height`),
+    a visible normal of the reversed ray direction (:func:`goniometer.optics.sample_vndf_disk`, valid
+    for directions below the horizon too) and reflects there -- a conductor with its Fresnel
+    weight per channel (complex index ``ce + i ck`` relative to the arrival side), a dielectric
+    reflecting with probability F and otherwise refracting (relative index ``eta``; on the far
+    side the microsurface is seen from below: heights ``1 - c``, directions negated, index
+    ``inv_eta``), until the ray leaves the microsurface. ``g_is_r`` / ``b_is_g``: channels that
+    share their complex index (one Fresnel evaluation).
+
+    Returns ``(ox, oy, oz, f0, f1, f2, n, transmitted)``: the exit direction (``o_z > 0``
+    reflected, ``< 0`` transmitted), the product of the conductor's Fresnel factors per channel
+    (1 for a dielectric) and the number ``n >= 1`` of microfacet bounces; ``n = 0`` when the ray
+    is still on the microsurface after ``max_bounces`` bounces (the caller books it as capped).
+    """
+    vx = -wx
+    vy = -wy
+    vz = -wz
+    c = 1.0
+    inside = False
+    f0 = 1.0
+    f1 = 1.0
+    f2 = 1.0
+    n = 0
+    while n < max_bounces:
+        cn = optics.ms_sample_height(vx, vy, vz, c, ax, ay, next_float(state))
+        if cn < 0.0:
+            if inside:
+                return -vx, -vy, -vz, f0, f1, f2, n, True
+            return vx, vy, vz, f0, f1, f2, n, False
+        n += 1
+        c = cn
+        ix = -vx
+        iy = -vy
+        iz = -vz
+        qx, qy = next_disk(state)
+        mx, my, mz = optics.sample_vndf_disk(ix, iy, iz, ax, ay, qx, qy)
+        im = ix * mx + iy * my + iz * mz
+        if conductor:
+            r0 = optics.fresnel_conductor(im, ce0, ck0)
+            r1 = r0 if g_is_r else optics.fresnel_conductor(im, ce1, ck1)
+            r2 = r1 if b_is_g else optics.fresnel_conductor(im, ce2, ck2)
+            f0 *= r0
+            f1 *= r1
+            f2 *= r2
+            vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
+        else:
+            e = inv_eta if inside else eta
+            ie = eta if inside else inv_eta
+            f, cos_t = optics.fresnel_dielectric_cos_t_inv(im, e, ie)
+            if next_float(state) < f:
+                vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
+            else:
+                tx, ty, tz = optics.refract_known(ix, iy, iz, mx, my, mz, ie, im, cos_t)
+                vx = -tx
+                vy = -ty
+                vz = -tz
+                inside = not inside
+                c = 1.0 - c
+    return vx, vy, vz, f0, f1, f2, 0, inside
+
+
+@numba.njit(cache=True, inline="always")
+def _is_ms(table, k, n_if):
+    """True when interface ``k`` exists and scatters multiply."""
+    return k >= 0 and k < n_if and table[k * IF_STRIDE + T_MS] != 0.0
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, table,
+               cond, g_is_r, b_is_g, n_if, transmit_base, conductor_base, base_k, event_cap):
+    """Per-lane steps of lane ``i`` of the state ``S`` until its next action is the vectorised
+    event or its path ends; returns its new status (``ST_*``). ``xs`` is scratch ``uint64[4]``."""
+    dx = S[F_DX * LN + i]
+    dy = S[F_DY * LN + i]
+    dz = S[F_DZ * LN + i]
+    w0 = S[F_W0 * LN + i]
+    w1 = S[F_W1 * LN + i]
+    w2 = S[F_W2 * LN + i]
+    ab0 = S[F_AB0 * LN + i]
+    ab1 = S[F_AB1 * LN + i]
+    ab2 = S[F_AB2 * LN + i]
+    rl0 = S[F_RL0 * LN + i]
+    rl1 = S[F_RL1 * LN + i]
+    rl2 = S[F_RL2 * LN + i]
+    region = np.int64(S[F_REG * LN + i])
+    events = np.int64(S[F_EV * LN + i])
+    order = np.int64(S[F_ORDER * LN + i])
+    based = S[F_BASED * LN + i] != 0.0
+    hero = np.int64(S[F_HERO * LN + i])
+    q0 = S[F_Q0 * LN + i]
+    q1 = S[F_Q1 * LN + i]
+    q2 = S[F_Q2 * LN + i]
+    hpos = S[F_HPOS * LN + i]
+    if S[F_SEEDED * LN + i] == 0.0:
+        seed_state(xs, u64_bits(S[F_KEY * LN + i]))
+    else:
+        for j in range(4):
+            xs[j] = u64_bits(S[(F_X0 + j) * LN + i])
+    st = ST_ALIVE
+    while True:
+        tm = tau_mode[region]
+        if tm >= TAU_SCATTER:
+            scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2 = free_flight(
+                tm == TAU_SCATTER, region_tau[region, 0], region_tau[region, 1], region_tau[region, 2],
+                region_albedo[region, 0], region_albedo[region, 1], region_albedo[region, 2], region_g[region],
+                hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2, xs)
+            if scattered:
+                # a scattering event inside the medium (an event, not at the top layer)
+                events += 1
+                if w0 == 0.0 and w1 == 0.0 and w2 == 0.0:
+                    st = ST_DEAD
+                    break
+                walk = False
+            else:
+                # at the boundary the direction leaves by: a walk there, or the vectorised event
+                if not _is_ms(table, region - 1 if dz > 0.0 else region, n_if):
+                    break
+                walk = True
+        else:
+            # clear or absorbing region (the factor of the vectorised event), then the walk
+            if tm != 0:
+                inv_mu = 1.0 / max(abs(dz), 1e-300)
+                w0, w1, w2, ab0, ab1, ab2 = _attenuate(
+                    w0, w1, w2, ab0, ab1, ab2, optics.exp_neg(-region_tau[region, 0] * inv_mu),
+                    optics.exp_neg(-region_tau[region, 1] * inv_mu), optics.exp_neg(-region_tau[region, 2] * inv_mu))
+            walk = True
+        if walk:
+            from_above = dz < 0.0
+            k = region if from_above else region - 1
+            events += 1
+            if k == 0:
+                order += 1
+            if k == base_k and from_above:
+                based = True
+            is_cond = conductor_base and k == n_if - 1
+            # incoming direction in the local frame of the arrival side (z > 0), rotated into the
+            # interface's tangent frame
+            rc = if_rot[k, 0]
+            rs = if_rot[k, 1]
+            wx = -dx
+            wy = -dy
+            wz = -dz if from_above else dz
+            tx = rc * wx + rs * wy
+            wy = rc * wy - rs * wx
+            wx = tx
+            eta = eta_dn[k] if from_above else eta_up[k]
+            inv_eta = eta_up[k] if from_above else eta_dn[k]
+            # the whole walk on the microsurface is this one event (no masking loss); each further
+            # microfacet bounce counts toward the event cap
+            ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
+                wx, wy, wz, if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3], cond[4],
+                cond[5], g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs)
+            if is_cond:
+                w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
+            if nb == 0:
+                # still on the microsurface at the cap
+                events = event_cap
+                st = ST_CAPPED
+                break
+            events += nb - 1
+            dx = rc * ox - rs * oy
+            dy = rs * ox + rc * oy
+            dz = oz if from_above else -oz
+            if transmitted:
+                region = k + 1 if from_above else k
+            hpos = -1.0
+        # ---- Russian roulette on the largest channel weight (as the vectorised event's)
+        if events >= RR_START:
+            wmax = max(w0, max(w1, w2))
+            if wmax < RR_THRESHOLD:
+                p = wmax * (1.0 / RR_THRESHOLD)
+                if next_float(xs) >= p:
+                    st = ST_DEAD
+                    break
+                boost = 1.0 / p
+                rl0 -= w0 * (boost - 1.0)
+                rl1 -= w1 * (boost - 1.0)
+                rl2 -= w2 * (boost - 1.0)
+                w0 *= boost
+                w1 *= boost
+                w2 *= boost
+        if region == 0 and dz > 0.0:
+            st = ST_REFLECTED
+            break
+        if transmit_base and region == n_if and dz < 0.0:
+            st = ST_TRANSMITTED
+            break
+        if events >= event_cap:
+            st = ST_CAPPED
+            break
+        if tau_mode[region] < TAU_SCATTER and not _is_ms(table, region - 1 if dz > 0.0 else region, n_if):
+            break
+    S[F_DX * LN + i] = dx
+    S[F_DY * LN + i] = dy
+    S[F_DZ * LN + i] = dz
+    S[F_W0 * LN + i] = w0
+    S[F_W1 * LN + i] = w1
+    S[F_W2 * LN + i] = w2
+    S[F_AB0 * LN + i] = ab0
+    S[F_AB1 * LN + i] = ab1
+    S[F_AB2 * LN + i] = ab2
+    S[F_RL0 * LN + i] = rl0
+    S[F_RL1 * LN + i] = rl1
+    S[F_RL2 * LN + i] = rl2
+    S[F_REG * LN + i] = float(region)
+    S[F_EV * LN + i] = float(events)
+    S[F_ORDER * LN + i] = float(order)
+    S[F_BASED * LN + i] = 1.0 if based else 0.0
+    S[F_HERO * LN + i] = float(hero)
+    S[F_Q0 * LN + i] = q0
+    S[F_Q1 * LN + i] = q1
+    S[F_Q2 * LN + i] = q2
+    S[F_HPOS * LN + i] = hpos
+    S[F_SEEDED * LN + i] = 1.0
+    for j in range(4):
+        S[(F_X0 + j) * LN + i] = u64_as_double(xs[j])
+    return st
