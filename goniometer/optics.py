@@ -173,6 +173,22 @@ def fresnel_dielectric(cos_i: float, eta: float) -> float:
 
 
 @numba.njit(cache=True, inline='always')
+def _conductor_terms(cos_i: float, eta: float, kappa: float):
+    """``(num, den)`` with the conductor reflectance ``num / den`` (:func:`fresnel_conductor`)."""
+    c = min(abs(cos_i), 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    t = eta * eta - kappa * kappa - s2
+    a2b2 = math.sqrt(max(0.0, t * t + 4.0 * eta * eta * kappa * kappa))
+    a = math.sqrt(max(0.0, 0.5 * (a2b2 + t)))
+    t1 = a2b2 + c2
+    t2 = 2.0 * a * c
+    t3 = a2b2 * c2 + s2 * s2
+    t4 = t2 * s2
+    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
+
+
+@numba.njit(cache=True, inline='always')
 def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     """Exact unpolarised Fresnel reflectance for a complex relative index ``eta + i kappa``.
 
@@ -185,20 +201,30 @@ def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     so ``(Rs + Rp) / 2 = Rs t3 / (t3 + t4)`` with the last fraction's terms: one division, no
     branch (selects only), so that the tracer's lane loop vectorises with it inlined.
     """
-    c = min(abs(cos_i), 1.0)
-    c2 = c * c
-    s2 = 1.0 - c2
-    t = eta * eta - kappa * kappa - s2
-    a2b2 = math.sqrt(max(0.0, t * t + 4.0 * eta * eta * kappa * kappa))
-    a = math.sqrt(max(0.0, 0.5 * (a2b2 + t)))
-    t1 = a2b2 + c2
-    t2 = 2.0 * a * c
-    t3 = a2b2 * c2 + s2 * s2
-    t4 = t2 * s2
-    den = (t1 + t2) * (t3 + t4)
+    num, den = _conductor_terms(cos_i, eta, kappa)
     # den = 0 only for the degenerate index 0 at normal incidence, a perfect reflector
-    f = (t1 - t2) * t3 / den if den > 0.0 else 1.0
+    f = num / den if den > 0.0 else 1.0
     return 0.0 if (eta == 1.0 and kappa == 0.0) else f
+
+
+@numba.njit(cache=True, inline='always')
+def fresnel_conductor_rgb(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, eta2: float,
+                          kappa2: float):
+    """:func:`fresnel_conductor` of three channels with one division between them (each
+    denominator lies between ``|n|^2``-sized bounds away from 0 and overflow, so their product
+    is safe; a few ulp from the per-channel values)."""
+    n0, d0 = _conductor_terms(cos_i, eta0, kappa0)
+    n1, d1 = _conductor_terms(cos_i, eta1, kappa1)
+    n2, d2 = _conductor_terms(cos_i, eta2, kappa2)
+    e0 = d0 if d0 > 0.0 else 1.0
+    e1 = d1 if d1 > 0.0 else 1.0
+    e2 = d2 if d2 > 0.0 else 1.0
+    inv = 1.0 / (e0 * e1 * e2)
+    f0 = n0 * (e1 * e2) * inv if d0 > 0.0 else 1.0
+    f1 = n1 * (e0 * e2) * inv if d1 > 0.0 else 1.0
+    f2 = n2 * (e0 * e1) * inv if d2 > 0.0 else 1.0
+    return (0.0 if (eta0 == 1.0 and kappa0 == 0.0) else f0, 0.0 if (eta1 == 1.0 and kappa1 == 0.0) else f1,
+            0.0 if (eta2 == 1.0 and kappa2 == 0.0) else f2)
 
 
 # --------------------------------------------------------------------------- GGX

@@ -88,7 +88,7 @@ def uniform_pair(h: np.uint64):
     return float(a) * _INV_2_32, float(b) * _INV_2_32
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def path_key(chunk: np.uint64, path: np.uint64) -> np.uint64:
     """The key of path ``path`` (index within its chunk) of the chunk keyed ``chunk``."""
     z = chunk ^ (path * _M2)

@@ -1,7 +1,9 @@
-"""The vectorised event of the lane kernel (``docs/kernel.md``, the event).
+"""The vectorised step of the lane kernel (``docs/kernel.md``, the step).
 
-Every active lane whose next action is not a per-lane step (:mod:`goniometer.kernel.steps`)
-takes one event per step: it traverses its region (Beer-Lambert; clear and scattering regions
+A step first books, in per-lane sums, the path each lane ended at the previous step (its exit
+is left in the lane's exit slot for the per-lane pass to deposit) and gives the lane its next
+path (lane ``i`` traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next
+action is not a per-lane step (:mod:`goniometer.kernel.steps`) takes one event: it traverses its region (Beer-Lambert; clear and scattering regions
 give a factor 1), then meets what lies at the end -- a rough single-scattering interface
 (visible-normal sample, Fresnel, reflection or refraction, masking), an index-matched
 interface (crossed unchanged), or the Lambertian base -- and plays Russian roulette. The
@@ -21,13 +23,9 @@ import numba
 import numpy as np
 
 from goniometer import optics
-from goniometer.kernel.codegen import prefer_wide_vectors, stack_block, u64_bits
-from goniometer.kernel.layout import (F_AB0, F_AB1, F_AB2, F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_MK0, F_MK1,
-                                      F_MK2, F_KEY, F_ORDER, F_REG, F_RL0, F_RL1, F_RL2, F_STATUS, F_W0, F_W1, F_W2,
-                                      IF_STRIDE, LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED,
-                                      ST_SCALAR, ST_TRANSMITTED, T_AX, T_AY, T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS,
-                                      T_RC, T_RS, T_SCAT, T_TAU0, T_TAU1, T_TAU2)
-from goniometer.rng import draw, uniform_pair
+from goniometer.kernel.codegen import prefer_wide_vectors, stack_block, u64_as_double, u64_bits
+from goniometer.kernel.layout import *  # noqa: F401,F403 (the lane layout's many row names)
+from goniometer.rng import draw, path_key, uniform_pair
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
 #: RR_THRESHOLD survive with probability max(w) / RR_THRESHOLD
@@ -35,46 +33,168 @@ RR_START = 3
 RR_THRESHOLD = 0.05
 
 _U1 = np.uint64(1)
+_THIRD = 1.0 / 3.0
 LN = LANES
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
-def events(n, S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2,
-           rho0, rho1, rho2, event_cap, height_correlated):
-    """One event for lanes ``0 .. n - 1`` of ``S`` (all ``ST_ALIVE``).
+def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2,
+         rho0, rho1, rho2, event_cap, lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated,
+         tabulate):
+    """One step for all lanes of ``S`` (see the module docstring).
 
     ``height_correlated`` None: separable masking ``G1(o)``; True: height-correlated ``G2 / G1(i)``
-    (its Beta function has no vector form: that specialisation runs lane by lane). The None
-    specialisation is compiled without the other branch (numba prunes ``is None`` tests on a
-    None argument), and its loop is vectorised; the loop body is written out here, as an inlined
-    function taking the state array would keep reference counting in the loop and stop LLVM."""
+    (its Beta function has no vector form: that specialisation runs lane by lane). ``tabulate``
+    None: every path starts along ``-l``; True: each draws its light direction (cosine-weighted,
+    its draw 0). numba compiles a None argument's specialisation without the other branch, and
+    LLVM vectorises its loop; the loop body is written out here, as an inlined function taking the
+    state array would keep reference counting in the loop and stop LLVM."""
     prefer_wide_vectors()
     # the stack table on this function's stack (gathers that provably do not alias S)
     T = stack_block()
     for q in range(table.shape[0]):
         T[q] = table[q]
-    for i in range(n):
+    for i in range(LN):
+        # ---------------- stage A: book the path the lane ended, give the lane its next path
+        st = np.int64(S[F_STATUS * LN + i])
+        refl = st == ST_REFLECTED
+        trans = st == ST_TRANSMITTED
+        dead = st == ST_DEAD
+        capd = st == ST_CAPPED
+        ended = refl | trans | dead | capd
         x = S[F_DX * LN + i]
         y = S[F_DY * LN + i]
         z = S[F_DZ * LN + i]
+        v0 = S[F_W0 * LN + i]
+        v1 = S[F_W1 * LN + i]
+        v2 = S[F_W2 * LN + i]
+        b0 = S[F_AB0 * LN + i]
+        b1 = S[F_AB1 * LN + i]
+        b2 = S[F_AB2 * LN + i]
+        m0 = S[F_MK0 * LN + i]
+        m1 = S[F_MK1 * LN + i]
+        m2 = S[F_MK2 * LN + i]
         r = np.int64(S[F_REG * LN + i])
+        ev = np.int64(S[F_EV * LN + i])
+        order = np.int64(S[F_ORDER * LN + i])
+        bo = S[F_BASED * LN + i]
+        p = np.int64(S[F_PATH * LN + i])
+        o0 = v0 if refl else 0.0
+        o1 = v1 if refl else 0.0
+        o2 = v2 if refl else 0.0
+        S[(A_RE + 0) * LN + i] += o0
+        S[(A_RE + 1) * LN + i] += o1
+        S[(A_RE + 2) * LN + i] += o2
+        S[(A_RE + 3) * LN + i] += o0 * o0
+        S[(A_RE + 4) * LN + i] += o1 * o1
+        S[(A_RE + 5) * LN + i] += o2 * o2
+        nob = bo == 0.0
+        o0 = o0 if nob else 0.0
+        o1 = o1 if nob else 0.0
+        o2 = o2 if nob else 0.0
+        S[(A_RB + 0) * LN + i] += o0
+        S[(A_RB + 1) * LN + i] += o1
+        S[(A_RB + 2) * LN + i] += o2
+        S[(A_RB + 3) * LN + i] += o0 * o0
+        S[(A_RB + 4) * LN + i] += o1 * o1
+        S[(A_RB + 5) * LN + i] += o2 * o2
+        o0 = v0 if trans else 0.0
+        o1 = v1 if trans else 0.0
+        o2 = v2 if trans else 0.0
+        S[(A_TR + 0) * LN + i] += o0
+        S[(A_TR + 1) * LN + i] += o1
+        S[(A_TR + 2) * LN + i] += o2
+        S[(A_TR + 3) * LN + i] += o0 * o0
+        S[(A_TR + 4) * LN + i] += o1 * o1
+        S[(A_TR + 5) * LN + i] += o2 * o2
+        o0 = b0 if ended else 0.0
+        o1 = b1 if ended else 0.0
+        o2 = b2 if ended else 0.0
+        S[(A_AB + 0) * LN + i] += o0
+        S[(A_AB + 1) * LN + i] += o1
+        S[(A_AB + 2) * LN + i] += o2
+        S[(A_AB + 3) * LN + i] += o0 * o0
+        S[(A_AB + 4) * LN + i] += o1 * o1
+        S[(A_AB + 5) * LN + i] += o2 * o2
+        o0 = m0 if ended else 0.0
+        o1 = m1 if ended else 0.0
+        o2 = m2 if ended else 0.0
+        S[(A_MK + 0) * LN + i] += o0
+        S[(A_MK + 1) * LN + i] += o1
+        S[(A_MK + 2) * LN + i] += o2
+        S[(A_MK + 3) * LN + i] += o0 * o0
+        S[(A_MK + 4) * LN + i] += o1 * o1
+        S[(A_MK + 5) * LN + i] += o2 * o2
+        S[(A_RL + 0) * LN + i] += v0 if dead else 0.0
+        S[(A_RL + 1) * LN + i] += v1 if dead else 0.0
+        S[(A_RL + 2) * LN + i] += v2 if dead else 0.0
+        S[(A_CP + 0) * LN + i] += v0 if capd else 0.0
+        S[(A_CP + 1) * LN + i] += v1 if capd else 0.0
+        S[(A_CP + 2) * LN + i] += v2 if capd else 0.0
+        S[A_NCAP * LN + i] += 1.0 if capd else 0.0
+        S[A_NEV * LN + i] += float(ev) if ended else 0.0
+        # the exit, for the per-lane pass (the path's light direction: a tabulation's own)
+        S[X_ROW * LN + i] = float(min(order, max_order) - 1) if (refl | trans) else -1.0
+        S[X_TRANS * LN + i] = 1.0 if trans else 0.0
+        S[(X_DX + 0) * LN + i] = x
+        S[(X_DX + 1) * LN + i] = y
+        S[(X_DX + 2) * LN + i] = z
+        S[(X_W + 0) * LN + i] = v0
+        S[(X_W + 1) * LN + i] = v1
+        S[(X_W + 2) * LN + i] = v2
+        S[X_PATH * LN + i] = float(p)
+        S[(X_LX + 0) * LN + i] = S[F_LX * LN + i]
+        S[(X_LX + 1) * LN + i] = S[F_LY * LN + i]
+        S[(X_LX + 2) * LN + i] = S[F_LZ * LN + i]
+        # the next path of the lane (its fields as a new path's where the lane takes it)
+        p = p + LN if ended else p
+        key = path_key(ckey, np.uint64(p))
+        if tabulate is not None:
+            t1, t2 = uniform_pair(draw(key, np.uint64(0)))
+            tc, ts = optics.cos_sin_2pi(t1)
+            tr = math.sqrt(max(0.0, t2))
+            nlx = tr * tc
+            nly = tr * ts
+            nlz = math.sqrt(max(0.0, 1.0 - t2))
+        else:
+            nlx = lx
+            nly = ly
+            nlz = lz
+        st = (first_status if p < n_rays else ST_DONE) if ended else st
+        x = -nlx if ended else x
+        y = -nly if ended else y
+        z = -nlz if ended else z
+        v0 = 1.0 if ended else v0
+        v1 = 1.0 if ended else v1
+        v2 = 1.0 if ended else v2
+        b0 = 0.0 if ended else b0
+        b1 = 0.0 if ended else b1
+        b2 = 0.0 if ended else b2
+        m0 = 0.0 if ended else m0
+        m1 = 0.0 if ended else m1
+        m2 = 0.0 if ended else m2
+        r = 0 if ended else r
+        ev = 0 if ended else ev
+        order = 0 if ended else order
+        bo = 0.0 if ended else bo
+        c = np.uint64(1) if ended else np.uint64(np.int64(S[F_CTR * LN + i]))
+        key = key if ended else u64_bits(S[F_KEY * LN + i])
+        # ---------------- stage B: the event of the lanes whose next action it is
+        go = st == ST_ALIVE
         up = z > 0.0
-        # ---- traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
+        # traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
         ro = off + r * RG_STRIDE
         inv_mu = 1.0 / max(abs(z), 1e-300)
         a0 = optics.exp_neg(-T[ro + T_TAU0] * inv_mu)
         a1 = optics.exp_neg(-T[ro + T_TAU1] * inv_mu)
         a2 = optics.exp_neg(-T[ro + T_TAU2] * inv_mu)
-        v0 = S[F_W0 * LN + i]
-        v1 = S[F_W1 * LN + i]
-        v2 = S[F_W2 * LN + i]
-        b0 = S[F_AB0 * LN + i] + v0 * (1.0 - a0)
-        b1 = S[F_AB1 * LN + i] + v1 * (1.0 - a1)
-        b2 = S[F_AB2 * LN + i] + v2 * (1.0 - a2)
-        v0 *= a0
-        v1 *= a1
-        v2 *= a2
-        # ---- what lies at the end: interface k, or the Lambertian base below the last region
+        nb0 = b0 + v0 * (1.0 - a0)
+        nb1 = b1 + v1 * (1.0 - a1)
+        nb2 = b2 + v2 * (1.0 - a2)
+        nv0 = v0 * a0
+        nv1 = v1 * a1
+        nv2 = v2 * a2
+        # what lies at the end: interface k, or the Lambertian base below the last region
         from_above = not up
         k = r - 1 if up else r
         lamb = lambertian and from_above and r == n_if
@@ -87,7 +207,7 @@ def events(n, S, table, off, n_if, lambertian, transmit_base, conductor_base, ba
         e_dn = T[io + T_ETA_DN]
         e_up = T[io + T_ETA_UP]
         matched = T[io + T_MATCHED] != 0.0
-        plain = (not lamb) & (not matched)   # a rough interface (not crossed unchanged); & keeps the loads unconditional
+        plain = (not lamb) & (not matched)   # a rough interface (not crossed unchanged)
         eta = e_dn if from_above else e_up
         inv_eta = e_up if from_above else e_dn
         is_cond = conductor_base and kc == n_if - 1
@@ -98,8 +218,6 @@ def events(n, S, table, off, n_if, lambertian, transmit_base, conductor_base, ba
         wx = rc * tx + rs * ty
         wy = rc * ty - rs * tx
         # two 64-bit draws: azimuth and radius of a disk point, Fresnel choice, roulette
-        key = u64_bits(S[F_KEY * LN + i])
-        c = np.uint64(np.int64(S[F_CTR * LN + i]))
         u1, u2 = uniform_pair(draw(key, c))
         u3, u4 = uniform_pair(draw(key, c + _U1))
         cp, sp = optics.cos_sin_2pi(u1)
@@ -109,21 +227,19 @@ def events(n, S, table, off, n_if, lambertian, transmit_base, conductor_base, ba
         mx, my, mz = optics.sample_vndf_disk(wx, wy, wz, ax, ay, qx, qy)
         wm = wx * mx + wy * my + wz * mz
         fd, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
-        f0 = optics.fresnel_conductor(wm, ce0, ck0)
-        f1 = optics.fresnel_conductor(wm, ce1, ck1)
-        f2 = optics.fresnel_conductor(wm, ce2, ck2)
-        refl = is_cond or u3 < fd
+        f0, f1, f2 = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2)
+        refl_ = is_cond or u3 < fd
         rx, ry, rz = optics.reflect(wx, wy, wz, mx, my, mz)
         sx, sy, sz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
-        ox = rx if refl else sx
-        oy = ry if refl else sy
-        oz = rz if refl else sz
+        ox = rx if refl_ else sx
+        oy = ry if refl_ else sy
+        oz = rz if refl_ else sz
         # single-scattering microfacet model: an exit on the wrong side is lost to masking
-        wrong = plain and (oz <= 0.0 if refl else oz >= 0.0)
+        wrong = plain and (oz <= 0.0 if refl_ else oz >= 0.0)
         if height_correlated is not None:
             lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
             lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
-            g = optics.smith_g2(lam_i, lam_o, not refl, True) * (1.0 + lam_i)
+            g = optics.smith_g2(lam_i, lam_o, not refl_, True) * (1.0 + lam_i)
         else:
             g = optics.smith_g1_dir(ox, oy, oz, ax, ay)
         g = 0.0 if wrong else (g if plain else 1.0)
@@ -131,18 +247,18 @@ def events(n, S, table, off, n_if, lambertian, transmit_base, conductor_base, ba
         h0 = rho0 if lamb else (f0 if (is_cond and plain) else 1.0)
         h1 = rho1 if lamb else (f1 if (is_cond and plain) else 1.0)
         h2 = rho2 if lamb else (f2 if (is_cond and plain) else 1.0)
-        b0 += v0 * (1.0 - h0)
-        b1 += v1 * (1.0 - h1)
-        b2 += v2 * (1.0 - h2)
-        v0 *= h0
-        v1 *= h1
-        v2 *= h2
-        m0 = S[F_MK0 * LN + i] + v0 * (1.0 - g)
-        m1 = S[F_MK1 * LN + i] + v1 * (1.0 - g)
-        m2 = S[F_MK2 * LN + i] + v2 * (1.0 - g)
-        v0 *= g
-        v1 *= g
-        v2 *= g
+        nb0 += nv0 * (1.0 - h0)
+        nb1 += nv1 * (1.0 - h1)
+        nb2 += nv2 * (1.0 - h2)
+        nv0 *= h0
+        nv1 *= h1
+        nv2 *= h2
+        nm0 = m0 + nv0 * (1.0 - g)
+        nm1 = m1 + nv1 * (1.0 - g)
+        nm2 = m2 + nv2 * (1.0 - g)
+        nv0 *= g
+        nv1 *= g
+        nv2 *= g
         # the new direction (world frame): the lobe's, rotated back; the disk point lifted onto the
         # hemisphere (cosine-distributed, upward) at the base; unchanged through a matched interface
         gx = rc * ox - rs * oy
@@ -151,47 +267,58 @@ def events(n, S, table, off, n_if, lambertian, transmit_base, conductor_base, ba
         nx = qx if lamb else (gx if plain else x)
         ny = qy if lamb else (gy if plain else y)
         nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if plain else z)
-        crossed = (not lamb) and (not plain or not refl)
+        crossed = (not lamb) and (not plain or not refl_)
         nr = (k + 1 if from_above else k) if crossed else r
-        e = np.int64(S[F_EV * LN + i]) + 1
-        bo = S[F_BASED * LN + i]
+        ne = ev + 1
         top = (k == 0 and not lamb) or (lamb and n_if == 0)
         based = lamb or (k == base_k and from_above)
-        # ---- Russian roulette: survivors boosted by 1 / p (the added weight booked per lane); a killed
+        # Russian roulette: survivors boosted by 1 / p (the added weight booked per lane); a killed
         # lane keeps its weight for booking as roulette
-        wmax = max(v0, max(v1, v2))
-        p = wmax * (1.0 / RR_THRESHOLD)
-        rr = e >= RR_START and wmax < RR_THRESHOLD
-        killed = wrong or (rr and u4 >= p)
-        boost = 1.0 / p if (rr and not killed) else 1.0
-        # ---- what comes next: an exit (nothing lies beyond), the cap, a per-lane step (a scattering
+        wmax = max(nv0, max(nv1, nv2))
+        pr = wmax * (1.0 / RR_THRESHOLD)
+        rr = ne >= RR_START and wmax < RR_THRESHOLD
+        killed = wrong or (rr and u4 >= pr)
+        boost = 1.0 / pr if (rr and not killed) else 1.0
+        # what comes next: an exit (nothing lies beyond), the cap, a per-lane step (a scattering
         # region, or a multiple-scattering interface next) or another event
         k2 = nr - 1 if nz > 0.0 else nr
         k2c = min(max(k2, 0), max(n_if, 1) - 1)
         scat_next = T[off + nr * RG_STRIDE + T_SCAT] != 0.0
         ms_next = T[k2c * IF_STRIDE + T_MS] != 0.0
-        step = scat_next | ((k2 >= 0) & (k2 < n_if) & ms_next)
-        st = ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
+        to_steps = scat_next | ((k2 >= 0) & (k2 < n_if) & ms_next)
+        nst = ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
             ST_TRANSMITTED if (transmit_base and nr == n_if and nz < 0.0) else (
-                ST_CAPPED if e >= event_cap else (ST_SCALAR if step else ST_ALIVE))))
-        S[F_DX * LN + i] = nx
-        S[F_DY * LN + i] = ny
-        S[F_DZ * LN + i] = nz
-        S[F_W0 * LN + i] = v0 * boost
-        S[F_W1 * LN + i] = v1 * boost
-        S[F_W2 * LN + i] = v2 * boost
-        S[F_RL0 * LN + i] = S[F_RL0 * LN + i] - v0 * (boost - 1.0)
-        S[F_RL1 * LN + i] = S[F_RL1 * LN + i] - v1 * (boost - 1.0)
-        S[F_RL2 * LN + i] = S[F_RL2 * LN + i] - v2 * (boost - 1.0)
-        S[F_AB0 * LN + i] = b0
-        S[F_AB1 * LN + i] = b1
-        S[F_AB2 * LN + i] = b2
-        S[F_MK0 * LN + i] = m0
-        S[F_MK1 * LN + i] = m1
-        S[F_MK2 * LN + i] = m2
-        S[F_REG * LN + i] = float(nr)
-        S[F_EV * LN + i] = float(e)
-        S[F_ORDER * LN + i] = S[F_ORDER * LN + i] + (1.0 if top else 0.0)
-        S[F_BASED * LN + i] = max(bo, 1.0 if based else 0.0)
-        S[F_CTR * LN + i] = float(np.int64(c) + 2)
-        S[F_STATUS * LN + i] = float(st)
+                ST_CAPPED if ne >= event_cap else (ST_SCALAR if to_steps else ST_ALIVE))))
+        S[(A_RL + 0) * LN + i] -= nv0 * (boost - 1.0) if go else 0.0
+        S[(A_RL + 1) * LN + i] -= nv1 * (boost - 1.0) if go else 0.0
+        S[(A_RL + 2) * LN + i] -= nv2 * (boost - 1.0) if go else 0.0
+        S[F_DX * LN + i] = nx if go else x
+        S[F_DY * LN + i] = ny if go else y
+        S[F_DZ * LN + i] = nz if go else z
+        S[F_W0 * LN + i] = nv0 * boost if go else v0
+        S[F_W1 * LN + i] = nv1 * boost if go else v1
+        S[F_W2 * LN + i] = nv2 * boost if go else v2
+        S[F_AB0 * LN + i] = nb0 if go else b0
+        S[F_AB1 * LN + i] = nb1 if go else b1
+        S[F_AB2 * LN + i] = nb2 if go else b2
+        S[F_MK0 * LN + i] = nm0 if go else m0
+        S[F_MK1 * LN + i] = nm1 if go else m1
+        S[F_MK2 * LN + i] = nm2 if go else m2
+        S[F_REG * LN + i] = float(nr if go else r)
+        S[F_EV * LN + i] = float(ne if go else ev)
+        S[F_ORDER * LN + i] = float(order + 1 if (go and top) else order)
+        S[F_BASED * LN + i] = 1.0 if (go and based) else bo
+        S[F_CTR * LN + i] = float(np.int64(c) + 2 if go else np.int64(c))
+        S[F_STATUS * LN + i] = float(nst if go else st)
+        S[F_KEY * LN + i] = u64_as_double(key)
+        S[F_PATH * LN + i] = float(p)
+        S[F_LX * LN + i] = nlx if ended else S[F_LX * LN + i]
+        S[F_LY * LN + i] = nly if ended else S[F_LY * LN + i]
+        S[F_LZ * LN + i] = nlz if ended else S[F_LZ * LN + i]
+        # a new path's per-lane-step fields
+        S[F_HERO * LN + i] = -1.0 if ended else S[F_HERO * LN + i]
+        S[F_Q0 * LN + i] = _THIRD if ended else S[F_Q0 * LN + i]
+        S[F_Q1 * LN + i] = _THIRD if ended else S[F_Q1 * LN + i]
+        S[F_Q2 * LN + i] = _THIRD if ended else S[F_Q2 * LN + i]
+        S[F_HPOS * LN + i] = -1.0 if ended else S[F_HPOS * LN + i]
+        S[F_SEEDED * LN + i] = 0.0 if ended else S[F_SEEDED * LN + i]

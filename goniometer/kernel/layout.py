@@ -39,36 +39,55 @@ N_COUNTS = 2
 P_TABULATE = 2
 
 
-# ---- fields; those up to N_RESET - 1 are set from a template when a lane takes a new path
+# ---- fields; those up to N_RESET - 1 are set to a new path's values when a lane takes one
 F_DX, F_DY, F_DZ = 0, 1, 2          # direction of travel (world frame)
 F_W0, F_W1, F_W2 = 3, 4, 5          # path weight per channel
 F_AB0, F_AB1, F_AB2 = 6, 7, 8       # weight lost to absorption so far
 F_MK0, F_MK1, F_MK2 = 9, 10, 11     # weight lost to masking so far
-F_RL0, F_RL1, F_RL2 = 12, 13, 14    # roulette's net change of the weight (boosts, negative)
-F_REG = 15                          # region the path is in (0 air .. n_if)
-F_EV = 16                           # events so far
-F_ORDER = 17                        # events at the top interface (the bounce order)
-F_CTR = 18                          # next counter-based draw of the path
-F_STATUS = 19                       # ST_*
-F_BASED = 20                        # 1 once the path had an event at the base
-F_HERO = 21                         # hero channel of spectral MIS (-1: not drawn yet)
-F_Q0, F_Q1, F_Q2 = 22, 23, 24       # spectral-MIS technique shares of the path
-F_HPOS = 25                         # height in a scattering region (< 0: at its boundary)
-F_SEEDED = 26                       # 1 once the path's xoshiro state (F_X0..) is seeded
-N_RESET = 27
-F_KEY = 27                          # path key (bits)
-F_PATH = 28                         # index of the path in its chunk
-F_LX, F_LY, F_LZ = 29, 30, 31       # the path's light direction (a tabulation draws one per path)
-F_X0 = 32                           # xoshiro256** state, F_X0 .. F_X0 + 3 (bits)
-N_FIELDS = 36
+F_REG = 12                          # region the path is in (0 air .. n_if)
+F_EV = 13                           # events so far
+F_ORDER = 14                        # events at the top interface (the bounce order)
+F_CTR = 15                          # next counter-based draw of the path
+F_BASED = 16                        # 1 once the path had an event at the base
+F_HERO = 17                         # hero channel of spectral MIS (-1: not drawn yet)
+F_Q0, F_Q1, F_Q2 = 18, 19, 20       # spectral-MIS technique shares of the path
+F_HPOS = 21                         # height in a scattering region (< 0: at its boundary)
+F_SEEDED = 22                       # 1 once the path's xoshiro state (F_X0..) is seeded
+N_RESET = 23
+F_STATUS = 23                       # ST_*
+F_KEY = 24                          # path key (bits)
+F_PATH = 25                         # index of the path in its chunk (lane i: i, i + LANES, ...)
+F_LX, F_LY, F_LZ = 26, 27, 28       # the path's light direction (a tabulation draws one per path)
+F_X0 = 29                           # xoshiro256** state, F_X0 .. F_X0 + 3 (bits)
+# ---- per-lane sums over the lane's ended paths (summed over lanes at the end of the chunk)
+A_RE = 33       # reflected weight (3 channels), then its squares at A_RE + 3
+A_RB = 39       # reflected weight of paths that never reached the base, squares at + 3
+A_TR = 45       # transmitted weight, squares at + 3
+A_AB = 51       # absorbed, squares at + 3
+A_MK = 57       # masking loss, squares at + 3
+A_RL = 63       # roulette's net change of the weight (3)
+A_CP = 66       # capped weight (3)
+A_NCAP = 69     # capped paths
+A_NEV = 70      # events
+# ---- the exit of the path that ended at the latest step (read by the per-lane pass)
+X_ROW = 71      # bounce-order row of the exit, -1 when the path did not leave the stack
+X_TRANS = 72    # 1.0 when it left downward (BTDF)
+X_DX = 73       # direction (3)
+X_W = 76        # weight (3)
+X_PATH = 79     # its index in the chunk
+X_LX = 80       # its light direction (3)
+N_FIELDS = 83
 
 # ---- lane status after a step
+# (an ended path -- ST_REFLECTED .. ST_CAPPED -- is booked, and its lane given the next path, at the
+# start of the next vectorised step)
 ST_ALIVE = 0        # travelling; its next action is the vectorised event
 ST_SCALAR = 1       # travelling; its next action is a per-lane step (free flight, walk)
 ST_REFLECTED = 2    # left the stack upward (BRDF)
 ST_TRANSMITTED = 3  # left a transmitting stack downward (BTDF)
 ST_DEAD = 4         # ended: masking loss (weight 0) or killed by roulette (weight kept for booking)
 ST_CAPPED = 5       # stopped by the event cap (weight kept for booking)
+ST_DONE = 6         # the lane has no path left in the chunk
 
 # ---- the stack table the event reads per lane (copied to the stack of the event loop)
 #: per interface k, at k * IF_STRIDE: alpha_x, alpha_y, cos and sin of the tangent-frame rotation,

@@ -18,8 +18,8 @@ import numpy as np
 from goniometer import optics
 from goniometer.kernel.codegen import u64_as_double, u64_bits
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
-from goniometer.kernel.layout import (F_AB0, F_AB1, F_AB2, F_BASED, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY,
-                                      F_ORDER, F_Q0, F_Q1, F_Q2, F_REG, F_RL0, F_RL1, F_RL2, F_SEEDED, F_W0, F_W1,
+from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_BASED, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY,
+                                      F_ORDER, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_W0, F_W1,
                                       F_W2, F_X0, IF_STRIDE, LANES, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED,
                                       ST_TRANSMITTED, T_MS, TAU_SCATTER)
 from goniometer.rng import next_disk, next_float, seed_state
@@ -171,7 +171,8 @@ def _is_ms(table, k, n_if):
 def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, table,
                cond, g_is_r, b_is_g, n_if, transmit_base, conductor_base, base_k, event_cap):
     """Per-lane steps of lane ``i`` of the state ``S`` until its next action is the vectorised
-    event or its path ends; returns its new status (``ST_*``). ``xs`` is scratch ``uint64[4]``."""
+    event or its path ends (booked at the next step); returns its new status (``ST_*``). ``xs``
+    is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``."""
     dx = S[F_DX * LN + i]
     dy = S[F_DY * LN + i]
     dz = S[F_DZ * LN + i]
@@ -181,9 +182,9 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
     ab0 = S[F_AB0 * LN + i]
     ab1 = S[F_AB1 * LN + i]
     ab2 = S[F_AB2 * LN + i]
-    rl0 = S[F_RL0 * LN + i]
-    rl1 = S[F_RL1 * LN + i]
-    rl2 = S[F_RL2 * LN + i]
+    rl0 = 0.0
+    rl1 = 0.0
+    rl2 = 0.0
     region = np.int64(S[F_REG * LN + i])
     events = np.int64(S[F_EV * LN + i])
     order = np.int64(S[F_ORDER * LN + i])
@@ -301,9 +302,9 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
     S[F_AB0 * LN + i] = ab0
     S[F_AB1 * LN + i] = ab1
     S[F_AB2 * LN + i] = ab2
-    S[F_RL0 * LN + i] = rl0
-    S[F_RL1 * LN + i] = rl1
-    S[F_RL2 * LN + i] = rl2
+    S[(A_RL + 0) * LN + i] += rl0
+    S[(A_RL + 1) * LN + i] += rl1
+    S[(A_RL + 2) * LN + i] += rl2
     S[F_REG * LN + i] = float(region)
     S[F_EV * LN + i] = float(events)
     S[F_ORDER * LN + i] = float(order)
