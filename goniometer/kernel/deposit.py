@@ -1,8 +1,8 @@
 """Exits to histogram cells (``docs/kernel.md``, deposits).
 
 The kernel collects the exits of a chunk in a small buffer, in the order the paths leave, and
-flushes it here: one pass finds the cells (:func:`goniometer.slices.cell_index_fast`), a second
-adds the weights in buffer order, the cells a few exits ahead prefetched. The order of additions
+flushes it here: one pass finds the cells (:func:`goniometer.slices.cell_index_fast`) and
+prefetches their cache lines, a second adds the weights in buffer order. The order of additions
 to a cell is thus the order of exits within the chunk, which does not depend on threads.
 
 Histograms: (n_theta, n_phi, K + 2, 3), rows ``0 .. K - 1`` the weight sums of bounce orders
@@ -20,8 +20,6 @@ from goniometer.slices import cell_index_fast
 #: exits a buffer holds: columns d_x, d_y, d_z, w_0, w_1, w_2, order row, 1.0 if transmitted
 BUFFER = 512
 X_COLS = 8
-#: prefetch distance (exits)
-_AHEAD = 16
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
@@ -31,6 +29,8 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
     int64 scratch of the buffer's length)."""
     row = (max_order + 2) * 3
     nb = n_theta * n_phi * row
+    hb = brdf.reshape(-1)
+    ht = btdf.reshape(-1)
     for e in range(n_exit):
         transmission = xbuf[e, 7] != 0.0
         o = int(xbuf[e, 6])
@@ -42,18 +42,15 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
         base = (i * n_phi + j) * row + shift
         cell[e] = -1 if i < 0 else base + o * 3
         sqo[e] = -1 if i < 0 else base + max_order * 3
-    hb = brdf.reshape(-1)
-    ht = btdf.reshape(-1)
+        # fetched while the next cells are found: the additions below find their lines in cache
+        if i >= 0:
+            if transmission:
+                prefetch(ht, cell[e] - nb)
+                prefetch(ht, sqo[e] - nb)
+            else:
+                prefetch(hb, cell[e])
+                prefetch(hb, sqo[e])
     for e in range(n_exit):
-        if e + _AHEAD < n_exit:
-            f = cell[e + _AHEAD]
-            if f >= 0:
-                if f < nb:
-                    prefetch(hb, f)
-                    prefetch(hb, sqo[e + _AHEAD])
-                else:
-                    prefetch(ht, f - nb)
-                    prefetch(ht, sqo[e + _AHEAD] - nb)
         f = cell[e]
         if f < 0:
             continue

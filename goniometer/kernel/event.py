@@ -24,7 +24,13 @@ import numpy as np
 
 from goniometer import optics
 from goniometer.kernel.codegen import prefer_wide_vectors, stack_block, u64_as_double, u64_bits
-from goniometer.kernel.layout import *  # noqa: F401,F403 (the lane layout's many row names)
+from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, F_AB0, F_AB1, F_AB2,
+                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY, F_LX, F_LY,
+                                      F_LZ, F_MK0, F_MK1, F_MK2, F_ORDER, F_PATH, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED,
+                                      F_STATUS, F_W0, F_W1, F_W2, IF_STRIDE, LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED,
+                                      ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED, T_AX, T_AY,
+                                      T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT, T_TAU0, T_TAU1,
+                                      T_TAU2, X_DX, X_LX, X_PATH, X_ROW, X_TRANS, X_W)
 from goniometer.rng import draw, path_key, uniform_pair
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
@@ -178,8 +184,57 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         order = 0 if ended else order
         bo = 0.0 if ended else bo
         c = np.uint64(1) if ended else np.uint64(np.int64(S[F_CTR * LN + i]))
-        key = key if ended else u64_bits(S[F_KEY * LN + i])
+        S[F_DX * LN + i] = x
+        S[F_DY * LN + i] = y
+        S[F_DZ * LN + i] = z
+        S[F_W0 * LN + i] = v0
+        S[F_W1 * LN + i] = v1
+        S[F_W2 * LN + i] = v2
+        S[F_AB0 * LN + i] = b0
+        S[F_AB1 * LN + i] = b1
+        S[F_AB2 * LN + i] = b2
+        S[F_MK0 * LN + i] = m0
+        S[F_MK1 * LN + i] = m1
+        S[F_MK2 * LN + i] = m2
+        S[F_REG * LN + i] = float(r)
+        S[F_EV * LN + i] = float(ev)
+        S[F_ORDER * LN + i] = float(order)
+        S[F_BASED * LN + i] = bo
+        S[F_CTR * LN + i] = float(np.int64(c))
+        S[F_STATUS * LN + i] = float(st)
+        S[F_KEY * LN + i] = u64_as_double(key) if ended else S[F_KEY * LN + i]
+        S[F_PATH * LN + i] = float(p)
+        S[F_LX * LN + i] = nlx if ended else S[F_LX * LN + i]
+        S[F_LY * LN + i] = nly if ended else S[F_LY * LN + i]
+        S[F_LZ * LN + i] = nlz if ended else S[F_LZ * LN + i]
+        # a new path's per-lane-step fields
+        S[F_HERO * LN + i] = -1.0 if ended else S[F_HERO * LN + i]
+        S[F_Q0 * LN + i] = _THIRD if ended else S[F_Q0 * LN + i]
+        S[F_Q1 * LN + i] = _THIRD if ended else S[F_Q1 * LN + i]
+        S[F_Q2 * LN + i] = _THIRD if ended else S[F_Q2 * LN + i]
+        S[F_HPOS * LN + i] = -1.0 if ended else S[F_HPOS * LN + i]
+        S[F_SEEDED * LN + i] = 0.0 if ended else S[F_SEEDED * LN + i]
+    for i in range(LN):
         # ---------------- stage B: the event of the lanes whose next action it is
+        st = np.int64(S[F_STATUS * LN + i])
+        x = S[F_DX * LN + i]
+        y = S[F_DY * LN + i]
+        z = S[F_DZ * LN + i]
+        v0 = S[F_W0 * LN + i]
+        v1 = S[F_W1 * LN + i]
+        v2 = S[F_W2 * LN + i]
+        b0 = S[F_AB0 * LN + i]
+        b1 = S[F_AB1 * LN + i]
+        b2 = S[F_AB2 * LN + i]
+        m0 = S[F_MK0 * LN + i]
+        m1 = S[F_MK1 * LN + i]
+        m2 = S[F_MK2 * LN + i]
+        r = np.int64(S[F_REG * LN + i])
+        ev = np.int64(S[F_EV * LN + i])
+        order = np.int64(S[F_ORDER * LN + i])
+        bo = S[F_BASED * LN + i]
+        c = np.uint64(np.int64(S[F_CTR * LN + i]))
+        key = u64_bits(S[F_KEY * LN + i])
         go = st == ST_ALIVE
         up = z > 0.0
         # traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
@@ -310,15 +365,3 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         S[F_BASED * LN + i] = 1.0 if (go and based) else bo
         S[F_CTR * LN + i] = float(np.int64(c) + 2 if go else np.int64(c))
         S[F_STATUS * LN + i] = float(nst if go else st)
-        S[F_KEY * LN + i] = u64_as_double(key)
-        S[F_PATH * LN + i] = float(p)
-        S[F_LX * LN + i] = nlx if ended else S[F_LX * LN + i]
-        S[F_LY * LN + i] = nly if ended else S[F_LY * LN + i]
-        S[F_LZ * LN + i] = nlz if ended else S[F_LZ * LN + i]
-        # a new path's per-lane-step fields
-        S[F_HERO * LN + i] = -1.0 if ended else S[F_HERO * LN + i]
-        S[F_Q0 * LN + i] = _THIRD if ended else S[F_Q0 * LN + i]
-        S[F_Q1 * LN + i] = _THIRD if ended else S[F_Q1 * LN + i]
-        S[F_Q2 * LN + i] = _THIRD if ended else S[F_Q2 * LN + i]
-        S[F_HPOS * LN + i] = -1.0 if ended else S[F_HPOS * LN + i]
-        S[F_SEEDED * LN + i] = 0.0 if ended else S[F_SEEDED * LN + i]
