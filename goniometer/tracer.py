@@ -49,11 +49,12 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import free_flight, lane_steps, microsurface_walk
 from goniometer.rng import chunk_key, stream_state
+from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
 
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
            "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
-           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS", "lane_kernel_for"]
+           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS", "lane_kernel_for", "kernel_flags"]
 
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
@@ -80,10 +81,31 @@ def lane_kernel_for(if_ms, region_tau, region_albedo) -> bool:
     return True
 
 
+def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
+    """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
+    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, aniso)``. ``kernel``:
+    ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
+    ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
+    cached) only when some stack needs it."""
+    if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
+        raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
+    p = packed
+    auto = bool(lane_kernel_for(p.if_ms, p.region_tau, p.region_albedo))
+    lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and auto)
+    aniso = bool(np.any(p.if_alpha[:, 0] != p.if_alpha[:, 1]) or np.any(p.if_rot[:, 1] != 0.0))
+
+    def flag(x: bool):
+        return True if x else None
+
+    return (flag(lanes), flag(height_correlated), flag(tabulate), flag(not auto), flag(p.base_kind == BASE_LAMBERTIAN),
+            flag(p.base_kind == BASE_CONDUCTOR), flag(aniso))
+
+
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
+                height_correlated, tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq,
+                counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
 
@@ -95,7 +117,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (:mod:`goniometer.kernel.deposit`); ``energy``:
     (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals;
-    ``counts``: (N_COUNTS,) int64.
+    ``counts``: (N_COUNTS,) int64. ``height_correlated`` .. ``aniso``: None or True, the compiled
+    variant (:func:`kernel_flags`, :func:`goniometer.kernel.event.step`); ``tabulate`` True goes
+    with ``param`` = :data:`P_TABULATE`.
 
     Lane ``i`` traces paths ``i, i + LANES, ...``; its sums are kept per lane and added in lane
     order at the end, exits are deposited in the order they happen: the same bits for any
@@ -104,8 +128,6 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
-    lambertian = base_kind == 2
-    tabulate = param == P_TABULATE
     tau_mode = tau_modes(region_tau, region_albedo)
     n_k = max(n_if, 1)
     eta_dn = np.ones(n_k)
@@ -118,7 +140,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
     b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
     # the interface that is the base (the bottom layer), -1 when the base is Lambertian
-    base_k = -1 if lambertian else n_if - 1
+    base_k = -1 if base_kind == 2 else n_if - 1
     # a new path's first action: the top interface from above (a walk if it scatters multiply)
     first_status = ST_SCALAR if (n_if > 0 and table[T_MS] != 0.0) else ST_ALIVE
     # every lane starts as if it had just ended a path of nothing (index i - LANES): the first step
@@ -136,25 +158,15 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     n_exit = 0
     while True:
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
-        if tabulate:
-            if height_correlated:
-                step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1,
-                     ck2, rho0, rho1, rho2, event_cap, lx, ly, lz, ckey, n_rays, first_status, max_order, True, True)
-            else:
-                step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1,
-                     ck2, rho0, rho1, rho2, event_cap, lx, ly, lz, ckey, n_rays, first_status, max_order, None, True)
-        elif height_correlated:
-            step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2,
-                 rho0, rho1, rho2, event_cap, lx, ly, lz, ckey, n_rays, first_status, max_order, True, None)
-        else:
-            step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2,
-                 rho0, rho1, rho2, event_cap, lx, ly, lz, ckey, n_rays, first_status, max_order, None, None)
+        step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
+             lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
+             conductor, aniso)
         # ---- per-lane pass: the exits of the paths the step booked, and per-lane steps
         live = 0
         for i in range(LANES):
             row = S[X_ROW * LANES + i]
             if row >= 0.0:
-                if tabulate:
+                if tabulate is not None:
                     if S[X_TRANS * LANES + i] == 0.0:
                         path = int(S[X_PATH * LANES + i])
                         exit_cell[path] = halfdiff_cell(S[X_LX * LANES + i], S[(X_LX + 1) * LANES + i],
@@ -178,7 +190,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                               max_order, brdf, btdf)
                         n_exit = 0
             st = S[F_STATUS * LANES + i]
-            if st == ST_SCALAR:
+            if steps is not None and st == ST_SCALAR:
                 S[F_STATUS * LANES + i] = lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau,
                                                      region_albedo, region_g, tau_mode, table, cond, g_is_r, b_is_g,
                                                      n_if, transmit_base, conductor_base, base_k, event_cap)
@@ -212,15 +224,16 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 @numba.njit(cache=True, error_model='numpy')
 def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-               param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-               kernel, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+               param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
+               tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
     ``exit_w[b]``: see :func:`trace_chunk`).
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
     is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.rng.chunk_key`)
-    for the lane kernel, its random stream (:func:`goniometer.rng.stream_state`) for the per-path
-    kernel; ``kernel`` one of ``KERNEL_*``.
+    for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.rng.stream_state`)
+    for the per-path kernel (``lanes`` None); ``height_correlated`` .. ``aniso``: None or True
+    (:func:`kernel_flags`).
     """
     c = first_chunk + b
     n = min(chunk_rays, n_rays_total - c * chunk_rays)
@@ -232,40 +245,43 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
     exit_cell[b].fill(-1)
     if n <= 0:
         return
-    lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and lane_kernel_for(if_ms, region_tau, region_albedo))
-    if not lanes:
+    if lanes is None:
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                     lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                    height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b],
-                    exit_w[b])
-        return
-    ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-    trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                lx, ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                height_correlated, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b],
-                exit_w[b])
+                    height_correlated is not None, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b],
+                    exit_cell[b], exit_w[b])
+    else:
+        ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
+        trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+                    lx, ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
+                    height_correlated, tabulate, steps, lambertian, conductor, aniso, brdf[b], btdf[b], energy[b],
+                    energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                kernel, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
+                tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
-    (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch)."""
+    (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
+    ``aniso`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
+    the variant they name."""
     for b in numba.prange(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                   kernel, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)
+                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
+                   tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                   exit_w)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                       param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                       kernel, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                       param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes,
+                       height_correlated, tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy,
+                       energy_sq, counts, exit_cell, exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
@@ -274,5 +290,6 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
     for b in range(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, height_correlated, event_cap,
-                   kernel, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)
+                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
+                   tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                   exit_w)

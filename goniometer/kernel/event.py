@@ -44,17 +44,26 @@ LN = LANES
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
-def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2,
-         rho0, rho1, rho2, event_cap, lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated,
-         tabulate):
+def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
+         lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian, conductor,
+         aniso):
     """One step for all lanes of ``S`` (see the module docstring).
 
-    ``height_correlated`` None: separable masking ``G1(o)``; True: height-correlated ``G2 / G1(i)``
-    (its Beta function has no vector form: that specialisation runs lane by lane). ``tabulate``
-    None: every path starts along ``-l``; True: each draws its light direction (cosine-weighted,
-    its draw 0). numba compiles a None argument's specialisation without the other branch, and
-    LLVM vectorises its loop; the loop body is written out here, as an inlined function taking the
-    state array would keep reference counting in the loop and stop LLVM."""
+    The last six arguments are None or True and select what is compiled (numba compiles a None
+    argument's specialisation without the other branch; LLVM vectorises the loops of the
+    specialisations without ``height_correlated``):
+
+    * ``height_correlated``: None, separable masking ``G1(o)``; True, height-correlated
+      ``G2 / G1(i)`` (its Beta function has no vector form: that specialisation runs lane by lane);
+    * ``tabulate``: None, every path starts along ``-l``; True, each draws its light direction
+      (cosine-weighted, its draw 0);
+    * ``steps``: True when lanes may need per-lane steps (a scattering medium, a multiple-scattering
+      interface): only lanes whose next action is the event take it; None, every lane takes it;
+    * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
+    * ``aniso``: True when some interface is anisotropic (tangent-frame rotations).
+
+    The loop bodies are written out here, as an inlined function taking the state array would
+    keep reference counting in the loop and stop LLVM."""
     prefer_wide_vectors()
     # the stack table on this function's stack (gathers that provably do not alias S)
     T = stack_block()
@@ -63,10 +72,13 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
     for i in range(LN):
         # ---------------- stage A: book the path the lane ended, give the lane its next path
         st = np.int64(S[F_STATUS * LN + i])
-        refl = st == ST_REFLECTED
-        trans = st == ST_TRANSMITTED
-        dead = st == ST_DEAD
-        capd = st == ST_CAPPED
+        # (a lane without paths left keeps its last path's index, >= n_rays: nothing to book)
+        p = np.int64(S[F_PATH * LN + i])
+        live = p < n_rays
+        refl = (st == ST_REFLECTED) & live
+        trans = (st == ST_TRANSMITTED) & live
+        dead = (st == ST_DEAD) & live
+        capd = (st == ST_CAPPED) & live
         ended = refl | trans | dead | capd
         x = S[F_DX * LN + i]
         y = S[F_DY * LN + i]
@@ -84,7 +96,6 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         ev = np.int64(S[F_EV * LN + i])
         order = np.int64(S[F_ORDER * LN + i])
         bo = S[F_BASED * LN + i]
-        p = np.int64(S[F_PATH * LN + i])
         o0 = v0 if refl else 0.0
         o1 = v1 if refl else 0.0
         o2 = v2 if refl else 0.0
@@ -235,7 +246,11 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         bo = S[F_BASED * LN + i]
         c = np.uint64(np.int64(S[F_CTR * LN + i]))
         key = u64_bits(S[F_KEY * LN + i])
-        go = st == ST_ALIVE
+        p = np.int64(S[F_PATH * LN + i])
+        # without per-lane steps every lane takes the event, also a lane without paths left (its
+        # values are never booked); only the roulette sum must not see it
+        go = True if steps is None else st == ST_ALIVE
+        booked = go and p < n_rays
         up = z > 0.0
         # traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
         ro = off + r * RG_STRIDE
@@ -252,26 +267,31 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         # what lies at the end: interface k, or the Lambertian base below the last region
         from_above = not up
         k = r - 1 if up else r
-        lamb = lambertian and from_above and r == n_if
+        lamb = False if lambertian is None else from_above and r == n_if
         kc = min(max(k, 0), max(n_if, 1) - 1)
         io = kc * IF_STRIDE
         ax = T[io + T_AX]
-        ay = T[io + T_AY]
-        rc = T[io + T_RC]
-        rs = T[io + T_RS]
         e_dn = T[io + T_ETA_DN]
         e_up = T[io + T_ETA_UP]
         matched = T[io + T_MATCHED] != 0.0
         plain = (not lamb) & (not matched)   # a rough interface (not crossed unchanged)
         eta = e_dn if from_above else e_up
         inv_eta = e_up if from_above else e_dn
-        is_cond = conductor_base and kc == n_if - 1
+        is_cond = False if conductor is None else kc == n_if - 1
         # the arrival direction in the interface's tangent frame of the arrival side
         tx = -x
         ty = -y
         wz = -z if from_above else z
-        wx = rc * tx + rs * ty
-        wy = rc * ty - rs * tx
+        if aniso is None:
+            ay = ax
+            wx = tx
+            wy = ty
+        else:
+            ay = T[io + T_AY]
+            rc = T[io + T_RC]
+            rs = T[io + T_RS]
+            wx = rc * tx + rs * ty
+            wy = rc * ty - rs * tx
         # two 64-bit draws: azimuth and radius of a disk point, Fresnel choice, roulette
         u1, u2 = uniform_pair(draw(key, c))
         u3, u4 = uniform_pair(draw(key, c + _U1))
@@ -282,7 +302,10 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         mx, my, mz = optics.sample_vndf_disk(wx, wy, wz, ax, ay, qx, qy)
         wm = wx * mx + wy * my + wz * mz
         fd, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
-        f0, f1, f2 = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2)
+        if conductor is None:
+            f0 = f1 = f2 = 1.0
+        else:
+            f0, f1, f2 = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2)
         refl_ = is_cond or u3 < fd
         rx, ry, rz = optics.reflect(wx, wy, wz, mx, my, mz)
         sx, sy, sz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
@@ -316,8 +339,12 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         nv2 *= g
         # the new direction (world frame): the lobe's, rotated back; the disk point lifted onto the
         # hemisphere (cosine-distributed, upward) at the base; unchanged through a matched interface
-        gx = rc * ox - rs * oy
-        gy = rs * ox + rc * oy
+        if aniso is None:
+            gx = ox
+            gy = oy
+        else:
+            gx = rc * ox - rs * oy
+            gy = rs * ox + rc * oy
         gz = oz if from_above else -oz
         nx = qx if lamb else (gx if plain else x)
         ny = qy if lamb else (gy if plain else y)
@@ -338,15 +365,18 @@ def step(S, table, off, n_if, lambertian, transmit_base, conductor_base, base_k,
         # region, or a multiple-scattering interface next) or another event
         k2 = nr - 1 if nz > 0.0 else nr
         k2c = min(max(k2, 0), max(n_if, 1) - 1)
-        scat_next = T[off + nr * RG_STRIDE + T_SCAT] != 0.0
-        ms_next = T[k2c * IF_STRIDE + T_MS] != 0.0
-        to_steps = scat_next | ((k2 >= 0) & (k2 < n_if) & ms_next)
-        nst = ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
+        if steps is None:
+            to_steps = False
+        else:
+            scat_next = T[off + nr * RG_STRIDE + T_SCAT] != 0.0
+            ms_next = T[k2c * IF_STRIDE + T_MS] != 0.0
+            to_steps = scat_next | ((k2 >= 0) & (k2 < n_if) & ms_next)
+        nst = ST_DONE if p >= n_rays else ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
             ST_TRANSMITTED if (transmit_base and nr == n_if and nz < 0.0) else (
                 ST_CAPPED if ne >= event_cap else (ST_SCALAR if to_steps else ST_ALIVE))))
-        S[(A_RL + 0) * LN + i] -= nv0 * (boost - 1.0) if go else 0.0
-        S[(A_RL + 1) * LN + i] -= nv1 * (boost - 1.0) if go else 0.0
-        S[(A_RL + 2) * LN + i] -= nv2 * (boost - 1.0) if go else 0.0
+        S[(A_RL + 0) * LN + i] -= nv0 * (boost - 1.0) if booked else 0.0
+        S[(A_RL + 1) * LN + i] -= nv1 * (boost - 1.0) if booked else 0.0
+        S[(A_RL + 2) * LN + i] -= nv2 * (boost - 1.0) if booked else 0.0
         S[F_DX * LN + i] = nx if go else x
         S[F_DY * LN + i] = ny if go else y
         S[F_DZ * LN + i] = nz if go else z
