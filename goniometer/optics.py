@@ -38,34 +38,40 @@ _INV_PI = 1.0 / math.pi
 # --------------------------------------------------------------------------- numerics
 
 _TWO_PI = 2.0 * math.pi
-# Taylor coefficients of sin and cos: |x| <= pi/4 leaves a truncation error below 1e-16
+# Taylor coefficients of sin and cos (of angles below 2 pi / 256)
 _S3, _S5, _S7 = -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0
-_S9, _S11, _S13, _S15 = 1.0 / 362880.0, -1.0 / 39916800.0, 1.0 / 6227020800.0, -1.0 / 1307674368000.0
-_C2, _C4, _C6, _C8 = -0.5, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0
-_C10, _C12, _C14, _C16 = -1.0 / 3628800.0, 1.0 / 479001600.0, -1.0 / 87178291200.0, 1.0 / 20922789888000.0
+_C2, _C4, _C6 = -0.5, 1.0 / 24.0, -1.0 / 720.0
+
+
+#: cos and sin of 2 pi j / 256, j = 0 .. 256 (within an ulp)
+_TURN_STEPS = 256
+_COS_TURN = np.cos(_TWO_PI * np.arange(_TURN_STEPS + 1) / _TURN_STEPS)
+_SIN_TURN = np.sin(_TWO_PI * np.arange(_TURN_STEPS + 1) / _TURN_STEPS)
+_COS_TURN[0], _SIN_TURN[0], _COS_TURN[_TURN_STEPS], _SIN_TURN[_TURN_STEPS] = 1.0, 0.0, 1.0, 0.0
+_COS_TURN.setflags(write=False)
+_SIN_TURN.setflags(write=False)
 
 
 @numba.njit(cache=True, inline='always')
 def cos_sin_2pi(u: float):
     """``(cos(2 pi u), sin(2 pi u))`` for ``u`` in [0, 1], without a libm call or branch.
 
-    The turn is split exactly into a quarter turn ``q`` and ``|r| <= 1/8``; sine and cosine of
-    ``x = 2 pi r`` come from their Taylor series to degree 15 / 16 (truncation < 1e-16) and are
-    rotated by ``q`` quarter turns. Agrees with ``math.cos``/``math.sin`` of ``2 pi u`` to a few
-    ulp; inlined in the tracer it avoids spilling every live register around a call.
+    The turn is split exactly into ``j / 256`` and a rest ``d`` below ``2 pi / 256``; the cosine
+    and sine of ``2 pi j / 256`` come from a table, those of the rest from their Taylor series to
+    degree 6 / 7 (truncation < 1e-17), and the two are composed. Agrees with ``math.cos``/``math.sin``
+    of ``2 pi u`` to a few ulp; ``cos_sin_2pi(0) = (1, 0)`` exactly. Inlined in the tracer it keeps
+    its loops vectorised (the table reads are gathers from constant memory).
     """
-    k = int(u * 4.0 + 0.5)
-    x = (u - 0.25 * k) * _TWO_PI  # u - k / 4 is exact
-    x2 = x * x
-    s = x + x * x2 * (_S3 + x2 * (_S5 + x2 * (_S7 + x2 * (_S9 + x2 * (_S11 + x2 * (_S13 + x2 * _S15))))))
-    c = 1.0 + x2 * (_C2 + x2 * (_C4 + x2 * (_C6 + x2 * (_C8 + x2 * (_C10 + x2 * (_C12 + x2 * (_C14 + x2 * _C16)))))))
-    q = k & 3
-    odd = (q & 1) != 0
-    a = s if odd else c
-    b = c if odd else s
-    cos_v = -a if (q == 1 or q == 2) else a
-    sin_v = -b if q >= 2 else b
-    return cos_v, sin_v
+    t = u * float(_TURN_STEPS)  # exact
+    jf = math.floor(t)
+    j = min(np.int64(jf), _TURN_STEPS)
+    d = (t - jf) * (_TWO_PI / _TURN_STEPS)  # t - jf is exact
+    d2 = d * d
+    s = d + d * d2 * (_S3 + d2 * (_S5 + d2 * _S7))
+    c = 1.0 + d2 * (_C2 + d2 * (_C4 + d2 * _C6))
+    cj = _COS_TURN[j]
+    sj = _SIN_TURN[j]
+    return cj * c - sj * s, sj * c + cj * s
 
 
 @numba.njit(cache=True, inline='always')
@@ -76,37 +82,30 @@ def cosine_from_disk(x: float, y: float):
     return x, y, math.sqrt(1.0 - (x * x + y * y))
 
 
-_LOG2E = 1.4426950408889634
-_LN2_HI = 0.693147180369123816490
-_LN2_LO = 1.90821492927058770002e-10
+#: 2^(j / 64), j = 0 .. 63 (within an ulp)
+_EXP_STEPS = 64
+_EXP2_TABLE = 2.0 ** (np.arange(_EXP_STEPS) / _EXP_STEPS)
+_EXP2_TABLE.setflags(write=False)
+_INV_LN2_STEP = _EXP_STEPS / math.log(2.0)
+# ln 2 / 64 in two parts (Cody-Waite): n times the first is exact for |n| < 2^21
+_LN2_STEP_HI = 0.693147180369123816490 / _EXP_STEPS
+_LN2_STEP_LO = 1.90821492927058770002e-10 / _EXP_STEPS
 
 
 @numba.njit(cache=True, inline='always')
 def exp_neg(x: float) -> float:
     """``exp(x)`` for ``x <= 0`` without a libm call, so that loops using it vectorise (LLVM has
-    no vector form of libm's ``exp`` here): ``x = k ln 2 + r`` with ``|r| <= ln 2 / 2`` (Cody-Waite
-    split of ln 2), ``e^r`` by its Taylor series to degree 13 (truncation < 1e-17 relative) and
-    ``2^k`` built from the exponent bits. Within a few ulp of ``math.exp``; ``exp_neg(0) = 1``
-    exactly; arguments below -708 give ``exp(-708)`` (not denormals; callers use it for
-    attenuation factors, where the difference is below 1e-307)."""
+    no vector form of libm's ``exp`` here): ``x = (64 k + j) ln 2 / 64 + r`` with ``|r| <= ln 2 / 128``
+    (Cody-Waite split of ln 2), ``e^r`` by its Taylor series to degree 5 (truncation < 1e-16),
+    ``2^(j / 64)`` from a table and ``2^k`` from the exponent bits. Within a few ulp of
+    ``math.exp``; ``exp_neg(0) = 1`` exactly; arguments below -708 give ``exp(-708)`` (not
+    denormals; callers use it for attenuation factors, where the difference is below 1e-307)."""
     x = max(x, -708.0)
-    kf = math.floor(x * _LOG2E + 0.5)
-    r = (x - kf * _LN2_HI) - kf * _LN2_LO
-    p = 1.0 / 6227020800.0
-    p = p * r + 1.0 / 479001600.0
-    p = p * r + 1.0 / 39916800.0
-    p = p * r + 1.0 / 3628800.0
-    p = p * r + 1.0 / 362880.0
-    p = p * r + 1.0 / 40320.0
-    p = p * r + 1.0 / 5040.0
-    p = p * r + 1.0 / 720.0
-    p = p * r + 1.0 / 120.0
-    p = p * r + 1.0 / 24.0
-    p = p * r + 1.0 / 6.0
-    p = p * r + 0.5
-    p = p * r + 1.0
-    p = p * r + 1.0
-    return p * _pow2(np.int64(kf))
+    nf = math.floor(x * _INV_LN2_STEP + 0.5)
+    r = (x - nf * _LN2_STEP_HI) - nf * _LN2_STEP_LO
+    n = np.int64(nf)
+    p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0)))))
+    return _EXP2_TABLE[n & (_EXP_STEPS - 1)] * p * _pow2(n >> 6)
 
 
 @intrinsic
