@@ -226,6 +226,19 @@ def fresnel_conductor_rgb(cos_i: float, eta0: float, kappa0: float, eta1: float,
             0.0 if (eta2 == 1.0 and kappa2 == 0.0) else f2)
 
 
+@numba.njit(cache=True, inline='always')
+def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float):
+    """:func:`fresnel_conductor_rgb` for two channels (RGB indices with two channels alike)."""
+    n0, d0 = _conductor_terms(cos_i, eta0, kappa0)
+    n1, d1 = _conductor_terms(cos_i, eta1, kappa1)
+    e0 = d0 if d0 > 0.0 else 1.0
+    e1 = d1 if d1 > 0.0 else 1.0
+    inv = 1.0 / (e0 * e1)
+    f0 = n0 * e1 * inv if d0 > 0.0 else 1.0
+    f1 = n1 * e0 * inv if d1 > 0.0 else 1.0
+    return 0.0 if (eta0 == 1.0 and kappa0 == 0.0) else f0, 0.0 if (eta1 == 1.0 and kappa1 == 0.0) else f1
+
+
 # --------------------------------------------------------------------------- GGX
 
 @numba.njit(cache=True)

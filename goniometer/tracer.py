@@ -54,7 +54,8 @@ from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
            "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
-           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS", "lane_kernel_for", "kernel_flags"]
+           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS", "lane_kernel_for",
+           "kernel_flags"]
 
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
@@ -83,7 +84,7 @@ def lane_kernel_for(if_ms, region_tau, region_albedo) -> bool:
 
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, aniso)``. ``kernel``:
+    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso)``. ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
     cached) only when some stack needs it."""
@@ -97,15 +98,18 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
     def flag(x: bool):
         return True if x else None
 
+    cond = p.base_kind == BASE_CONDUCTOR
+    c = p.cond
     return (flag(lanes), flag(height_correlated), flag(tabulate), flag(not auto), flag(p.base_kind == BASE_LAMBERTIAN),
-            flag(p.base_kind == BASE_CONDUCTOR), flag(aniso))
+            flag(cond), flag(cond and c[1] == c[0] and c[4] == c[3]), flag(cond and c[2] == c[1] and c[5] == c[4]),
+            flag(aniso))
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
-                height_correlated, tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq,
-                counts, exit_cell, exit_w):
+                height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy,
+                energy_sq, counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
 
@@ -137,8 +141,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         eta_up[k] = 1.0 / eta_dn[k]
     table, off = stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n_if, conductor_base)
     # conductor channels that share their complex index share their Fresnel value (walks)
-    g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
-    b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
+    walk_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
+    walk_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
     # the interface that is the base (the bottom layer), -1 when the base is Lambertian
     base_k = -1 if base_kind == 2 else n_if - 1
     # a new path's first action: the top interface from above (a walk if it scatters multiply)
@@ -160,7 +164,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
-             conductor, aniso)
+             conductor, g_is_r, b_is_g, aniso)
         # ---- per-lane pass: the exits of the paths the step booked, and per-lane steps
         live = 0
         for i in range(LANES):
@@ -192,8 +196,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
             st = S[F_STATUS * LANES + i]
             if steps is not None and st == ST_SCALAR:
                 S[F_STATUS * LANES + i] = lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau,
-                                                     region_albedo, region_g, tau_mode, table, cond, g_is_r, b_is_g,
-                                                     n_if, transmit_base, conductor_base, base_k, event_cap)
+                                                     region_albedo, region_g, tau_mode, table, cond, walk_g_is_r,
+                                                     walk_b_is_g, n_if, transmit_base, conductor_base, base_k,
+                                                     event_cap)
             elif st == ST_DONE:
                 continue
             live += 1
@@ -222,17 +227,17 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-               lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-               param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
-               tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+               ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
+               col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps, lambertian,
+               conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
     ``exit_w[b]``: see :func:`trace_chunk`).
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
     is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.rng.chunk_key`)
     for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.rng.stream_state`)
-    for the per-path kernel (``lanes`` None); ``height_correlated`` .. ``aniso``: None or True
+    for the per-path kernel (``lanes`` None); ``lanes`` .. ``aniso``: None or True
     (:func:`kernel_flags`).
     """
     c = first_chunk + b
@@ -255,33 +260,33 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                     lx, ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
-                    height_correlated, tabulate, steps, lambertian, conductor, aniso, brdf[b], btdf[b], energy[b],
-                    energy_sq[b], counts[b], exit_cell[b], exit_w[b])
+                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf[b],
+                    btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
-                tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
+                col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps, lambertian,
+                conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
     ``aniso`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
     the variant they name."""
     for b in numba.prange(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
-                   tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
+                   row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
+                   lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
                    exit_w)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                       lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                       param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes,
-                       height_correlated, tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy,
-                       energy_sq, counts, exit_cell, exit_w):
+                       lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
+                       row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
+                       lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                       exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
@@ -289,7 +294,7 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
     """
     for b in range(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index,
-                   param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated,
-                   tabulate, steps, lambertian, conductor, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
+                   row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
+                   lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
                    exit_w)

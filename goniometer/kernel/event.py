@@ -46,10 +46,10 @@ LN = LANES
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
          lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian, conductor,
-         aniso):
+         g_is_r, b_is_g, aniso):
     """One step for all lanes of ``S`` (see the module docstring).
 
-    The last six arguments are None or True and select what is compiled (numba compiles a None
+    The last eight arguments are None or True and select what is compiled (numba compiles a None
     argument's specialisation without the other branch; LLVM vectorises the loops of the
     specialisations without ``height_correlated``):
 
@@ -60,6 +60,8 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
     * ``steps``: True when lanes may need per-lane steps (a scattering medium, a multiple-scattering
       interface): only lanes whose next action is the event take it; None, every lane takes it;
     * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
+    * ``g_is_r``, ``b_is_g``: True when the conductor's green channel has the red one's complex
+      index, resp. blue the green one's (their Fresnel values are computed once);
     * ``aniso``: True when some interface is anisotropic (tangent-frame rotations).
 
     The loop bodies are written out here, as an inlined function taking the state array would
@@ -304,8 +306,18 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         fd, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
         if conductor is None:
             f0 = f1 = f2 = 1.0
-        else:
+        elif g_is_r is None and b_is_g is None:
             f0, f1, f2 = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2)
+        elif g_is_r is None:
+            f0, f1 = optics.fresnel_conductor_pair(wm, ce0, ck0, ce1, ck1)
+            f2 = f1
+        elif b_is_g is None:
+            f0, f2 = optics.fresnel_conductor_pair(wm, ce0, ck0, ce2, ck2)
+            f1 = f0
+        else:
+            f0 = optics.fresnel_conductor(wm, ce0, ck0)
+            f1 = f0
+            f2 = f0
         refl_ = is_cond or u3 < fd
         rx, ry, rz = optics.reflect(wx, wy, wz, mx, my, mz)
         sx, sy, sz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
