@@ -43,7 +43,7 @@ from goniometer.kernel.event import RR_START, RR_THRESHOLD, step
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, C_CAPPED, C_EVENTS,
                                       E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED, E_REFLECTED_WITHOUT_BASE,
                                       E_ROULETTE, E_TRANSMITTED, F_PATH, F_STATUS, LANES, N_COUNTS, N_ENERGY,
-                                      N_ENERGY_SQ, N_FIELDS, P_TABULATE, ST_ALIVE, ST_DEAD, ST_DONE, ST_SCALAR, T_MS,
+                                      N_ENERGY_SQ, N_FIELDS, P_TABULATE, ST_ALIVE, ST_DEAD, ST_SCALAR, T_MS,
                                       TAU_SCATTER,
                                       X_DX, X_LX, X_PATH, X_ROW, X_TRANS, X_W, stack_table, tau_modes)
 from goniometer.kernel.paths import trace_paths
@@ -154,6 +154,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         S[F_STATUS * LANES + i] = ST_DEAD
         S[F_PATH * LANES + i] = i - LANES
     xs = np.zeros(4, dtype=np.uint64)
+    xi = np.empty(LANES, dtype=np.int64)
     xbuf = np.empty((BUFFER, X_COLS))
     cell = np.empty(BUFFER, dtype=np.int64)
     sqo = np.empty(BUFFER, dtype=np.int64)
@@ -165,43 +166,48 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
              conductor, g_is_r, b_is_g, aniso)
-        # ---- per-lane pass: the exits of the paths the step booked, and per-lane steps
+        # ---- per-lane pass: the exits of the paths the step booked (lanes listed without
+        # branches, then visited), and per-lane steps
         live = 0
+        n_x = 0
         for i in range(LANES):
-            row = S[X_ROW * LANES + i]
-            if row >= 0.0:
-                if tabulate is not None:
-                    if S[X_TRANS * LANES + i] == 0.0:
-                        path = int(S[X_PATH * LANES + i])
-                        exit_cell[path] = halfdiff_cell(S[X_LX * LANES + i], S[(X_LX + 1) * LANES + i],
-                                                        S[(X_LX + 2) * LANES + i], S[X_DX * LANES + i],
-                                                        S[(X_DX + 1) * LANES + i], S[(X_DX + 2) * LANES + i])
-                        exit_w[path, 0] = S[X_W * LANES + i]
-                        exit_w[path, 1] = S[(X_W + 1) * LANES + i]
-                        exit_w[path, 2] = S[(X_W + 2) * LANES + i]
-                else:
-                    xbuf[n_exit, 0] = S[X_DX * LANES + i]
-                    xbuf[n_exit, 1] = S[(X_DX + 1) * LANES + i]
-                    xbuf[n_exit, 2] = S[(X_DX + 2) * LANES + i]
-                    xbuf[n_exit, 3] = S[X_W * LANES + i]
-                    xbuf[n_exit, 4] = S[(X_W + 1) * LANES + i]
-                    xbuf[n_exit, 5] = S[(X_W + 2) * LANES + i]
-                    xbuf[n_exit, 6] = row
-                    xbuf[n_exit, 7] = S[X_TRANS * LANES + i]
-                    n_exit += 1
-                    if n_exit == BUFFER:
-                        flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,
-                              max_order, brdf, btdf)
-                        n_exit = 0
-            st = S[F_STATUS * LANES + i]
-            if steps is not None and st == ST_SCALAR:
-                S[F_STATUS * LANES + i] = lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau,
-                                                     region_albedo, region_g, tau_mode, table, cond, walk_g_is_r,
-                                                     walk_b_is_g, n_if, transmit_base, conductor_base, base_k,
-                                                     event_cap)
-            elif st == ST_DONE:
-                continue
-            live += 1
+            xi[n_x] = i
+            n_x += S[X_ROW * LANES + i] >= 0.0
+            live += S[F_PATH * LANES + i] < n_rays
+        for q in range(n_x):
+            i = xi[q]
+            if tabulate is not None:
+                if S[X_TRANS * LANES + i] == 0.0:
+                    path = int(S[X_PATH * LANES + i])
+                    exit_cell[path] = halfdiff_cell(S[X_LX * LANES + i], S[(X_LX + 1) * LANES + i],
+                                                    S[(X_LX + 2) * LANES + i], S[X_DX * LANES + i],
+                                                    S[(X_DX + 1) * LANES + i], S[(X_DX + 2) * LANES + i])
+                    exit_w[path, 0] = S[X_W * LANES + i]
+                    exit_w[path, 1] = S[(X_W + 1) * LANES + i]
+                    exit_w[path, 2] = S[(X_W + 2) * LANES + i]
+            else:
+                xbuf[n_exit, 0] = S[X_DX * LANES + i]
+                xbuf[n_exit, 1] = S[(X_DX + 1) * LANES + i]
+                xbuf[n_exit, 2] = S[(X_DX + 2) * LANES + i]
+                xbuf[n_exit, 3] = S[X_W * LANES + i]
+                xbuf[n_exit, 4] = S[(X_W + 1) * LANES + i]
+                xbuf[n_exit, 5] = S[(X_W + 2) * LANES + i]
+                xbuf[n_exit, 6] = S[X_ROW * LANES + i]
+                xbuf[n_exit, 7] = S[X_TRANS * LANES + i]
+                n_exit += 1
+                if n_exit == BUFFER:
+                    flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,
+                          max_order, brdf, btdf)
+                    n_exit = 0
+        if steps is not None:
+            for i in range(LANES):
+                if S[F_STATUS * LANES + i] == ST_SCALAR:
+                    S[F_STATUS * LANES + i] = lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau,
+                                                         region_albedo, region_g, tau_mode, table, cond, walk_g_is_r,
+                                                         walk_b_is_g, n_if, transmit_base, conductor_base, base_k,
+                                                         event_cap)
+        # (a lane whose path ended in its steps is booked at the next step; a lane is without paths
+        # once its path index is past the chunk's)
         if live == 0:
             break
     if n_exit > 0:
