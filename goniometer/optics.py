@@ -140,27 +140,40 @@ def fresnel_dielectric_cos_t(cos_i: float, eta: float):
 
 
 @numba.njit(cache=True, inline='always')
-def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
-    """:func:`fresnel_dielectric_cos_t` for callers that already hold ``inv_eta = 1 / eta``
-    (the tracer precomputes both per interface, which keeps divisions off its critical path).
-
-    Written without branches (selects only, square roots of ``max(0, x)``, one division:
-    ``F = (r_s^2 + r_p^2) / 2`` over a common denominator), so that the tracer's lane loop
-    vectorises with it inlined."""
+def fresnel_dielectric_terms(cos_i: float, eta: float, inv_eta: float):
+    """The parts of :func:`fresnel_dielectric_cos_t_inv`: ``(num, den, cos_t, tir)`` with the
+    reflectance ``min(1, num / den)`` unless ``tir`` (total internal reflection: 1) or ``eta = 1``
+    (0), ``den > 0``; for callers that share the division with other fractions."""
     c = min(abs(cos_i), 1.0)
     sin2_t = (1.0 - c * c) * (inv_eta * inv_eta)
     tir = sin2_t >= 1.0
     cos_t = math.sqrt(max(0.0, 1.0 - sin2_t))
-    # r_s = a / b, r_p = p / q
+    # r_s = a / b, r_p = p / q: F = (r_s^2 + r_p^2) / 2 over a common denominator
     a = c - eta * cos_t
     b = c + eta * cos_t
     p = eta * c - cos_t
     q = eta * c + cos_t
     bq = b * q
-    f = min(1.0, 0.5 * (a * a * (q * q) + p * p * (b * b)) / max(bq * bq, 1e-300))
-    matched = eta == 1.0
-    f = 0.0 if matched else (1.0 if tir else f)
-    return f, (c if matched else (0.0 if tir else cos_t))
+    cos_t = c if eta == 1.0 else (0.0 if tir else cos_t)
+    return 0.5 * (a * a * (q * q) + p * p * (b * b)), max(bq * bq, 1e-300), cos_t, tir
+
+
+@numba.njit(cache=True, inline='always')
+def fresnel_dielectric_select(ratio: float, eta: float, tir: bool) -> float:
+    """The reflectance from the parts of :func:`fresnel_dielectric_terms` (``ratio = num / den``)."""
+    f = min(1.0, ratio)
+    return 0.0 if eta == 1.0 else (1.0 if tir else f)
+
+
+@numba.njit(cache=True, inline='always')
+def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
+    """:func:`fresnel_dielectric_cos_t` for callers that already hold ``inv_eta = 1 / eta``
+    (the tracer precomputes both per interface, which keeps divisions off its critical path).
+
+    Written without branches (selects only, square roots of ``max(0, x)``, one division), so that
+    the tracer's lane loop vectorises with it inlined."""
+    num, den, cos_t, tir = fresnel_dielectric_terms(cos_i, eta, inv_eta)
+    return fresnel_dielectric_select(num / den, eta, tir), cos_t
 
 
 @numba.njit(cache=True)
@@ -208,35 +221,40 @@ def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
 
 @numba.njit(cache=True, inline='always')
 def fresnel_conductor_rgb(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, eta2: float,
-                          kappa2: float):
+                          kappa2: float, num: float = 0.0, den: float = 1.0):
     """:func:`fresnel_conductor` of three channels with one division between them (each
     denominator lies between ``|n|^2``-sized bounds away from 0 and overflow, so their product
-    is safe; a few ulp from the per-channel values)."""
+    is safe; a few ulp from the per-channel values); also a caller's fraction ``num / den``
+    (``den`` > 0, bounded) from the same division: ``(F0, F1, F2, num / den)``."""
     n0, d0 = _conductor_terms(cos_i, eta0, kappa0)
     n1, d1 = _conductor_terms(cos_i, eta1, kappa1)
     n2, d2 = _conductor_terms(cos_i, eta2, kappa2)
     e0 = d0 if d0 > 0.0 else 1.0
     e1 = d1 if d1 > 0.0 else 1.0
     e2 = d2 if d2 > 0.0 else 1.0
-    inv = 1.0 / (e0 * e1 * e2)
-    f0 = n0 * (e1 * e2) * inv if d0 > 0.0 else 1.0
-    f1 = n1 * (e0 * e2) * inv if d1 > 0.0 else 1.0
-    f2 = n2 * (e0 * e1) * inv if d2 > 0.0 else 1.0
+    inv = 1.0 / (e0 * e1 * e2 * den)
+    f0 = n0 * (e1 * e2 * den) * inv if d0 > 0.0 else 1.0
+    f1 = n1 * (e0 * e2 * den) * inv if d1 > 0.0 else 1.0
+    f2 = n2 * (e0 * e1 * den) * inv if d2 > 0.0 else 1.0
     return (0.0 if (eta0 == 1.0 and kappa0 == 0.0) else f0, 0.0 if (eta1 == 1.0 and kappa1 == 0.0) else f1,
-            0.0 if (eta2 == 1.0 and kappa2 == 0.0) else f2)
+            0.0 if (eta2 == 1.0 and kappa2 == 0.0) else f2, num * (e0 * e1 * e2) * inv)
 
 
 @numba.njit(cache=True, inline='always')
-def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float):
-    """:func:`fresnel_conductor_rgb` for two channels (RGB indices with two channels alike)."""
+def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, num: float = 0.0,
+                           den: float = 1.0):
+    """:func:`fresnel_conductor_rgb` for two channels (RGB indices with two channels alike); also
+    a caller's fraction ``num / den`` (``den`` > 0, bounded, e.g. the dielectric Fresnel of the
+    same cosine) from the same division: ``(F0, F1, num / den)``."""
     n0, d0 = _conductor_terms(cos_i, eta0, kappa0)
     n1, d1 = _conductor_terms(cos_i, eta1, kappa1)
     e0 = d0 if d0 > 0.0 else 1.0
     e1 = d1 if d1 > 0.0 else 1.0
-    inv = 1.0 / (e0 * e1)
-    f0 = n0 * e1 * inv if d0 > 0.0 else 1.0
-    f1 = n1 * e0 * inv if d1 > 0.0 else 1.0
-    return 0.0 if (eta0 == 1.0 and kappa0 == 0.0) else f0, 0.0 if (eta1 == 1.0 and kappa1 == 0.0) else f1
+    inv = 1.0 / (e0 * e1 * den)
+    f0 = n0 * (e1 * den) * inv if d0 > 0.0 else 1.0
+    f1 = n1 * (e0 * den) * inv if d1 > 0.0 else 1.0
+    return (0.0 if (eta0 == 1.0 and kappa0 == 0.0) else f0, 0.0 if (eta1 == 1.0 and kappa1 == 0.0) else f1,
+            num * (e0 * e1) * inv)
 
 
 # --------------------------------------------------------------------------- GGX
@@ -340,12 +358,24 @@ def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: f
     azimuth) and ``b = 1 + s_z``, the cap point is ``z = 1 - t b`` and its horizontal part is the
     disk point scaled by ``sqrt(1 - z^2) / sqrt(t) = sqrt(b (2 - t b))``; ``s_z + z = b (1 - t)``.
     """
-    # stretch to the alpha = 1 configuration
+    return sample_vndf_disk_inv(wx, wy, wz, ax, ay, x, y, 1.0 / math.sqrt(vndf_stretch_norm2(wx, wy, wz, ax, ay)))
+
+
+@numba.njit(cache=True, inline='always')
+def vndf_stretch_norm2(wx: float, wy: float, wz: float, ax: float, ay: float) -> float:
+    """The squared length of ``w`` stretched to the alpha = 1 configuration (at least 1e-300)."""
     sx = ax * wx
     sy = ay * wy
-    inv = 1.0 / math.sqrt(max(1e-300, sx * sx + sy * sy + wz * wz))
-    sx *= inv
-    sy *= inv
+    return max(1e-300, sx * sx + sy * sy + wz * wz)
+
+
+@numba.njit(cache=True, inline='always')
+def sample_vndf_disk_inv(wx: float, wy: float, wz: float, ax: float, ay: float, x: float, y: float, inv: float):
+    """:func:`sample_vndf_disk` given ``inv = 1 / sqrt(vndf_stretch_norm2(w))`` (for callers
+    that share its division)."""
+    # stretch to the alpha = 1 configuration
+    sx = ax * wx * inv
+    sy = ay * wy * inv
     b = 1.0 + wz * inv
     # uniform point on the spherical cap z in (-s_z, 1], plus s
     t = x * x + y * y

@@ -254,18 +254,6 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         go = True if steps is None else st == ST_ALIVE
         booked = go and p < n_rays
         up = z > 0.0
-        # traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
-        ro = off + r * RG_STRIDE
-        inv_mu = 1.0 / max(abs(z), 1e-300)
-        a0 = optics.exp_neg(-T[ro + T_TAU0] * inv_mu)
-        a1 = optics.exp_neg(-T[ro + T_TAU1] * inv_mu)
-        a2 = optics.exp_neg(-T[ro + T_TAU2] * inv_mu)
-        nb0 = b0 + v0 * (1.0 - a0)
-        nb1 = b1 + v1 * (1.0 - a1)
-        nb2 = b2 + v2 * (1.0 - a2)
-        nv0 = v0 * a0
-        nv1 = v1 * a1
-        nv2 = v2 * a2
         # what lies at the end: interface k, or the Lambertian base below the last region
         from_above = not up
         k = r - 1 if up else r
@@ -294,6 +282,22 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             rs = T[io + T_RS]
             wx = rc * tx + rs * ty
             wy = rc * ty - rs * tx
+        # one division for 1 / |z| (Beer-Lambert) and the inverse stretched length of w (VNDF)
+        za = max(wz, 1e-150)
+        sn = math.sqrt(optics.vndf_stretch_norm2(wx, wy, wz, ax, ay))
+        inv = 1.0 / (za * sn)
+        inv_mu = inv * sn
+        # traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
+        ro = off + r * RG_STRIDE
+        a0 = optics.exp_neg(-T[ro + T_TAU0] * inv_mu)
+        a1 = optics.exp_neg(-T[ro + T_TAU1] * inv_mu)
+        a2 = optics.exp_neg(-T[ro + T_TAU2] * inv_mu)
+        nb0 = b0 + v0 * (1.0 - a0)
+        nb1 = b1 + v1 * (1.0 - a1)
+        nb2 = b2 + v2 * (1.0 - a2)
+        nv0 = v0 * a0
+        nv1 = v1 * a1
+        nv2 = v2 * a2
         # two 64-bit draws: azimuth and radius of a disk point, Fresnel choice, roulette
         u1, u2 = uniform_pair(draw(key, c))
         u3, u4 = uniform_pair(draw(key, c + _U1))
@@ -301,23 +305,27 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         rad = math.sqrt(max(0.0, u2))
         qx = rad * cp
         qy = rad * sp
-        mx, my, mz = optics.sample_vndf_disk(wx, wy, wz, ax, ay, qx, qy)
+        mx, my, mz = optics.sample_vndf_disk_inv(wx, wy, wz, ax, ay, qx, qy, inv * za)
         wm = wx * mx + wy * my + wz * mz
-        fd, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
+        # dielectric and conductor Fresnel of the same cosine, one division between them
+        nd, dd, cos_t, tir = optics.fresnel_dielectric_terms(wm, eta, inv_eta)
         if conductor is None:
             f0 = f1 = f2 = 1.0
+            qd = nd / dd
         elif g_is_r is None and b_is_g is None:
-            f0, f1, f2 = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2)
+            f0, f1, f2, qd = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2, nd, dd)
         elif g_is_r is None:
-            f0, f1 = optics.fresnel_conductor_pair(wm, ce0, ck0, ce1, ck1)
+            f0, f1, qd = optics.fresnel_conductor_pair(wm, ce0, ck0, ce1, ck1, nd, dd)
             f2 = f1
         elif b_is_g is None:
-            f0, f2 = optics.fresnel_conductor_pair(wm, ce0, ck0, ce2, ck2)
+            f0, f2, qd = optics.fresnel_conductor_pair(wm, ce0, ck0, ce2, ck2, nd, dd)
             f1 = f0
         else:
             f0 = optics.fresnel_conductor(wm, ce0, ck0)
             f1 = f0
             f2 = f0
+            qd = nd / dd
+        fd = optics.fresnel_dielectric_select(qd, eta, tir)
         refl_ = is_cond or u3 < fd
         rx, ry, rz = optics.reflect(wx, wy, wz, mx, my, mz)
         sx, sy, sz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
