@@ -337,19 +337,19 @@ def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float
 
     ``w`` is the direction the light arrives from (local frame, ``w_z > 0``);
     ``u1, u2`` uniform in [0, 1). The density of the returned normal m is
-    ``G1(w) max(0, w.m) D(m) / w_z`` (Heitz 2018). ``(u1, u2)`` is mapped to the point
-    ``sqrt(u2) (cos 2 pi u1, sin 2 pi u1)`` of the unit disk and passed to
-    :func:`sample_vndf_disk`. ``ax = ay = 0`` returns the macro normal.
+    ``G1(w) max(0, w.m) D(m) / w_z`` (Heitz 2018). ``(u1, u2)`` stands for the point
+    ``sqrt(u2) (cos 2 pi u1, sin 2 pi u1)`` of the unit disk (:func:`sample_vndf_polar`).
+    ``ax = ay = 0`` returns the macro normal.
     """
     cos_phi, sin_phi = cos_sin_2pi(u1)
-    r = math.sqrt(u2)
-    return sample_vndf_disk(wx, wy, wz, ax, ay, r * cos_phi, r * sin_phi)
+    inv = 1.0 / math.sqrt(vndf_stretch_norm2(wx, wy, wz, ax, ay))
+    return sample_vndf_polar(wx, wy, wz, ax, ay, cos_phi, sin_phi, u2, inv)
 
 
 @numba.njit(cache=True, inline='always')
 def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: float, y: float):
-    """:func:`sample_vndf` from a point ``(x, y)`` uniform in the unit disk (the tracer draws it
-    by rejection, :func:`goniometer.rng.next_disk`: no trigonometry).
+    """:func:`sample_vndf` from a point ``(x, y)`` uniform in the unit disk (the walks draw it by
+    rejection, :func:`goniometer.rng.next_disk`: no trigonometry).
 
     Spherical-cap construction of Dupuy & Benyoub 2023, which draws exactly the visible-normal
     density: in the stretched (alpha = 1) configuration the visible normals of ``w`` are
@@ -358,7 +358,26 @@ def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: f
     azimuth) and ``b = 1 + s_z``, the cap point is ``z = 1 - t b`` and its horizontal part is the
     disk point scaled by ``sqrt(1 - z^2) / sqrt(t) = sqrt(b (2 - t b))``; ``s_z + z = b (1 - t)``.
     """
-    return sample_vndf_disk_inv(wx, wy, wz, ax, ay, x, y, 1.0 / math.sqrt(vndf_stretch_norm2(wx, wy, wz, ax, ay)))
+    inv = 1.0 / math.sqrt(vndf_stretch_norm2(wx, wy, wz, ax, ay))
+    sx = ax * wx * inv
+    sy = ay * wy * inv
+    b = 1.0 + wz * inv
+    t = x * x + y * y
+    k = math.sqrt(max(0.0, b * (2.0 - t * b)))
+    return _vndf_unstretch(k * x + sx, k * y + sy, b * (1.0 - t), ax, ay)
+
+
+@numba.njit(cache=True, inline='always')
+def sample_vndf_polar(wx: float, wy: float, wz: float, ax: float, ay: float, cos_phi: float, sin_phi: float,
+                      t: float, inv: float):
+    """:func:`sample_vndf_disk` of the disk point ``sqrt(t) (cos_phi, sin_phi)``, given
+    ``inv = 1 / sqrt(vndf_stretch_norm2(w))`` (for callers that share its division): the cap
+    point's horizontal part is ``sqrt(t b (2 - t b)) (cos_phi, sin_phi)``, one square root."""
+    sx = ax * wx * inv
+    sy = ay * wy * inv
+    b = 1.0 + wz * inv
+    kr = math.sqrt(max(0.0, t * b * (2.0 - t * b)))
+    return _vndf_unstretch(kr * cos_phi + sx, kr * sin_phi + sy, b * (1.0 - t), ax, ay)
 
 
 @numba.njit(cache=True, inline='always')
@@ -370,20 +389,8 @@ def vndf_stretch_norm2(wx: float, wy: float, wz: float, ax: float, ay: float) ->
 
 
 @numba.njit(cache=True, inline='always')
-def sample_vndf_disk_inv(wx: float, wy: float, wz: float, ax: float, ay: float, x: float, y: float, inv: float):
-    """:func:`sample_vndf_disk` given ``inv = 1 / sqrt(vndf_stretch_norm2(w))`` (for callers
-    that share its division)."""
-    # stretch to the alpha = 1 configuration
-    sx = ax * wx * inv
-    sy = ay * wy * inv
-    b = 1.0 + wz * inv
-    # uniform point on the spherical cap z in (-s_z, 1], plus s
-    t = x * x + y * y
-    k = math.sqrt(max(0.0, b * (2.0 - t * b)))
-    hx = k * x + sx
-    hy = k * y + sy
-    hz = b * (1.0 - t)
-    # unstretch
+def _vndf_unstretch(hx: float, hy: float, hz: float, ax: float, ay: float):
+    """The unit microfacet normal of the stretched-configuration normal ``h``."""
     mx = ax * hx
     my = ay * hy
     mz = max(1e-300, hz)

@@ -302,10 +302,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         u1, u2 = uniform_pair(draw(key, c))
         u3, u4 = uniform_pair(draw(key, c + _U1))
         cp, sp = optics.cos_sin_2pi(u1)
-        rad = math.sqrt(max(0.0, u2))
-        qx = rad * cp
-        qy = rad * sp
-        mx, my, mz = optics.sample_vndf_disk_inv(wx, wy, wz, ax, ay, qx, qy, inv * za)
+        mx, my, mz = optics.sample_vndf_polar(wx, wy, wz, ax, ay, cp, sp, u2, inv * za)
         wm = wx * mx + wy * my + wz * mz
         # dielectric and conductor Fresnel of the same cosine, one division between them
         nd, dd, cos_t, tir = optics.fresnel_dielectric_terms(wm, eta, inv_eta)
@@ -366,9 +363,16 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             gx = rc * ox - rs * oy
             gy = rs * ox + rc * oy
         gz = oz if from_above else -oz
-        nx = qx if lamb else (gx if plain else x)
-        ny = qy if lamb else (gy if plain else y)
-        nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if plain else z)
+        if lambertian is None:
+            nx = gx if plain else x
+            ny = gy if plain else y
+            nz = gz if plain else z
+        else:
+            # the disk point sqrt(u2) (cos, sin) lifted onto the hemisphere (Malley)
+            rad = math.sqrt(max(0.0, u2))
+            nx = rad * cp if lamb else (gx if plain else x)
+            ny = rad * sp if lamb else (gy if plain else y)
+            nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if plain else z)
         crossed = (not lamb) and (not plain or not refl_)
         nr = (k + 1 if from_above else k) if crossed else r
         ne = ev + 1
