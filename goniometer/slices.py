@@ -79,7 +79,7 @@ def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
     return i, j
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def fast_acos(x: float) -> float:
     """arccos of ``x`` in [0, 1] to 2e-8 rad (Abramowitz & Stegun 4.4.46). Only used to guess a
     row that :func:`cell_index_fast` then corrects exactly against the row boundaries."""
@@ -94,24 +94,18 @@ def fast_acos(x: float) -> float:
     return math.sqrt(max(0.0, 1.0 - x)) * p
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline='always')
 def fast_angle(x: float, y: float) -> float:
-    """Azimuth of (x, y) in [0, 2 pi) to about 1e-5 rad (a guess corrected by the caller)."""
+    """Azimuth of (x, y) in [0, 2 pi) to about 1e-5 rad (a guess corrected by the caller); 0 for
+    the origin. Selects only (the quadrant of a random direction is not predictable)."""
     ax = abs(x)
     ay = abs(y)
-    mx = max(ax, ay)
-    if mx == 0.0:
-        return 0.0
-    a = min(ax, ay) / mx
+    a = min(ax, ay) / max(max(ax, ay), 1e-300)
     s = a * a
     r = ((-0.0464964749 * s + 0.15931422) * s - 0.327622764) * s * a + a
-    if ay > ax:
-        r = _HALF_PI - r
-    if x < 0.0:
-        r = math.pi - r
-    if y < 0.0:
-        r = _TWO_PI - r
-    return r
+    r = _HALF_PI - r if ay > ax else r
+    r = math.pi - r if x < 0.0 else r
+    return _TWO_PI - r if y < 0.0 else r
 
 
 def boundary_tables(param: str, n_theta: int, n_phi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -127,44 +121,65 @@ def boundary_tables(param: str, n_theta: int, n_phi: int) -> tuple[np.ndarray, n
     return row_cos, col_cos, col_sin
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True)
 def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: float,
                     vx: float, vy: float, vz: float, n_theta: int, n_phi: int,
                     row_cos: np.ndarray, col_cos: np.ndarray, col_sin: np.ndarray):
-    """:func:`cell_index` for the tracer's hot loop: a polynomial guess of the row and column,
-    corrected against the exact boundaries of :func:`boundary_tables` (row i holds
-    ``row_cos[i+1] < cos theta <= row_cos[i]``, column j the azimuths between boundaries j and
-    j + 1). Agrees with :func:`cell_index` except within rounding of a boundary."""
+    """:func:`cell_index` for the tracer: :func:`cell_index_lanes` for ``n_phi >= 8``, libm's
+    ``atan2`` for the azimuth of coarser grids. Agrees with :func:`cell_index` except within
+    rounding of a boundary."""
+    if n_phi >= 8:
+        return cell_index_lanes(param, transmission, lx, ly, lz, vx, vy, vz, n_theta, n_phi, row_cos, col_cos,
+                                col_sin)
     x, y, z = slice_direction(param, transmission, lx, ly, lz, vx, vy, vz)
     if z <= 0.0:
         return -1, -1
-    z = min(1.0, z)
-    theta = fast_acos(z)
-    if param == CLASSIC:
-        i = int(theta * (n_theta / _HALF_PI))
-    else:
-        i = int(math.sqrt(theta / _HALF_PI) * n_theta)
-    i = min(max(i, 0), n_theta - 1)
-    while i > 0 and z > row_cos[i]:
-        i -= 1
-    while i < n_theta - 1 and z <= row_cos[i + 1]:
-        i += 1
-    if x == 0.0 and y == 0.0:
-        return i, 0
-    j = int(fast_angle(x, y) * (n_phi / _TWO_PI))
-    if j >= n_phi:
-        j = n_phi - 1
-    if n_phi >= 8:
-        if col_cos[j] * y - col_sin[j] * x < 0.0:
-            j = j - 1 if j > 0 else n_phi - 1
-        elif col_cos[j + 1] * y - col_sin[j + 1] * x >= 0.0:
-            j = j + 1 if j < n_phi - 1 else 0
-    else:
-        phi = math.atan2(y + 0.0, x + 0.0)
-        if phi < 0.0:
-            phi += _TWO_PI
-        j = min(int(phi / _TWO_PI * n_phi), n_phi - 1)
-    return i, j
+    i = _row_of(min(1.0, z), param != CLASSIC, n_theta, row_cos)
+    phi = math.atan2(y + 0.0, x + 0.0)
+    if phi < 0.0:
+        phi += _TWO_PI
+    return i, min(int(phi / _TWO_PI * n_phi), n_phi - 1)
+
+
+@numba.njit(cache=True, inline='always')
+def _row_of(z: float, half: bool, n_theta: int, row_cos) -> int:
+    """The row of ``cos theta = z`` (in [0, 1]): a guess within one row, corrected by one step."""
+    u = fast_acos(z) / _HALF_PI
+    g = math.sqrt(u) * n_theta if half else u * n_theta
+    i = min(max(np.int64(g), 0), n_theta - 1)
+    i = i - 1 if (i > 0) & (z > row_cos[i]) else i
+    return i + 1 if (i < n_theta - 1) & (z <= row_cos[i + 1]) else i
+
+
+@numba.njit(cache=True, inline='always')
+def cell_index_lanes(param: int, transmission: bool, lx: float, ly: float, lz: float,
+                     vx: float, vy: float, vz: float, n_theta: int, n_phi: int, row_cos, col_cos, col_sin):
+    """The cell ``(i, j)`` of ``v`` (``(-1, -1)`` on the wrong side), without branches, for
+    ``n_phi >= 8``: a polynomial guess of the row and column, corrected against the exact
+    boundaries of :func:`boundary_tables` (row i holds ``row_cos[i+1] < cos theta <= row_cos[i]``,
+    column j the azimuths between boundaries j and j + 1; the tables may be any indexable, e.g.
+    copies on a vectorised loop's stack). The guesses are within one cell (``fast_acos`` to 2e-8
+    rad, ``fast_angle`` to 1e-5 rad), so one correction step each way, as a select, makes them
+    exact: a loop over exits vectorises (``goniometer.kernel.deposit``)."""
+    z0 = -vz if transmission else vz
+    # the half vector normalize(l + v) (v mirrored up for transmission); v itself for classic
+    hx = lx + vx
+    hy = ly + vy
+    hz = lz + z0
+    inv = 1.0 / math.sqrt(max(1e-300, hx * hx + hy * hy + hz * hz))
+    half = param != CLASSIC
+    x = hx * inv if half else vx
+    y = hy * inv if half else vy
+    z = min(1.0, max(0.0, hz * inv if half else z0))
+    i = _row_of(z, half, n_theta, row_cos)
+    j = min(np.int64(fast_angle(x, y) * (n_phi / _TWO_PI)), n_phi - 1)
+    below = col_cos[j] * y - col_sin[j] * x < 0.0
+    above = col_cos[j + 1] * y - col_sin[j + 1] * x >= 0.0
+    j = (j - 1 if j > 0 else n_phi - 1) if below else ((j + 1 if j < n_phi - 1 else 0) if above else j)
+    # the azimuth of the normal itself is 0
+    j = 0 if (x == 0.0) & (y == 0.0) else j
+    ok = z0 > 0.0
+    return (i if ok else -1), (j if ok else -1)
 
 
 @numba.njit(cache=True)

@@ -155,7 +155,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         S[F_PATH * LANES + i] = i - LANES
     xs = np.zeros(4, dtype=np.uint64)
     xi = np.empty(LANES, dtype=np.int64)
-    xbuf = np.empty((BUFFER, X_COLS))
+    xbuf = np.empty((X_COLS, BUFFER))
     cell = np.empty(BUFFER, dtype=np.int64)
     sqo = np.empty(BUFFER, dtype=np.int64)
     ce0, ce1, ce2, ck0, ck1, ck2 = cond[0], cond[1], cond[2], cond[3], cond[4], cond[5]
@@ -186,14 +186,14 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     exit_w[path, 1] = S[(X_W + 1) * LANES + i]
                     exit_w[path, 2] = S[(X_W + 2) * LANES + i]
             else:
-                xbuf[n_exit, 0] = S[X_DX * LANES + i]
-                xbuf[n_exit, 1] = S[(X_DX + 1) * LANES + i]
-                xbuf[n_exit, 2] = S[(X_DX + 2) * LANES + i]
-                xbuf[n_exit, 3] = S[X_W * LANES + i]
-                xbuf[n_exit, 4] = S[(X_W + 1) * LANES + i]
-                xbuf[n_exit, 5] = S[(X_W + 2) * LANES + i]
-                xbuf[n_exit, 6] = S[X_ROW * LANES + i]
-                xbuf[n_exit, 7] = S[X_TRANS * LANES + i]
+                xbuf[0, n_exit] = S[X_DX * LANES + i]
+                xbuf[1, n_exit] = S[(X_DX + 1) * LANES + i]
+                xbuf[2, n_exit] = S[(X_DX + 2) * LANES + i]
+                xbuf[3, n_exit] = S[X_W * LANES + i]
+                xbuf[4, n_exit] = S[(X_W + 1) * LANES + i]
+                xbuf[5, n_exit] = S[(X_W + 2) * LANES + i]
+                xbuf[6, n_exit] = S[X_ROW * LANES + i]
+                xbuf[7, n_exit] = S[X_TRANS * LANES + i]
                 n_exit += 1
                 if n_exit == BUFFER:
                     flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,

@@ -1,8 +1,8 @@
 """Exits to histogram cells (``docs/kernel.md``, deposits).
 
 The kernel collects the exits of a chunk in a small buffer, in the order the paths leave, and
-flushes it here: one pass finds the cells (:func:`goniometer.slices.cell_index_fast`) and
-prefetches their cache lines, a second adds the weights in buffer order. The order of additions
+flushes it here: a vectorised loop finds the cells (:func:`goniometer.slices.cell_index_lanes`),
+a pass prefetches their cache lines, a last one adds the weights in buffer order. The order of additions
 to a cell is thus the order of exits within the chunk, which does not depend on threads.
 
 Histograms: (n_theta, n_phi, K + 2, 3), rows ``0 .. K - 1`` the weight sums of bounce orders
@@ -13,11 +13,13 @@ internal exits (order >= 2).
 from __future__ import annotations
 
 import numba
+import numpy as np
 
-from goniometer.kernel.codegen import prefetch
-from goniometer.slices import cell_index_fast
+from goniometer.kernel.codegen import STACK_BLOCK, prefer_wide_vectors, prefetch, stack_block
+from goniometer.slices import cell_index_fast, cell_index_lanes
 
-#: exits a buffer holds: columns d_x, d_y, d_z, w_0, w_1, w_2, order row, 1.0 if transmitted
+#: exits a buffer holds: rows d_x, d_y, d_z, w_0, w_1, w_2, order row, 1.0 if transmitted (one
+#: column per exit)
 BUFFER = 512
 X_COLS = 8
 
@@ -25,30 +27,50 @@ X_COLS = 8
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
           brdf, btdf):
-    """Deposit the ``n_exit`` buffered exits of ``xbuf`` into ``brdf``/``btdf`` (``cell``/``sqo``:
-    int64 scratch of the buffer's length)."""
+    """Deposit the ``n_exit`` buffered exits of ``xbuf`` (X_COLS, BUFFER) into ``brdf``/``btdf``
+    (``cell``/``sqo``: int64 scratch of the buffer's length)."""
     row = (max_order + 2) * 3
     nb = n_theta * n_phi * row
     hb = brdf.reshape(-1)
     ht = btdf.reshape(-1)
+    if n_phi >= 8 and n_theta + 1 <= STACK_BLOCK and n_phi + 1 <= STACK_BLOCK:
+        # the cells of all exits in one vectorised loop (the boundary tables on this function's
+        # stack: gathers that provably do not alias the results)
+        prefer_wide_vectors()
+        rc = stack_block()
+        cc = stack_block()
+        cs = stack_block()
+        for q in range(n_theta + 1):
+            rc[q] = row_cos[q]
+        for q in range(n_phi + 1):
+            cc[q] = col_cos[q]
+            cs[q] = col_sin[q]
+        for e in range(n_exit):
+            transmission = xbuf[7, e] != 0.0
+            i, j = cell_index_lanes(param, transmission, lx, ly, lz, xbuf[0, e], xbuf[1, e], xbuf[2, e], n_theta,
+                                    n_phi, rc, cc, cs)
+            # flat offsets of the cell's order row and of its squared-sum row (-1: outside the
+            # slice); transmitted exits offset by the BRDF's size
+            base = (i * n_phi + j) * row + (nb if transmission else 0)
+            cell[e] = -1 if i < 0 else base + np.int64(xbuf[6, e]) * 3
+            sqo[e] = -1 if i < 0 else base + max_order * 3
+    else:
+        for e in range(n_exit):
+            transmission = xbuf[7, e] != 0.0
+            i, j = cell_index_fast(param, transmission, lx, ly, lz, xbuf[0, e], xbuf[1, e], xbuf[2, e], n_theta,
+                                   n_phi, row_cos, col_cos, col_sin)
+            base = (i * n_phi + j) * row + (nb if transmission else 0)
+            cell[e] = -1 if i < 0 else base + np.int64(xbuf[6, e]) * 3
+            sqo[e] = -1 if i < 0 else base + max_order * 3
+    # every line the additions touch fetched before the first: they find them in cache
     for e in range(n_exit):
-        transmission = xbuf[e, 7] != 0.0
-        o = int(xbuf[e, 6])
-        i, j = cell_index_fast(param, transmission, lx, ly, lz, xbuf[e, 0], xbuf[e, 1], xbuf[e, 2], n_theta, n_phi,
-                               row_cos, col_cos, col_sin)
-        # flat offset of the cell's order row and of its squared-sum row (-1: outside the slice);
-        # transmitted exits offset by the BRDF's size
-        shift = nb if transmission else 0
-        base = (i * n_phi + j) * row + shift
-        cell[e] = -1 if i < 0 else base + o * 3
-        sqo[e] = -1 if i < 0 else base + max_order * 3
-        # fetched while the next cells are found: the additions below find their lines in cache
-        if i >= 0:
-            if transmission:
-                prefetch(ht, cell[e] - nb)
+        f = cell[e]
+        if f >= 0:
+            if f >= nb:
+                prefetch(ht, f - nb)
                 prefetch(ht, sqo[e] - nb)
             else:
-                prefetch(hb, cell[e])
+                prefetch(hb, f)
                 prefetch(hb, sqo[e])
     for e in range(n_exit):
         f = cell[e]
@@ -60,9 +82,9 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
             h = ht
             f -= nb
             q -= nb
-        v0 = xbuf[e, 3]
-        v1 = xbuf[e, 4]
-        v2 = xbuf[e, 5]
+        v0 = xbuf[3, e]
+        v1 = xbuf[4, e]
+        v2 = xbuf[5, e]
         h[f] += v0
         h[f + 1] += v1
         h[f + 2] += v2
