@@ -302,10 +302,11 @@ def smith_g1(vx: float, vy: float, vz: float, v_dot_m: float, ax: float, ay: flo
 def smith_g1_dir(vx: float, vy: float, vz: float, ax: float, ay: float) -> float:
     """Smith masking of a direction, ``1 / (1 + Lambda(v))`` (GGX; uses ``|v_z|``, no microfacet
     test), written ``2 |v_z| / (|v_z| + sqrt(v_z^2 + ax^2 v_x^2 + ay^2 v_y^2))``: one division,
-    no cancellation. 0 for a horizontal direction, 1 for the normal."""
+    no cancellation. 0 for a horizontal direction, 1 for the normal. Computed in the precision of
+    its arguments (float32 arguments: float32, within a few float32 ulp)."""
     z = abs(vz)
-    a2t2 = ax * ax * vx * vx + ay * ay * vy * vy
-    return 2.0 * z / max(z + math.sqrt(max(0.0, z * z + a2t2)), 1e-300) if z > 0.0 else 0.0
+    d = z + math.sqrt(abs(z * z + (ax * ax * vx * vx + ay * ay * vy * vy)))
+    return (z + z) / d if z > 0.0 else z - z
 
 
 @numba.njit(cache=True)

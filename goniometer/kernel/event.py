@@ -336,7 +336,10 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
             g = optics.smith_g2(lam_i, lam_o, not refl_, True) * (1.0 + lam_i)
         else:
-            g = optics.smith_g1_dir(ox, oy, oz, ax, ay)
+            # in single precision (well conditioned: a sum of positives; relative error < 1e-6,
+            # docs/kernel.md, precision)
+            g = float(optics.smith_g1_dir(np.float32(ox), np.float32(oy), np.float32(oz), np.float32(ax),
+                                          np.float32(ay)))
         g = 0.0 if wrong else (g if plain else 1.0)
         # weight factors: conductor Fresnel, or the base's albedo; absorbed what they take
         h0 = rho0 if lamb else (f0 if (is_cond and plain) else 1.0)
