@@ -42,10 +42,10 @@ from goniometer.kernel.deposit import BUFFER, X_COLS, flush
 from goniometer.kernel.event import RR_START, RR_THRESHOLD, step
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, C_CAPPED, C_EVENTS,
                                       E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED, E_REFLECTED_WITHOUT_BASE,
-                                      E_ROULETTE, E_TRANSMITTED, F_PATH, F_STATUS, LANES, N_COUNTS, N_ENERGY,
-                                      N_ENERGY_SQ, N_FIELDS, P_TABULATE, ST_ALIVE, ST_DEAD, ST_SCALAR, T_MS,
-                                      TAU_SCATTER,
-                                      X_DX, X_LX, X_PATH, X_ROW, X_TRANS, X_W, stack_table, tau_modes)
+                                      E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_ORDER, F_PATH,
+                                      F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ, N_FIELDS,
+                                      P_TABULATE, ST_ALIVE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED, T_MS,
+                                      TAU_SCATTER, stack_table, tau_modes)
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import free_flight, lane_steps, microsurface_walk
 from goniometer.rng import chunk_key, stream_state
@@ -166,39 +166,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
              conductor, g_is_r, b_is_g, aniso)
-        # ---- per-lane pass: the exits of the paths the step booked (lanes listed without
-        # branches, then visited), and per-lane steps
-        live = 0
-        n_x = 0
-        for i in range(LANES):
-            xi[n_x] = i
-            n_x += S[X_ROW * LANES + i] >= 0.0
-            live += S[F_PATH * LANES + i] < n_rays
-        for q in range(n_x):
-            i = xi[q]
-            if tabulate is not None:
-                if S[X_TRANS * LANES + i] == 0.0:
-                    path = int(S[X_PATH * LANES + i])
-                    exit_cell[path] = halfdiff_cell(S[X_LX * LANES + i], S[(X_LX + 1) * LANES + i],
-                                                    S[(X_LX + 2) * LANES + i], S[X_DX * LANES + i],
-                                                    S[(X_DX + 1) * LANES + i], S[(X_DX + 2) * LANES + i])
-                    exit_w[path, 0] = S[X_W * LANES + i]
-                    exit_w[path, 1] = S[(X_W + 1) * LANES + i]
-                    exit_w[path, 2] = S[(X_W + 2) * LANES + i]
-            else:
-                xbuf[0, n_exit] = S[X_DX * LANES + i]
-                xbuf[1, n_exit] = S[(X_DX + 1) * LANES + i]
-                xbuf[2, n_exit] = S[(X_DX + 2) * LANES + i]
-                xbuf[3, n_exit] = S[X_W * LANES + i]
-                xbuf[4, n_exit] = S[(X_W + 1) * LANES + i]
-                xbuf[5, n_exit] = S[(X_W + 2) * LANES + i]
-                xbuf[6, n_exit] = S[X_ROW * LANES + i]
-                xbuf[7, n_exit] = S[X_TRANS * LANES + i]
-                n_exit += 1
-                if n_exit == BUFFER:
-                    flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,
-                          max_order, brdf, btdf)
-                    n_exit = 0
+        # ---- per-lane pass: per-lane steps, then the exits of the paths that left the stack at
+        # this step (lanes listed without branches, then visited; booked at the next step)
         if steps is not None:
             for i in range(LANES):
                 if S[F_STATUS * LANES + i] == ST_SCALAR:
@@ -206,6 +175,38 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                                                          region_albedo, region_g, tau_mode, table, cond, walk_g_is_r,
                                                          walk_b_is_g, n_if, transmit_base, conductor_base, base_k,
                                                          event_cap)
+        live = 0
+        n_x = 0
+        for i in range(LANES):
+            st = S[F_STATUS * LANES + i]
+            xi[n_x] = i
+            n_x += (st == ST_REFLECTED) | (st == ST_TRANSMITTED)
+            live += S[F_PATH * LANES + i] < n_rays
+        for q in range(n_x):
+            i = xi[q]
+            trans = S[F_STATUS * LANES + i] == ST_TRANSMITTED
+            if tabulate is not None:
+                if not trans:
+                    path = int(S[F_PATH * LANES + i])
+                    exit_cell[path] = halfdiff_cell(S[F_LX * LANES + i], S[F_LY * LANES + i], S[F_LZ * LANES + i],
+                                                    S[F_DX * LANES + i], S[F_DY * LANES + i], S[F_DZ * LANES + i])
+                    exit_w[path, 0] = S[F_W0 * LANES + i]
+                    exit_w[path, 1] = S[F_W1 * LANES + i]
+                    exit_w[path, 2] = S[F_W2 * LANES + i]
+            else:
+                xbuf[0, n_exit] = S[F_DX * LANES + i]
+                xbuf[1, n_exit] = S[F_DY * LANES + i]
+                xbuf[2, n_exit] = S[F_DZ * LANES + i]
+                xbuf[3, n_exit] = S[F_W0 * LANES + i]
+                xbuf[4, n_exit] = S[F_W1 * LANES + i]
+                xbuf[5, n_exit] = S[F_W2 * LANES + i]
+                xbuf[6, n_exit] = min(S[F_ORDER * LANES + i], max_order) - 1.0
+                xbuf[7, n_exit] = 1.0 if trans else 0.0
+                n_exit += 1
+                if n_exit == BUFFER:
+                    flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,
+                          max_order, brdf, btdf)
+                    n_exit = 0
         # (a lane whose path ended in its steps is booked at the next step; a lane is without paths
         # once its path index is past the chunk's)
         if live == 0:

@@ -1,8 +1,7 @@
 """The vectorised step of the lane kernel (``docs/kernel.md``, the step).
 
-A step first books, in per-lane sums, the path each lane ended at the previous step (its exit
-is left in the lane's exit slot for the per-lane pass to deposit) and gives the lane its next
-path (lane ``i`` traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next
+A step first books, in per-lane sums, the path each lane ended at the previous step (the
+per-lane pass has deposited its exit meanwhile) and gives the lane its next path (lane ``i`` traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next
 action is not a per-lane step (:mod:`goniometer.kernel.steps`) takes one event: it traverses its region (Beer-Lambert; clear and scattering regions
 give a factor 1), then meets what lies at the end -- a rough single-scattering interface
 (visible-normal sample, Fresnel, reflection or refraction, masking), an index-matched
@@ -30,7 +29,7 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       F_STATUS, F_W0, F_W1, F_W2, IF_STRIDE, LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED,
                                       ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED, T_AX, T_AY,
                                       T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT, T_TAU0, T_TAU1,
-                                      T_TAU2, X_DX, X_LX, X_PATH, X_ROW, X_TRANS, X_W)
+                                      T_TAU2)
 from goniometer.rng import draw, path_key, uniform_pair
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
@@ -152,19 +151,6 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         S[(A_CP + 2) * LN + i] += v2 if capd else 0.0
         S[A_NCAP * LN + i] += 1.0 if capd else 0.0
         S[A_NEV * LN + i] += float(ev) if ended else 0.0
-        # the exit, for the per-lane pass (the path's light direction: a tabulation's own)
-        S[X_ROW * LN + i] = float(min(order, max_order) - 1) if (refl | trans) else -1.0
-        S[X_TRANS * LN + i] = 1.0 if trans else 0.0
-        S[(X_DX + 0) * LN + i] = x
-        S[(X_DX + 1) * LN + i] = y
-        S[(X_DX + 2) * LN + i] = z
-        S[(X_W + 0) * LN + i] = v0
-        S[(X_W + 1) * LN + i] = v1
-        S[(X_W + 2) * LN + i] = v2
-        S[X_PATH * LN + i] = float(p)
-        S[(X_LX + 0) * LN + i] = S[F_LX * LN + i]
-        S[(X_LX + 1) * LN + i] = S[F_LY * LN + i]
-        S[(X_LX + 2) * LN + i] = S[F_LZ * LN + i]
         # the next path of the lane (its fields as a new path's where the lane takes it)
         p = p + LN if ended else p
         key = path_key(ckey, np.uint64(p))

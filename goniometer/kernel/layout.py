@@ -69,14 +69,7 @@ A_RL = 63       # roulette's net change of the weight (3)
 A_CP = 66       # capped weight (3)
 A_NCAP = 69     # capped paths
 A_NEV = 70      # events
-# ---- the exit of the path that ended at the latest step (read by the per-lane pass)
-X_ROW = 71      # bounce-order row of the exit, -1 when the path did not leave the stack
-X_TRANS = 72    # 1.0 when it left downward (BTDF)
-X_DX = 73       # direction (3)
-X_W = 76        # weight (3)
-X_PATH = 79     # its index in the chunk
-X_LX = 80       # its light direction (3)
-N_FIELDS = 83
+N_FIELDS = 71
 
 # ---- lane status after a step
 # (an ended path -- ST_REFLECTED .. ST_CAPPED -- is booked, and its lane given the next path, at the
