@@ -240,6 +240,23 @@ def fresnel_conductor_rgb(cos_i: float, eta0: float, kappa0: float, eta1: float,
             0.0 if (eta2 == 1.0 and kappa2 == 0.0) else f2, num * (e0 * e1 * e2) * inv)
 
 
+@numba.njit(cache=True, inline='always')
+def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, num: float = 0.0,
+                           den: float = 1.0):
+    """:func:`fresnel_conductor_rgb` for two channels (RGB indices with two channels alike); also
+    a caller's fraction ``num / den`` (``den`` > 0, bounded, e.g. the dielectric Fresnel of the
+    same cosine) from the same division: ``(F0, F1, num / den)``."""
+    n0, d0 = _conductor_terms(cos_i, eta0, kappa0)
+    n1, d1 = _conductor_terms(cos_i, eta1, kappa1)
+    e0 = d0 if d0 > 0.0 else 1.0
+    e1 = d1 if d1 > 0.0 else 1.0
+    inv = 1.0 / (e0 * e1 * den)
+    f0 = n0 * (e1 * den) * inv if d0 > 0.0 else 1.0
+    f1 = n1 * (e0 * den) * inv if d1 > 0.0 else 1.0
+    return (0.0 if (eta0 == 1.0 and kappa0 == 0.0) else f0, 0.0 if (eta1 == 1.0 and kappa1 == 0.0) else f1,
+            num * (e0 * e1) * inv)
+
+
 # --------------------------------------------------------------------------- GGX
 
 @numba.njit(cache=True)

@@ -1,20 +1,18 @@
-"""The numba-parallel path-tracing kernels of the virtual goniometer.
+"""The numba-parallel path-tracing kernel of the virtual goniometer.
 
-Transport (``docs/material-format.md``, transport): a path starts above the top interface
-travelling along ``-l`` with weight (1, 1, 1). At an interface a microfacet normal is sampled
-from the visible normals of the side the path comes from; a dielectric reflects with
-probability F (exact Fresnel) and refracts otherwise, a conductor always reflects with weight
-*= F (RGB). The weight is then multiplied by the masking term (separable: ``G1(o)``;
-height-correlated: ``G2 / G1(i)``) and an outgoing direction on the wrong side of the
-macro-surface ends the path (``masking_loss``). On a multiple-scattering interface the event is
-instead a random walk on the microsurface (:func:`goniometer.kernel.steps.microsurface_walk`,
-Heitz et al. 2016) that always leaves it: no masking loss. Absorbing media attenuate
-deterministically (Beer-Lambert); in a scattering medium the path makes free flights between
-collisions (:func:`goniometer.kernel.steps.free_flight`: spectral-MIS distance sampling,
-Henyey-Greenstein directions). Lambertian bases reflect with cosine sampling and weight *= rho.
-A path leaving the top upward is recorded in the BRDF slice of its bounce order (number of
-events at the top layer); one leaving the bottom of a transmitting stack downward in the BTDF
-slice.
+Transport (``docs/material-format.md``, transport): a path starts above the top interface travelling along ``-l``
+with weight (1, 1, 1). At an interface a microfacet normal is sampled from the visible
+normals of the side the path comes from; a dielectric reflects with probability F (exact
+Fresnel) and refracts otherwise, a conductor always reflects with weight *= F (RGB).
+The weight is then multiplied by the masking term (separable: ``G1(o)``; height-correlated:
+``G2 / G1(i)``) and an outgoing direction on the wrong side of the macro-surface ends the path
+(``masking_loss``). On a multiple-scattering interface the event is instead a random walk on the
+microsurface (:func:`goniometer.kernel.steps.microsurface_walk`, Heitz et al. 2016) that always leaves it: no masking loss. Absorbing media attenuate deterministically (Beer-Lambert); in a scattering
+medium the path makes free flights between collisions (:func:`goniometer.kernel.steps.free_flight`: spectral-MIS
+distance sampling, Henyey-Greenstein directions). Lambertian bases reflect with cosine sampling
+and weight *= rho. A path leaving the top upward is recorded in the BRDF
+slice of its bounce order (number of events at the top layer); one leaving the bottom of a
+transmitting stack downward in the BTDF slice.
 
 Energy bookkeeping per channel and per path is exact: the weight a path loses is booked as
 absorbed or masking loss, the weight it leaves with as reflected or transmitted; Russian
@@ -24,15 +22,14 @@ reflected + transmitted + absorbed + masking + roulette + capped = number of ray
 A reflected path that never had an event at the base (the bottom layer) also books its weight in
 ``E_REFLECTED_WITHOUT_BASE`` (a part of reflected; ``docs/slices-format.md``, ``/energy``).
 
-Kernels (``docs/kernel.md``): the lane kernel (:func:`trace_chunk`) runs a chunk's paths in
-:data:`~goniometer.kernel.layout.LANES` lanes advanced in lock-step, one vectorised step
-(:func:`goniometer.kernel.event.step`) after another, with a per-lane pass for free flights and
-walks and for the exits; the per-path kernel (:func:`goniometer.kernel.paths.trace_paths`) traces
-a chunk path by path. :func:`kernel_flags` picks the kernel and its compiled variant for a stack.
-Random numbers are keyed by (seed, incident index, chunk) and, in the lane kernel, by path
-(:mod:`goniometer.rng`), so neither the lane a path runs in nor the number of threads changes a
-result. Kernel inputs are flat arrays (see :class:`goniometer.stack.PackedStack`); outputs are
-per-chunk histograms.
+Kernel (``docs/kernel.md``): a chunk's paths run in :data:`~goniometer.kernel.layout.LANES`
+lanes advanced in lock-step; each step is one vectorised event for every lane
+(:mod:`goniometer.kernel.event`), then a pass over the lanes that runs per-lane steps (free
+flights, microsurface walks: :mod:`goniometer.kernel.steps`), books the paths that ended and
+gives their lanes the next path of the chunk. Every path draws its own random numbers, keyed by
+(seed, incident index, chunk, path) (:mod:`goniometer.rng`), so neither the lane a path runs in
+nor the number of threads changes a result. Kernel inputs are flat arrays (see
+:class:`goniometer.stack.PackedStack`); outputs are per-chunk histograms.
 """
 
 from __future__ import annotations
@@ -87,7 +84,7 @@ def lane_kernel_for(if_ms, region_tau, region_albedo) -> bool:
 
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor)``. ``kernel``:
+    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso)``. ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
     cached) only when some stack needs it."""
@@ -102,15 +99,19 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 
     if not lanes:
         # the per-path kernel has no variants but the masking's (one compiled kernel per masking)
-        return None, flag(height_correlated), None, None, None, None
+        return None, flag(height_correlated), None, None, None, None, None, None, None
+    aniso = bool(np.any(p.if_alpha[:, 0] != p.if_alpha[:, 1]) or np.any(p.if_rot[:, 1] != 0.0))
+    cond = p.base_kind == BASE_CONDUCTOR
+    c = p.cond
     return (True, flag(height_correlated), flag(tabulate), flag(not auto), flag(p.base_kind == BASE_LAMBERTIAN),
-            flag(p.base_kind == BASE_CONDUCTOR))
+            flag(cond), flag(cond and c[1] == c[0] and c[4] == c[3]), flag(cond and c[2] == c[1] and c[5] == c[4]),
+            flag(aniso))
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
-                height_correlated, tabulate, steps, lambertian, conductor, brdf, btdf, energy,
+                height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy,
                 energy_sq, counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
@@ -123,7 +124,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (:mod:`goniometer.kernel.deposit`); ``energy``:
     (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals;
-    ``counts``: (N_COUNTS,) int64. ``height_correlated`` .. ``conductor``: None or True, the compiled
+    ``counts``: (N_COUNTS,) int64. ``height_correlated`` .. ``aniso``: None or True, the compiled
     variant (:func:`kernel_flags`, :func:`goniometer.kernel.event.step`); ``tabulate`` True goes
     with ``param`` = :data:`P_TABULATE`.
 
@@ -167,7 +168,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
-             conductor)
+             conductor, g_is_r, b_is_g, aniso)
         # ---- per-lane pass: per-lane steps, then the exits of the paths that left the stack at
         # this step (lanes listed without branches, then visited; booked at the next step)
         if steps is not None:
@@ -239,14 +240,14 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
                col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps, lambertian,
-               conductor, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+               conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
     ``exit_w[b]``: see :func:`trace_chunk`).
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
     is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.rng.chunk_key`)
     for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.rng.stream_state`)
-    for the per-path kernel (``lanes`` None); ``lanes`` .. ``conductor``: None or True
+    for the per-path kernel (``lanes`` None); ``lanes`` .. ``aniso``: None or True
     (:func:`kernel_flags`).
     """
     c = first_chunk + b
@@ -269,31 +270,33 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                     lx, ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
-                    height_correlated, tabulate, steps, lambertian, conductor, brdf[b], btdf[b], energy[b],
-                    energy_sq[b], counts[b], exit_cell[b], exit_w[b])
+                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf[b],
+                    btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                 ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
                 col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps, lambertian,
-                conductor, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
-    ``conductor`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use,
-    only the variant they name."""
+    ``aniso`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
+    the variant they name."""
     for b in numba.prange(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
-                   lambertian, conductor, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)
+                   lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                   exit_w)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                        row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
-                       lambertian, conductor, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                       lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                       exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
@@ -303,4 +306,5 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
-                   lambertian, conductor, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)
+                   lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                   exit_w)

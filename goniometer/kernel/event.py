@@ -1,16 +1,14 @@
-"""The vectorised step of the lane kernel (``docs/kernel.md``, the lane kernel).
+"""The vectorised step of the lane kernel (``docs/kernel.md``, the step).
 
 A step first books, in per-lane sums, the path each lane ended at the previous step (the
-per-lane pass has deposited its exit meanwhile) and gives the lane its next path (lane ``i``
-traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next action is not a
-per-lane step (:mod:`goniometer.kernel.steps`) takes one event: it traverses its region
-(Beer-Lambert; clear and scattering regions give a factor 1), then meets what lies at the end --
-a rough single-scattering interface (visible-normal sample, Fresnel, reflection or refraction,
-masking), an index-matched interface (crossed unchanged), or the Lambertian base -- and plays
-Russian roulette. The branches are selects, the stack's parameters are gathered per lane from a
-table on the loop's own stack, and the physics is that of :mod:`goniometer.optics`, inlined:
-LLVM vectorises the loops (packed square roots, divisions and gathers; 512-bit vectors where the
-CPU has them).
+per-lane pass has deposited its exit meanwhile) and gives the lane its next path (lane ``i`` traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next
+action is not a per-lane step (:mod:`goniometer.kernel.steps`) takes one event: it traverses its region (Beer-Lambert; clear and scattering regions
+give a factor 1), then meets what lies at the end -- a rough single-scattering interface
+(visible-normal sample, Fresnel, reflection or refraction, masking), an index-matched
+interface (crossed unchanged), or the Lambertian base -- and plays Russian roulette. The
+branches are selects, the stack's parameters are gathered per lane from a table on the loop's
+own stack, and the physics is that of :mod:`goniometer.optics`, inlined: LLVM vectorises the
+loop (packed square roots, divisions and gathers; 512-bit vectors where the CPU has them).
 
 Directions are in the world frame, pointing the way the path travels (``d_z < 0``: down);
 the interface's local frame has ``z`` along the normal of the side the light arrives from.
@@ -46,10 +44,11 @@ LN = LANES
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
-         lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian, conductor):
+         lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian, conductor,
+         g_is_r, b_is_g, aniso):
     """One step for all lanes of ``S`` (see the module docstring).
 
-    The last five arguments are None or True and select what is compiled (numba compiles a None
+    The last eight arguments are None or True and select what is compiled (numba compiles a None
     argument's specialisation without the other branch; LLVM vectorises the loops of the
     specialisations without ``height_correlated``):
 
@@ -59,10 +58,10 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
       (cosine-weighted, its draw 0);
     * ``steps``: True when lanes may need per-lane steps (a scattering medium, a multiple-scattering
       interface): only lanes whose next action is the event take it; None, every lane takes it;
-    * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor.
-
-    (Each variant costs about ten seconds of compilation the first time a stack needs it; finer
-    variants -- isotropy, conductor channels alike -- were measured at 2-3 % each and left out.)
+    * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
+    * ``g_is_r``, ``b_is_g``: True when the conductor's green channel has the red one's complex
+      index, resp. blue the green one's (their Fresnel values are computed once);
+    * ``aniso``: True when some interface is anisotropic (tangent-frame rotations).
 
     The loop bodies are written out here, as an inlined function taking the state array would
     keep reference counting in the loop and stop LLVM."""
@@ -259,11 +258,16 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         tx = -x
         ty = -y
         wz = -z if from_above else z
-        ay = T[io + T_AY]
-        rc = T[io + T_RC]
-        rs = T[io + T_RS]
-        wx = rc * tx + rs * ty
-        wy = rc * ty - rs * tx
+        if aniso is None:
+            ay = ax
+            wx = tx
+            wy = ty
+        else:
+            ay = T[io + T_AY]
+            rc = T[io + T_RC]
+            rs = T[io + T_RS]
+            wx = rc * tx + rs * ty
+            wy = rc * ty - rs * tx
         # one division for 1 / |z| (Beer-Lambert) and the inverse stretched length of w (VNDF)
         za = max(wz, 1e-150)
         sn = math.sqrt(optics.vndf_stretch_norm2(wx, wy, wz, ax, ay))
@@ -291,8 +295,19 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         if conductor is None:
             f0 = f1 = f2 = 1.0
             qd = nd / dd
-        else:
+        elif g_is_r is None and b_is_g is None:
             f0, f1, f2, qd = optics.fresnel_conductor_rgb(wm, ce0, ck0, ce1, ck1, ce2, ck2, nd, dd)
+        elif g_is_r is None:
+            f0, f1, qd = optics.fresnel_conductor_pair(wm, ce0, ck0, ce1, ck1, nd, dd)
+            f2 = f1
+        elif b_is_g is None:
+            f0, f2, qd = optics.fresnel_conductor_pair(wm, ce0, ck0, ce2, ck2, nd, dd)
+            f1 = f0
+        else:
+            f0 = optics.fresnel_conductor(wm, ce0, ck0)
+            f1 = f0
+            f2 = f0
+            qd = nd / dd
         fd = optics.fresnel_dielectric_select(qd, eta, tir)
         refl_ = is_cond or u3 < fd
         rx, ry, rz = optics.reflect(wx, wy, wz, mx, my, mz)
@@ -330,8 +345,12 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         nv2 *= g
         # the new direction (world frame): the lobe's, rotated back; the disk point lifted onto the
         # hemisphere (cosine-distributed, upward) at the base; unchanged through a matched interface
-        gx = rc * ox - rs * oy
-        gy = rs * ox + rc * oy
+        if aniso is None:
+            gx = ox
+            gy = oy
+        else:
+            gx = rc * ox - rs * oy
+            gy = rs * ox + rc * oy
         gz = oz if from_above else -oz
         if lambertian is None:
             nx = gx if plain else x

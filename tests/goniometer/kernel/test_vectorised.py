@@ -30,9 +30,9 @@ def test_the_step_loop_is_vectorised():
     f = numba.njit(error_model="numpy", boundscheck=False)(event.step.py_func)
     S = np.zeros(N_FIELDS * LANES)
     # a coated metal's variant: separable masking, slices, no per-lane steps, no Lambertian base,
-    # a conductor
+    # a conductor whose blue channel shares the green one's index, isotropic
     f(S, np.zeros(30), 8, 2, False, 1, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 10000, 0.5, 0.0, 0.8,
-      np.uint64(1), 0, 0, 5, None, None, None, None, True)
+      np.uint64(1), 0, 0, 5, None, None, None, None, True, None, True, None)
     asm = f.inspect_asm(f.signatures[0])
     for op in ("vsqrtpd", "vdivpd", "vgatherqpd"):
         assert re.search(rf"\b{op}\b[^\n]*%[yz]mm", asm), f"no packed {op} in the step"
