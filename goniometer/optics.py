@@ -165,13 +165,17 @@ def fresnel_dielectric_select(ratio: float, eta: float, tir: bool) -> float:
     return 0.0 if eta == 1.0 else (1.0 if tir else f)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True)
 def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
     """:func:`fresnel_dielectric_cos_t` for callers that already hold ``inv_eta = 1 / eta``
     (the tracer precomputes both per interface, which keeps divisions off its critical path).
 
     Written without branches (selects only, square roots of ``max(0, x)``, one division), so that
     the tracer's lane loop vectorises with it inlined."""
+    c = min(abs(cos_i), 1.0)
+    if eta != 1.0 and (1.0 - c * c) * (inv_eta * inv_eta) >= 1.0:
+        # total internal reflection: nothing else to compute (scalar callers, e.g. the walks)
+        return 1.0, 0.0
     num, den, cos_t, tir = fresnel_dielectric_terms(cos_i, eta, inv_eta)
     return fresnel_dielectric_select(num / den, eta, tir), cos_t
 
@@ -200,7 +204,7 @@ def _conductor_terms(cos_i: float, eta: float, kappa: float):
     return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True)
 def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     """Exact unpolarised Fresnel reflectance for a complex relative index ``eta + i kappa``.
 
@@ -410,7 +414,7 @@ def vndf_pdf(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, a
 
 # --------------------------------------------------------------------------- geometry
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True)
 def reflect(wx: float, wy: float, wz: float, mx: float, my: float, mz: float):
     """Mirror ``w`` about ``m``: 2 (w.m) m - w (both pointing away from the surface)."""
     d = 2.0 * (wx * mx + wy * my + wz * mz)
@@ -433,7 +437,7 @@ def refract(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, et
     return x, y, z, True
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True)
 def refract_known(wx: float, wy: float, wz: float, mx: float, my: float, mz: float,
                   inv_eta: float, cos_i: float, cos_t: float):
     """:func:`refract` when ``cos_i = w.m`` and the refracted cosine ``cos_t`` (e.g. from
