@@ -24,7 +24,8 @@ from goniometer import optics
 from goniometer.halfdiff import cell_of as halfdiff_cell
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
-                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER)
+                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER,
+                                      tau_modes)
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
 from goniometer.rng import next_disk, next_float
 from goniometer.slices import cell_index_fast
@@ -129,17 +130,8 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
-    # per region: 0 no absorption, 1 achromatic (one exp), 2 chromatic; a scattering medium
-    # (albedo > 0 where tau > 0): TAU_SCATTER achromatic extinction, TAU_SCATTER + 1 chromatic
-    tau_mode = np.zeros(n_if + 1, dtype=np.int64)
-    for r in range(n_if + 1):
-        t0 = region_tau[r, 0]
-        if t0 > 0.0 or region_tau[r, 1] > 0.0 or region_tau[r, 2] > 0.0:
-            achromatic = region_tau[r, 1] == t0 and region_tau[r, 2] == t0
-            tau_mode[r] = 1 if achromatic else 2
-            for c in range(3):
-                if region_albedo[r, c] > 0.0 and region_tau[r, c] > 0.0:
-                    tau_mode[r] = TAU_SCATTER if achromatic else TAU_SCATTER + 1
+    # per region: clear, absorbing (achromatic / chromatic) or scattering (layout.tau_modes)
+    tau_mode = tau_modes(region_tau, region_albedo)
     # per interface: relative indices going down / up, tangent-frame rotation needed
     n_k = max(n_if, 1)
     eta_dn = np.ones(n_k)
