@@ -45,7 +45,7 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_ORDER, F_PATH,
                                       F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ, N_FIELDS,
                                       P_TABULATE, ST_ALIVE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED, T_MS,
-                                      TAU_SCATTER, stack_table, tau_modes)
+                                      TAU_SCATTER, relative_indices, stack_table, tau_modes)
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import free_flight, lane_steps, microsurface_walk
 from goniometer.rng import chunk_key, stream_state
@@ -136,12 +136,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
     tau_mode = tau_modes(region_tau, region_albedo)
-    n_k = max(n_if, 1)
-    eta_dn = np.ones(n_k)
-    eta_up = np.ones(n_k)
-    for k in range(n_if):
-        eta_dn[k] = region_eta[k + 1] / region_eta[k]
-        eta_up[k] = 1.0 / eta_dn[k]
+    eta_dn, eta_up = relative_indices(region_eta)
     table, off = stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n_if, conductor_base)
     # conductor channels that share their complex index share their Fresnel value (walks)
     walk_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]

@@ -24,6 +24,14 @@ BUFFER = 512
 X_COLS = 8
 
 
+@numba.njit(cache=True, inline='always')
+def _offsets(i, j, o, transmission, n_phi, row, nb, max_order):
+    """Flat offsets of cell (i, j)'s order row ``o`` and of its squared-sum row (-1 outside the
+    slice, ``i < 0``); transmitted exits offset by the BRDF's size ``nb``."""
+    base = (i * n_phi + j) * row + (nb if transmission else 0)
+    return (-1 if i < 0 else base + o * 3), (-1 if i < 0 else base + max_order * 3)
+
+
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
           brdf, btdf):
@@ -49,19 +57,13 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
             transmission = xbuf[7, e] != 0.0
             i, j = cell_index_lanes(param, transmission, lx, ly, lz, xbuf[0, e], xbuf[1, e], xbuf[2, e], n_theta,
                                     n_phi, rc, cc, cs)
-            # flat offsets of the cell's order row and of its squared-sum row (-1: outside the
-            # slice); transmitted exits offset by the BRDF's size
-            base = (i * n_phi + j) * row + (nb if transmission else 0)
-            cell[e] = -1 if i < 0 else base + np.int64(xbuf[6, e]) * 3
-            sqo[e] = -1 if i < 0 else base + max_order * 3
+            cell[e], sqo[e] = _offsets(i, j, np.int64(xbuf[6, e]), transmission, n_phi, row, nb, max_order)
     else:
         for e in range(n_exit):
             transmission = xbuf[7, e] != 0.0
             i, j = cell_index_fast(param, transmission, lx, ly, lz, xbuf[0, e], xbuf[1, e], xbuf[2, e], n_theta,
                                    n_phi, row_cos, col_cos, col_sin)
-            base = (i * n_phi + j) * row + (nb if transmission else 0)
-            cell[e] = -1 if i < 0 else base + np.int64(xbuf[6, e]) * 3
-            sqo[e] = -1 if i < 0 else base + max_order * 3
+            cell[e], sqo[e] = _offsets(i, j, np.int64(xbuf[6, e]), transmission, n_phi, row, nb, max_order)
     # every line the additions touch fetched before the first: they find them in cache
     for e in range(n_exit):
         f = cell[e]

@@ -116,6 +116,19 @@ def tau_modes(region_tau: np.ndarray, region_albedo: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
+def relative_indices(region_eta: np.ndarray):
+    """Per interface k: the relative index going down (``n_{k+1} / n_k``) and up (its inverse);
+    ones for a stack without interfaces."""
+    n_if = region_eta.shape[0] - 1
+    eta_dn = np.ones(max(n_if, 1))
+    eta_up = np.ones(max(n_if, 1))
+    for k in range(n_if):
+        eta_dn[k] = region_eta[k + 1] / region_eta[k]
+        eta_up[k] = 1.0 / eta_dn[k]
+    return eta_dn, eta_up
+
+
+@numba.njit(cache=True)
 def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n_if, conductor_base):
     """The flat table of the event (layout above) and the offset of its region part."""
     n_k = max(n_if, 1)

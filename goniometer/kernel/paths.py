@@ -25,7 +25,7 @@ from goniometer.halfdiff import cell_of as halfdiff_cell
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
                                       E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER,
-                                      tau_modes)
+                                      relative_indices, tau_modes)
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
 from goniometer.rng import next_disk, next_float
 from goniometer.slices import cell_index_fast
@@ -133,13 +133,9 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     # per region: clear, absorbing (achromatic / chromatic) or scattering (layout.tau_modes)
     tau_mode = tau_modes(region_tau, region_albedo)
     # per interface: relative indices going down / up, tangent-frame rotation needed
-    n_k = max(n_if, 1)
-    eta_dn = np.ones(n_k)
-    eta_up = np.ones(n_k)
-    aniso = np.zeros(n_k, dtype=np.bool_)
+    eta_dn, eta_up = relative_indices(region_eta)
+    aniso = np.zeros(max(n_if, 1), dtype=np.bool_)
     for k in range(n_if):
-        eta_dn[k] = region_eta[k + 1] / region_eta[k]
-        eta_up[k] = 1.0 / eta_dn[k]
         aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
     # any multiple-scattering interface (checked first, so single scattering pays one branch)
     any_ms = False
