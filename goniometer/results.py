@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from goniometer import atomic, tracer
+from goniometer.first_order import first_order_fractions
 from goniometer.settings import SimulationSettings
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Stack
@@ -27,12 +28,14 @@ ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
 #: the settings that make two runs of one stack the same run (``threads`` is not one of them:
 #: results are bit-identical whatever the thread count)
 RUN_KEYS = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
-            "max_order", "chunk_rays", "chunks_per_task", "event_cap")
+            "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order")
 
 
 def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
-    """What makes two runs the same, as JSON-ready data: the stack and the :data:`RUN_KEYS`."""
-    s = {k: getattr(settings, k) for k in RUN_KEYS}
+    """What makes two runs the same, as JSON-ready data: the stack and the :data:`RUN_KEYS`
+    (``first_order`` only when it is not the default "traced": descriptions of traced runs keep
+    their bytes, ``docs/file-identity.md``)."""
+    s = {k: getattr(settings, k) for k in RUN_KEYS if not (k == "first_order" and settings.first_order == "traced")}
     return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
 
 
@@ -163,7 +166,11 @@ class IncidentPart:
 
 
 def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.ndarray],
-                     sums: list[np.ndarray], sqs: list[np.ndarray], n: int) -> SliceData:
+                     sums: list[np.ndarray], sqs: list[np.ndarray], n: int,
+                     first: list[np.ndarray] | None = None) -> SliceData:
+    """Cell values and standard errors from the traced sums; ``first`` (per direction, (3, n_theta,
+    n_phi) flux fractions) is bounce order 1 integrated (:mod:`goniometer.first_order`): it is added
+    to order 1, whose traced exits were not deposited, and adds no variance."""
     M = len(omegas)
     K = sums[0].shape[0]
     nt, nph = grid.shape
@@ -184,6 +191,9 @@ def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.n
         orders[m] = sums[m] * inv
         stderr[m] = std_error(s1, sqs[m][0], inv)
         stderr_internal[m] = std_error(sums[m][1:].sum(axis=0), sqs[m][1], inv)
+        if first is not None:
+            orders[m, 0] += first[m] * (n * inv)
+            value[m] += first[m] * (n * inv)
     return SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas), stderr_internal)
 
 
@@ -222,7 +232,12 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     geometry = cell_geometries(settings)
     omegas = [g[0] for g in geometry]
     masks = [g[1] for g in geometry]
-    brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n)
+    first = None
+    if settings.first_order == "integrated":
+        first = [first_order_fractions(stack, settings.parametrization, nt, nph, light_direction(t, p),
+                                       settings.masking)
+                 for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
+    brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n, first)
     btdf = None
     if stack.transmits:
         btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), omegas, masks,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Callable
 
+from goniometer.first_order import check_supported
 from goniometer.results import IncidentPart, SimulationResult, assemble
 from goniometer.settings import SettingsError, SimulationSettings
 from goniometer.stack import Stack
@@ -37,6 +38,8 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
     time it passes as ``compile_s``).
     """
     settings.validate()
+    if settings.first_order == "integrated":
+        check_supported(stack)
     M = len(settings.incident_deg)
     parts: dict[int, IncidentPart] = checkpoints.load(M) if checkpoints is not None else {}
     if parts and on_resume is not None:

@@ -19,6 +19,11 @@ from goniometer.tracer import EVENT_CAP
 
 DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
 MASKING = ("separable", "height-correlated")
+#: how bounce order 1 (a single reflection on the top interface) gets into the reflection slices:
+#: traced like every other order, or integrated over the cells (``docs/first-order.md``)
+FIRST_ORDER = ("traced", "integrated")
+
+
 class SettingsError(ValueError):
     """Invalid simulation settings; the message names the field and the allowed range."""
 
@@ -31,7 +36,9 @@ class SimulationSettings:
     [0, 360) (default 0 for all). ``chunk_rays`` (rays per random stream and histogram) and
     ``chunks_per_task`` (chunks summed together before being added to the total) are part of the
     determinism contract: the same (seed, chunk_rays, chunks_per_task) gives the same bits
-    whatever ``threads``, locally or distributed.
+    whatever ``threads``, locally or distributed. ``first_order`` is ``"traced"`` (the default) or
+    ``"integrated"``: the top interface's single reflection computed per cell instead of traced, a
+    variance reduction for the total BRDF (``docs/first-order.md``).
     """
 
     incident_deg: tuple[float, ...] = DEFAULT_INCIDENT
@@ -46,6 +53,7 @@ class SimulationSettings:
     chunk_rays: int = 1 << 17
     chunks_per_task: int = 8
     event_cap: int = EVENT_CAP
+    first_order: str = "traced"
 
     def __post_init__(self) -> None:
         inc = tuple(float(x) for x in self.incident_deg)
@@ -83,6 +91,8 @@ class SimulationSettings:
         _int_in(self.chunk_rays, "chunk_rays", 1, 1 << 30)
         _int_in(self.chunks_per_task, "chunks_per_task", 1, 1 << 20)
         _int_in(self.event_cap, "event_cap", 1, 10**9)
+        if self.first_order not in FIRST_ORDER:
+            raise SettingsError(f"first_order: {self.first_order!r} is not one of {', '.join(FIRST_ORDER)}")
 
     @property
     def n_threads(self) -> int:
@@ -107,7 +117,7 @@ class SimulationSettings:
                 kw[key] = tuple(value)
             elif key in ("rays", "seed", "max_order", "threads"):
                 kw[key] = value
-            elif key in ("parametrization", "masking"):
+            elif key in ("parametrization", "masking", "first_order"):
                 kw[key] = value
             else:
                 raise SettingsError(f"{source}.{key}: unknown key")

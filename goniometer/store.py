@@ -73,6 +73,7 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     sim.attrs["chunk_rays"] = s.chunk_rays
     sim.attrs["chunks_per_task"] = s.chunks_per_task
     sim.attrs["event_cap"] = s.event_cap
+    sim.attrs["first_order"] = s.first_order
     sim.attrs["compile_s"] = r.compile_s
     sim.attrs["rays_per_s"] = r.rays_per_s
     sim.attrs["parametrization"] = s.parametrization
@@ -379,6 +380,7 @@ def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
         chunk_rays=int(sim.get("chunk_rays", 1 << 17)),
         chunks_per_task=int(sim.get("chunks_per_task", 8)),
         event_cap=int(sim.get("event_cap", 10_000)),
+        first_order=str(sim.get("first_order", "traced")),
     )
     return stack, settings
 

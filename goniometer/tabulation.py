@@ -217,7 +217,7 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
             first = state.next_chunk
             nb = min(B, n_chunks - first)
             tracer.trace_batch(*p.as_tuple(), 0.0, 0.0, 1.0, settings.rays, cr, first, settings.seed, TAB_STREAM,
-                               tracer.P_TABULATE, 1, 1, *tables, 1, settings.event_cap,
+                               tracer.P_TABULATE, 1, 1, *tables, 1, settings.event_cap, False,
                                *tracer.kernel_flags(p, settings.masking == "height-correlated", True),
                                brdf[:nb], btdf[:nb], energy[:nb],
                                energy_sq[:nb], counts[:nb],

@@ -82,7 +82,7 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
         tables = boundary_tables(settings.parametrization, nt, nph)
         kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
                first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
-               nt, nph, *tables, K, settings.event_cap,
+               nt, nph, *tables, K, settings.event_cap, settings.first_order == "integrated",
                *tracer.kernel_flags(p, settings.masking == "height-correlated", False), *outs,
                *no_exit_records(nb))
     results = []

@@ -109,8 +109,8 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
+def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
+                lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
                 height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy,
                 energy_sq, counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
@@ -124,7 +124,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (:mod:`goniometer.kernel.deposit`); ``energy``:
     (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals;
-    ``counts``: (N_COUNTS,) int64. ``height_correlated`` .. ``aniso``: None or True, the compiled
+    ``counts``: (N_COUNTS,) int64. ``skip_first`` (bool): reflected exits of bounce order 1 are
+    booked in ``energy`` but not deposited (``first_order = "integrated"``,
+    :mod:`goniometer.first_order`). ``height_correlated`` .. ``aniso``: None or True, the compiled
     variant (:func:`kernel_flags`, :func:`goniometer.kernel.event.step`); ``tabulate`` True goes
     with ``param`` = :data:`P_TABULATE`.
 
@@ -191,7 +193,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     exit_w[path, 0] = S[F_W0 * LANES + i]
                     exit_w[path, 1] = S[F_W1 * LANES + i]
                     exit_w[path, 2] = S[F_W2 * LANES + i]
-            else:
+            elif not (skip_first and not trans and S[F_ORDER * LANES + i] == 1.0):
                 xbuf[0, n_exit] = S[F_DX * LANES + i]
                 xbuf[1, n_exit] = S[F_DY * LANES + i]
                 xbuf[2, n_exit] = S[F_DZ * LANES + i]
@@ -234,8 +236,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 @numba.njit(cache=True, error_model='numpy')
 def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
-               col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps, lambertian,
-               conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+               col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, steps,
+               lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
     ``exit_w[b]``: see :func:`trace_chunk`).
 
@@ -257,23 +259,23 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
         return
     if lanes is None:
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                    lx, ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                    height_correlated is not None, event_cap, brdf[b], btdf[b], energy[b], energy_sq[b], counts[b],
-                    exit_cell[b], exit_w[b])
+        trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+                    ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
+                    height_correlated is not None, event_cap, skip_first, brdf[b], btdf[b], energy[b], energy_sq[b],
+                    counts[b], exit_cell[b], exit_w[b])
     else:
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                    lx, ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap,
-                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf[b],
-                    btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
+        trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+                    ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
+                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf[b], btdf[b],
+                    energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
-                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
-                col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps, lambertian,
-                conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
+                lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
+                col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, steps,
+                lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
     ``aniso`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
@@ -281,17 +283,17 @@ def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     for b in numba.prange(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
-                   row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
-                   lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
-                   exit_w)
+                   row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
+                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts,
+                   exit_cell, exit_w)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
-                       row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
-                       lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
-                       exit_w):
+                       row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
+                       steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts,
+                       exit_cell, exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
@@ -300,6 +302,6 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
     for b in range(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
-                   row_cos, col_cos, col_sin, max_order, event_cap, lanes, height_correlated, tabulate, steps,
-                   lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell,
-                   exit_w)
+                   row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
+                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts,
+                   exit_cell, exit_w)

@@ -18,7 +18,8 @@ FROM_FILE = "the file's [simulation] table, else "
 #: the defaults of SimulationSettings as the help prints them (written out so that ``gonio --help``
 #: need not import numba; tests/goniometer/test_cli_edges.py checks them against SimulationSettings())
 SETTINGS_DEFAULTS = {"rays": "1,000,000", "incident_deg": "0,15,30,45,60,70,80", "parametrization": "classic",
-                     "resolution": "90x360", "seed": "1", "masking": "separable", "max_order": "5"}
+                     "resolution": "90x360", "seed": "1", "masking": "separable", "max_order": "5",
+                     "first_order": "traced"}
 
 
 def register(sub) -> None:
@@ -41,6 +42,10 @@ def register(sub) -> None:
                    help=f"microfacet masking-shadowing (default: {FROM_FILE}{d['masking']})")
     p.add_argument("--max-order", dest="max_order", type=int,
                    help=f"bounce orders stored separately (K) (default: {FROM_FILE}{d['max_order']})")
+    p.add_argument("--first-order", dest="first_order", choices=("traced", "integrated"),
+                   help="bounce order 1 (one reflection on the top interface): traced, or integrated over the "
+                        "cells in the simulator's optics, which removes its noise (recorded in the file; "
+                        f"docs/first-order.md) (default: {FROM_FILE}{d['first_order']})")
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "the file's recorded stack shows it")
@@ -58,6 +63,7 @@ def register(sub) -> None:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer import store
     from goniometer.checkpoint import Checkpoints, checkpoint_dir
+    from goniometer.first_order import check_supported
     from goniometer.results import cell_geometries, run_description
     from goniometer.settings import SettingsError, SimulationSettings
     from goniometer.run import run_incidents
@@ -78,12 +84,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         over["incident_phi_deg"] = tuple(phis) if phis is not None else tuple(0.0 for _ in thetas)
     if args.resolution is not None:
         over["resolution"] = resolution(args.resolution)
-    for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order"):
+    for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order", "first_order"):
         value = getattr(args, key)
         if value is not None:
             over[key] = value
     try:
         settings = base.with_overrides(**over)
+        if settings.first_order == "integrated":
+            check_supported(stack)
     except SettingsError as e:
         raise UsageError(str(e)) from None
     try:
@@ -158,6 +166,7 @@ def info_dict(path: Path) -> dict[str, Any]:
             "incident_deg": list(s.incident_deg), "incident_phi_deg": list(s.incident_phi_deg),
             "rays": s.rays, "parametrization": s.parametrization, "resolution": list(s.resolution),
             "seed": s.seed, "masking": s.masking, "max_order": s.max_order, "chunk_rays": s.chunk_rays,
+            "first_order": s.first_order,
         },
         "sides": ["brdf"] + (["btdf"] if r.btdf is not None else []),
         "energy": [],
@@ -196,6 +205,8 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"  {len(s['incident_deg'])} incident direction(s), {s['rays']:,} rays each, {s['parametrization']} "
           f"{s['resolution'][0]}x{s['resolution'][1]}, seed {s['seed']}, {s['masking']} masking, K = {s['max_order']}; "
           f"slices: {', '.join(d['sides'])}")
+    if s["first_order"] == "integrated":
+        print("  bounce order 1 integrated over the cells, not traced (its standard error is 0)")
     print(f"  {p['rays_per_s']:,.0f} rays/s on {p['threads']} thread(s) ({p['elapsed_s']:.1f} s)")
     print(f"  {'theta_l':>7} {'phi_l':>6}  {'reflected (R G B)':>24}  {'transmitted':>24}  {'absorbed':>24}  {'masking_loss':>24}")
     for e in d["energy"]:

@@ -104,7 +104,7 @@ def _book(energy, energy_sq, row, x0, x1, x2):
 @numba.njit(cache=True, error_model='numpy')
 def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                height_correlated, event_cap, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                height_correlated, event_cap, skip_first, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace ``n_rays`` paths one after the other for light direction ``l``, drawing from the
     chunk's xoshiro256** stream ``state``, and accumulate into the given arrays (arguments as
     :func:`goniometer.tracer.trace_chunk`'s).
@@ -230,7 +230,7 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         exit_w[ray, 0] = w0
                         exit_w[ray, 1] = w1
                         exit_w[ray, 2] = w2
-                    else:
+                    elif not (skip_first and order == 1):
                         i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
                                                row_cos, col_cos, col_sin)
                         o = min(order, max_order) - 1

@@ -94,7 +94,26 @@ def test_simulate_help_defaults_are_the_settings_defaults():
     assert SETTINGS_DEFAULTS == {
         "rays": f"{d.rays:,}", "incident_deg": ",".join(f"{x:g}" for x in d.incident_deg),
         "parametrization": d.parametrization, "resolution": f"{d.resolution[0]}x{d.resolution[1]}",
-        "seed": str(d.seed), "masking": d.masking, "max_order": str(d.max_order)}
+        "seed": str(d.seed), "masking": d.masking, "max_order": str(d.max_order), "first_order": d.first_order}
+
+
+def test_first_order_integrated_from_the_command_line(tmp_path, capsys):
+    """--first-order integrated is recorded in the file and shown by info; a stack without an
+    interface on top is refused in one line with status 2 before anything is traced."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    out = tmp_path / "p.h5"
+    assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1", "--first-order", "integrated"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["first_order"] == "integrated"
+    assert main(["info", str(out)]) == 0
+    assert "order 1 integrated" in capsys.readouterr().out
+    lamb = tmp_path / "l.toml"
+    lamb.write_text('name = "l"\ncategory = "plastic"\n[[layers]]\ntype = "lambertian"\nalbedo = 0.5\n')
+    _one_line_error(capsys, ["simulate", str(lamb), "--out", str(tmp_path / "l.h5"), "--first-order", "integrated"],
+                    "first_order: integrated needs an interface on top")
+    assert not (tmp_path / "l.h5").exists()
 
 
 # ----------------------------------------------------------------------------- progress and pipes

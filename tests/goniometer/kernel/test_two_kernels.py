@@ -46,7 +46,7 @@ def _trace(stack: Stack, kernel: int, seed: int, height_correlated: bool = False
     energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
     counts = np.empty((nb, tracer.N_COUNTS), dtype=np.int64)
     tracer.trace_batch(*p.as_tuple(), *l, RAYS, cr, 0, seed, 0, 0, *RES, *boundary_tables("classic", *RES), K,
-                       tracer.EVENT_CAP, *tracer.kernel_flags(p, height_correlated, False, kernel), brdf, btdf,
+                       tracer.EVENT_CAP, False, *tracer.kernel_flags(p, height_correlated, False, kernel), brdf, btdf,
                        energy, energy_sq, counts,
                        np.empty((nb, 0), dtype=np.int64), np.empty((nb, 0, 3)))
     return brdf.sum(0), btdf.sum(0), energy.sum(0), energy_sq.sum(0), counts.sum(0)
