@@ -8,7 +8,9 @@ of the kernel from an empty numba cache (in a subprocess) and its load time from
 For the plastic, metal and slab it also times the yardstick (``reference_kernel.py``: a plain
 textbook kernel of the same physics, one thread) in the same run and reports the tracing speed
 as a ratio to it (1-thread rows), and the noise floor per second of the whole simulate,
-``1 / (noise floor^2 x CPU-s)`` (noise floor as in ``bench_accuracy.py``).
+``1 / (noise floor^2 x CPU-s)`` (noise floor as in ``bench_accuracy.py``), of the side models are
+judged on (internal BRDF, or BTDF) and of the whole BRDF; and, where it applies, the same whole
+simulate with bounce order 1 integrated (``first_order = "integrated"``, docs/first-order.md).
 Writes ``benchmarks/results/<date>-<host>.json`` and prints a table.
 
 Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE]
@@ -73,6 +75,12 @@ def floor_of(result) -> float:
         _, se = reference_parts(sd, internal=True)
     return float(np.mean(noise_floor(se, sd.proj_solid_angle, sd.mask)))
 
+
+def total_floor_of(result) -> float:
+    """Channel-mean noise floor of the whole BRDF (every bounce order: what a rendering sees)."""
+    sd = result.brdf
+    return float(np.mean(noise_floor(sd.stderr, sd.proj_solid_angle, sd.mask)))
+
 def cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -102,6 +110,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     from goniometer.tasks import trace_incident
     warm_up()
     rows = []
+    t_first = min(threads) if threads else None
     for name, stack in MATERIALS.items():
         yard = None
         if name in YARDSTICK:
@@ -125,14 +134,16 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
             r = simulate(stack, s)
             cpu, wall = time.process_time() - c0, time.perf_counter() - w0
             nf = floor_of(r)
+            nft = total_floor_of(r)
             row = {
-                "material": name, "threads": t, "rays": n,
+                "material": name, "threads": t, "rays": n, "first_order": "traced",
                 "trace_wall_s": twall, "trace_cpu_s": tcpu,
                 "trace_rays_per_s": n / twall, "trace_rays_per_cpu_s": n / tcpu,
                 "simulate_wall_s": wall, "simulate_cpu_s": cpu,
                 "rays_per_s": n / wall, "rays_per_cpu_s": n / cpu,
                 "mean_events_per_ray": float(np.mean(r.mean_events)),
                 "noise_floor": nf, "noise_floor_per_cpu_s": 1.0 / (nf * nf * cpu),
+                "noise_floor_total": nft, "noise_floor_total_per_cpu_s": 1.0 / (nft * nft * cpu),
             }
             extra = ""
             if yard is not None and t == 1:
@@ -142,9 +153,40 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
             rows.append(row)
             print(f"{name:28s} threads={t}  tracing {n / twall / 1e6:5.2f} M rays/s wall, {n / tcpu / 1e6:5.2f} M rays/CPU-s;"
                   f"  whole simulate {n / wall / 1e6:5.2f} M rays/s wall, {n / cpu / 1e6:5.2f} M rays/CPU-s;"
-                  f"  {row['mean_events_per_ray']:.2f} events/ray; 1/(nf^2 CPU-s) {row['noise_floor_per_cpu_s']:.3g}{extra}",
-                  flush=True)
+                  f"  {row['mean_events_per_ray']:.2f} events/ray; 1/(nf^2 CPU-s) {row['noise_floor_per_cpu_s']:.3g}"
+                  f" (total BRDF {row['noise_floor_total_per_cpu_s']:.3g}){extra}", flush=True)
+        if t_first is not None and _integrable(stack):
+            # the same whole simulate with bounce order 1 integrated (docs/first-order.md), one thread
+            s = SimulationSettings(incident_deg=INCIDENT, rays=rays_per_incident, parametrization="half",
+                                   threads=t_first, seed=1, first_order="integrated")
+            cell_geometry.cache_clear()
+            c0, w0 = time.process_time(), time.perf_counter()
+            r = simulate(stack, s)
+            cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+            nf, nft = floor_of(r), total_floor_of(r)
+            traced = next(x for x in rows if x["material"] == name and x["threads"] == t_first)
+            row = {"material": name, "threads": t_first, "rays": n, "first_order": "integrated",
+                   "simulate_wall_s": wall, "simulate_cpu_s": cpu, "rays_per_s": n / wall, "rays_per_cpu_s": n / cpu,
+                   "mean_events_per_ray": float(np.mean(r.mean_events)),
+                   "noise_floor": nf, "noise_floor_per_cpu_s": 1.0 / (nf * nf * cpu),
+                   "noise_floor_total": nft, "noise_floor_total_per_cpu_s": 1.0 / (nft * nft * cpu),
+                   "total_per_cpu_s_vs_traced": 1.0 / (nft * nft * cpu) / traced["noise_floor_total_per_cpu_s"]}
+            rows.append(row)
+            print(f"{name:28s} threads={t_first}  first order integrated: whole simulate {n / cpu / 1e6:5.2f} M rays/CPU-s;"
+                  f"  1/(nf^2 CPU-s) {row['noise_floor_per_cpu_s']:.3g} (total BRDF {row['noise_floor_total_per_cpu_s']:.3g},"
+                  f" {row['total_per_cpu_s_vs_traced']:.3g}x traced)", flush=True)
     return rows
+
+
+def _integrable(stack) -> bool:
+    """True when ``first_order = "integrated"`` applies (a single-scattering interface on top)."""
+    from goniometer.first_order import check_supported
+    from goniometer.settings import SettingsError
+    try:
+        check_supported(stack)
+    except SettingsError:
+        return False
+    return True
 
 
 def bench_models(repeats: int = 3) -> list[dict]:

@@ -13,7 +13,7 @@ mirror direction's cell for a smooth one. ``l`` and ``v`` point away from the su
 includes the cosine (it is a flux fraction, not a BRDF value).
 
 Cells are integrated in their own coordinates ((theta_v, phi_v) for classic slices, (theta_h,
-phi_h) for half slices) by adaptive Gauss-Legendre cubature; cells near the specular peak start
+phi_h) for half slices) by adaptive Gauss-Legendre cubature (5 x 5 nodes checked against 3 x 3); cells near the specular peak start
 from sub-cells a quarter of the lobe's width wide, so that no sharp lobe falls between nodes.
 """
 
@@ -34,8 +34,9 @@ __all__ = ["first_order_fractions", "check_supported", "RTOL", "ATOL"]
 #: relative and absolute (fraction of the incident flux per cell) tolerance of the cubature
 RTOL = 1e-6
 ATOL = 1e-11
-#: Gauss-Legendre nodes per axis of one cubature rule
+#: Gauss-Legendre nodes per axis of the cubature rule, and of the coarser rule it is checked against
 _GAUSS = 5
+_GAUSS_COARSE = 3
 #: subdivision levels of a sub-cell at most (each splits it in 2 x 2)
 _MAX_DEPTH = 8
 #: sub-cells per axis at most of a cell near the peak
@@ -88,7 +89,9 @@ def first_order_fractions(stack: Stack, parametrization: str, n_theta: int, n_ph
         _mirror_cell(out, p, conductor, param, n_theta, n_phi, *boundary_tables(parametrization, n_theta, n_phi))
         return out
     gx, gw = np.polynomial.legendre.leggauss(_GAUSS)
-    _integrate_cells(out, p, conductor, masking == "height-correlated", param, n_theta, n_phi, gx, gw, RTOL, ATOL)
+    hx, hw = np.polynomial.legendre.leggauss(_GAUSS_COARSE)
+    _integrate_cells(out, p, conductor, masking == "height-correlated", param, n_theta, n_phi, gx, gw, hx, hw, RTOL,
+                     ATOL)
     return out
 
 
@@ -150,7 +153,8 @@ def _integrand(param, u, w, p, conductor, hc):
 
 @numba.njit(cache=True)
 def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw):
-    """Product Gauss-Legendre rule over the rectangle [u0, u1] x [w0, w1] (three channels)."""
+    """Product Gauss-Legendre rule (nodes ``gx``, weights ``gw`` on [-1, 1]) over the rectangle
+    [u0, u1] x [w0, w1] (three channels)."""
     a0 = a1 = a2 = 0.0
     hu = 0.5 * (u1 - u0)
     hw = 0.5 * (w1 - w0)
@@ -167,27 +171,20 @@ def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw):
 
 
 @numba.njit(cache=True)
-def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, rtol, atol, stack):
-    """Adaptive cubature of one rectangle: the rule on it against the rule on its four quarters;
-    quarters that disagree beyond ``atol + rtol |value|`` (``atol`` shared out by area) are split
-    again, down to :data:`_MAX_DEPTH` levels. ``stack``: (4 * _MAX_DEPTH + 4, 5) scratch."""
+def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, hx, hw, rtol, atol, stack):
+    """Adaptive cubature of one rectangle: the rule of ``gx`` against the coarser one of ``hx``;
+    where they disagree beyond ``atol + rtol |value|`` (``atol`` shared out by area) the rectangle
+    is split in 2 x 2, down to :data:`_MAX_DEPTH` levels. The finer rule's value is kept (the
+    difference bounds the coarser rule's error, hence, generously, the finer's). ``stack``:
+    (4 * _MAX_DEPTH + 4, 5) scratch."""
     t0 = t1 = t2 = 0.0
     n = 1
     stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4] = u0, u1, w0, w1, 0.0
     while n > 0:
         n -= 1
         a, b, c, d, depth = stack[n, 0], stack[n, 1], stack[n, 2], stack[n, 3], stack[n, 4]
-        c0, c1, c2 = _rule(param, a, b, c, d, p, conductor, hc, gx, gw)
-        um = 0.5 * (a + b)
-        wm = 0.5 * (c + d)
-        q0 = q1 = q2 = 0.0
-        for k in range(4):
-            ua, ub = (a, um) if k < 2 else (um, b)
-            wa, wb = (c, wm) if k % 2 == 0 else (wm, d)
-            x0, x1, x2 = _rule(param, ua, ub, wa, wb, p, conductor, hc, gx, gw)
-            q0 += x0
-            q1 += x1
-            q2 += x2
+        q0, q1, q2 = _rule(param, a, b, c, d, p, conductor, hc, gx, gw)
+        c0, c1, c2 = _rule(param, a, b, c, d, p, conductor, hc, hx, hw)
         err = max(abs(q0 - c0), abs(q1 - c1), abs(q2 - c2))
         tol = atol * 0.25 ** depth + rtol * max(abs(q0), abs(q1), abs(q2))
         if err <= tol or depth >= _MAX_DEPTH:
@@ -195,6 +192,8 @@ def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, rtol, atol, stack
             t1 += q1
             t2 += q2
             continue
+        um = 0.5 * (a + b)
+        wm = 0.5 * (c + d)
         for k in range(4):
             ua, ub = (a, um) if k < 2 else (um, b)
             wa, wb = (c, wm) if k % 2 == 0 else (wm, d)
@@ -216,7 +215,7 @@ def _theta_h(param, u, w, lx, ly, lz):
 
 
 @numba.njit(cache=True, parallel=True)
-def _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, rtol, atol):
+def _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, hx, hw, rtol, atol):
     """Every cell of the slice, rows in parallel (each cell's value is independent of threads)."""
     a_min = min(p[_AX], p[_AY])
     a_max = max(p[_AX], p[_AY])
@@ -243,7 +242,7 @@ def _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, rtol,
                 for b in range(s):
                     x0, x1, x2 = _adaptive(param, u0 + (u1 - u0) * a / s, u0 + (u1 - u0) * (a + 1) / s,
                                            w0 + dphi * b / s, w0 + dphi * (b + 1) / s, p, conductor, hc, gx, gw,
-                                           rtol, atol / (s * s), stack)
+                                           hx, hw, rtol, atol / (s * s), stack)
                     t0 += x0
                     t1 += x1
                     t2 += x2

@@ -286,7 +286,7 @@ _LAYER_KEYS = {
 }
 _TOP_KEYS = {"name", "category", "layers", "simulation"}
 SIMULATION_KEYS = {"incident_deg", "rays", "parametrization", "resolution", "seed", "masking",
-                   "max_order", "threads"}
+                   "max_order", "threads", "first_order"}
 
 
 def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:
