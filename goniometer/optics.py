@@ -549,13 +549,13 @@ def ms_sample_height(wx: float, wy: float, wz: float, c: float, ax: float, ay: f
     """
     if wz > 0.0:
         lam = ggx_lambda(wx, wy, wz, ax, ay)
-        v = 1.0 - u  # in (0, 1]
-        if v <= c ** lam:
+        lv = math.log(1.0 - u)  # 1 - u in (0, 1]
+        if lv <= lam * math.log(c):
             return -1.0
-        return min(1.0, c / v ** (1.0 / lam))
+        return min(1.0, c * math.exp(-lv / lam))
     if wz < 0.0:
         lam = 1.0 + ggx_lambda(wx, wy, wz, ax, ay)
-        return c * (1.0 - u) ** (1.0 / lam)
+        return c * math.exp(math.log(1.0 - u) / lam)
     return c
 
 
