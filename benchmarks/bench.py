@@ -121,6 +121,12 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
                 trace_reference(stack, light_direction(th), rays_per_incident, 1, 90, 360, seed=1, incident_index=m)
             yard = rays_per_incident * len(INCIDENT) / (time.process_time() - c0)
             print(f"{name:28s} yardstick  tracing {yard / 1e6:5.2f} M rays/CPU-s (1 thread)", flush=True)
+        # compile (or load) the kernel variant this stack needs, and the integrated first order's
+        # cubature, outside the timed runs
+        tiny = SimulationSettings(incident_deg=(30.0,), rays=2000, parametrization="half", threads=1)
+        simulate(stack, tiny)
+        if _integrable(stack):
+            simulate(stack, tiny.with_overrides(first_order="integrated"))
         for t in threads:
             s = SimulationSettings(incident_deg=INCIDENT, rays=rays_per_incident, parametrization="half",
                                    threads=t, seed=1)

@@ -114,20 +114,20 @@ def _mirror_cell(out, p, conductor, param, n_theta, n_phi, row_cos, col_cos, col
 
 
 @numba.njit(cache=True)
-def _integrand(param, u, w, p, conductor, hc):
-    """``f_1 cos(theta_v)`` times the Jacobian of the cell coordinates (u, w) per channel:
-    (theta_v, phi_v) with ``dw = sin(theta_v)``, or (theta_h, phi_h) with ``dw = 4 (l.h) sin(theta_h)``."""
+def _integrand(param, su, cu, cw, sw, p, conductor, hc):
+    """``f_1 cos(theta_v)`` times the Jacobian of the cell coordinates (u, w) per channel, given
+    ``sin u, cos u, cos w, sin w``: (theta_v, phi_v) with ``dw = sin(theta_v)``, or (theta_h, phi_h)
+    with ``dw = 4 (l.h) sin(theta_h)``."""
     lx, ly, lz = p[_LX], p[_LY], p[_LZ]
-    su = math.sin(u)
     if param == CLASSIC:
-        vx = su * math.cos(w)
-        vy = su * math.sin(w)
-        vz = math.cos(u)
+        vx = su * cw
+        vy = su * sw
+        vz = cu
         jac = su * vz
     else:
-        hx = su * math.cos(w)
-        hy = su * math.sin(w)
-        hz = math.cos(u)
+        hx = su * cw
+        hy = su * sw
+        hz = cu
         lh = lx * hx + ly * hy + lz * hz
         vx = 2.0 * lh * hx - lx
         vy = 2.0 * lh * hy - ly
@@ -152,16 +152,22 @@ def _integrand(param, u, w, p, conductor, hc):
 
 
 @numba.njit(cache=True)
-def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw):
+def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, trig):
     """Product Gauss-Legendre rule (nodes ``gx``, weights ``gw`` on [-1, 1]) over the rectangle
-    [u0, u1] x [w0, w1] (three channels)."""
+    [u0, u1] x [w0, w1] (three channels); ``trig``: (2, len(gx)) scratch for the nodes' cos, sin w."""
     a0 = a1 = a2 = 0.0
     hu = 0.5 * (u1 - u0)
     hw = 0.5 * (w1 - w0)
+    for b in range(gx.shape[0]):
+        w = w0 + hw * (gx[b] + 1.0)
+        trig[0, b] = math.cos(w)
+        trig[1, b] = math.sin(w)
     for a in range(gx.shape[0]):
         u = u0 + hu * (gx[a] + 1.0)
+        su = math.sin(u)
+        cu = math.cos(u)
         for b in range(gx.shape[0]):
-            f0, f1, f2 = _integrand(param, u, w0 + hw * (gx[b] + 1.0), p, conductor, hc)
+            f0, f1, f2 = _integrand(param, su, cu, trig[0, b], trig[1, b], p, conductor, hc)
             g = gw[a] * gw[b]
             a0 += g * f0
             a1 += g * f1
@@ -171,20 +177,20 @@ def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw):
 
 
 @numba.njit(cache=True)
-def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, hx, hw, rtol, atol, stack):
+def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, hx, hw, rtol, atol, stack, trig):
     """Adaptive cubature of one rectangle: the rule of ``gx`` against the coarser one of ``hx``;
     where they disagree beyond ``atol + rtol |value|`` (``atol`` shared out by area) the rectangle
     is split in 2 x 2, down to :data:`_MAX_DEPTH` levels. The finer rule's value is kept (the
     difference bounds the coarser rule's error, hence, generously, the finer's). ``stack``:
-    (4 * _MAX_DEPTH + 4, 5) scratch."""
+    (4 * _MAX_DEPTH + 4, 5) and ``trig`` (2, len(gx)) scratch."""
     t0 = t1 = t2 = 0.0
     n = 1
     stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4] = u0, u1, w0, w1, 0.0
     while n > 0:
         n -= 1
         a, b, c, d, depth = stack[n, 0], stack[n, 1], stack[n, 2], stack[n, 3], stack[n, 4]
-        q0, q1, q2 = _rule(param, a, b, c, d, p, conductor, hc, gx, gw)
-        c0, c1, c2 = _rule(param, a, b, c, d, p, conductor, hc, hx, hw)
+        q0, q1, q2 = _rule(param, a, b, c, d, p, conductor, hc, gx, gw, trig)
+        c0, c1, c2 = _rule(param, a, b, c, d, p, conductor, hc, hx, hw, trig)
         err = max(abs(q0 - c0), abs(q1 - c1), abs(q2 - c2))
         tol = atol * 0.25 ** depth + rtol * max(abs(q0), abs(q1), abs(q2))
         if err <= tol or depth >= _MAX_DEPTH:
@@ -222,6 +228,7 @@ def _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, hx, h
     dphi = _TWO_PI / n_phi
     for i in numba.prange(n_theta):
         stack = np.empty((4 * _MAX_DEPTH + 4, 5))
+        trig = np.empty((2, gx.shape[0]))
         if param == CLASSIC:
             u0 = i * _HALF_PI / n_theta
             u1 = (i + 1) * _HALF_PI / n_theta
@@ -242,7 +249,7 @@ def _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, hx, h
                 for b in range(s):
                     x0, x1, x2 = _adaptive(param, u0 + (u1 - u0) * a / s, u0 + (u1 - u0) * (a + 1) / s,
                                            w0 + dphi * b / s, w0 + dphi * (b + 1) / s, p, conductor, hc, gx, gw,
-                                           hx, hw, rtol, atol / (s * s), stack)
+                                           hx, hw, rtol, atol / (s * s), stack, trig)
                     t0 += x0
                     t1 += x1
                     t2 += x2
