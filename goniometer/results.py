@@ -203,7 +203,7 @@ def cell_geometry(parametrization: str, n_theta: int, n_phi: int, theta_deg: flo
     """Projected solid angles and comparison mask of a slice grid for one incident direction
     (:meth:`SliceGrid.proj_solid_angle`, :meth:`SliceGrid.mask`), read-only and memoised: the
     materials of a database share their incident directions and grids, and the exact half-cell
-    solid angles cost ~50 ms per direction."""
+    solid angles cost ~7 ms per direction (90 x 360, one core)."""
     grid = SliceGrid(parametrization, n_theta, n_phi, "reflection")
     light = light_direction(theta_deg, phi_deg)
     omega, mask = grid.proj_solid_angle(light), grid.mask(light)

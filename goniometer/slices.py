@@ -222,16 +222,40 @@ def _half_subcells(lx, ly, lz, n_theta, n_phi, s, transmission):
 
 @numba.njit(cache=True, parallel=True)
 def _half_omega(lx, ly, lz, n_theta, n_phi, s):
-    """Sum of sub-cell weights per half cell and whether every sub-cell centre is valid."""
+    """Sum of sub-cell weights per half cell and whether every sub-cell centre is valid
+    (:func:`_half_subcell`'s values, the sines and cosines taken once per row and per column)."""
     omega = np.zeros((n_theta, n_phi))
     valid = np.ones((n_theta, n_phi), dtype=np.bool_)
+    cp = np.empty((n_phi, s))
+    sp = np.empty((n_phi, s))
+    for j in range(n_phi):
+        for b in range(s):
+            ph = (j + (b + 0.5) / s) * (_TWO_PI / n_phi)
+            cp[j, b] = math.cos(ph)
+            sp[j, b] = math.sin(ph)
     for i in numba.prange(n_theta):
+        dw = np.empty(s)
+        st = np.empty(s)
+        ct = np.empty(s)
+        for a in range(s):
+            u0 = (i + a / s) / n_theta
+            u1 = (i + (a + 1.0) / s) / n_theta
+            uc = (i + (a + 0.5) / s) / n_theta
+            dw[a] = (math.cos(u0 * u0 * _HALF_PI) - math.cos(u1 * u1 * _HALF_PI)) * (_TWO_PI / n_phi / s)
+            thc = uc * uc * _HALF_PI
+            st[a] = math.sin(thc)
+            ct[a] = math.cos(thc)
         for j in range(n_phi):
             acc = 0.0
             ok = True
             for a in range(s):
                 for b in range(s):
-                    w = _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s)[3]
+                    hx = st[a] * cp[j, b]
+                    hy = st[a] * sp[j, b]
+                    hz = ct[a]
+                    lh = lx * hx + ly * hy + lz * hz
+                    vz = 2.0 * lh * hz - lz
+                    w = dw[a] * vz * 4.0 * lh if (lh > 0.0 and vz > 0.0) else 0.0
                     acc += w
                     ok = ok and w > 0.0
             omega[i, j] = acc
@@ -239,18 +263,23 @@ def _half_omega(lx, ly, lz, n_theta, n_phi, s):
     return omega, valid
 
 
-@numba.njit(cache=True)
-def _half_weight(lx, ly, lz, th, ph):
-    """Integrand of the projected solid angle of a half cell in (theta_h, phi_h), per unit
-    ``dtheta dphi``: ``4 (l.h) max(0, v_z) sin(theta_h)``, 0 where l.h <= 0; and v_z, l.h."""
-    st = math.sin(th)
-    hx = st * math.cos(ph)
-    hy = st * math.sin(ph)
-    hz = math.cos(th)
+@numba.njit(cache=True, inline='always')
+def _half_weight_sc(lx, ly, lz, st, ct, cp, sp):
+    """:func:`_half_weight` from ``sin theta_h, cos theta_h, cos phi_h, sin phi_h``."""
+    hx = st * cp
+    hy = st * sp
+    hz = ct
     lh = lx * hx + ly * hy + lz * hz
     vz = 2.0 * lh * hz - lz
     w = 4.0 * lh * vz * st if (lh > 0.0 and vz > 0.0) else 0.0
     return w, vz, lh
+
+
+@numba.njit(cache=True)
+def _half_weight(lx, ly, lz, th, ph):
+    """Integrand of the projected solid angle of a half cell in (theta_h, phi_h), per unit
+    ``dtheta dphi``: ``4 (l.h) max(0, v_z) sin(theta_h)``, 0 where l.h <= 0; and v_z, l.h."""
+    return _half_weight_sc(lx, ly, lz, math.sin(th), math.cos(th), math.cos(ph), math.sin(ph))
 
 
 @numba.njit(cache=True, parallel=True)
@@ -258,19 +287,56 @@ def _half_omega_exact(lx, ly, lz, n_theta, n_phi, gx, gw, s_fine):
     """Projected solid angle of every half cell: Gauss-Legendre (nodes ``gx``, weights ``gw`` on
     [-1, 1]) in (theta_h, phi_h) where the cell lies entirely on the valid side (all of a grid of
     (k+1)^2 points valid), ``s_fine`` x ``s_fine`` midpoint sub-cells where it straddles, 0 where
-    no grid point is valid."""
+    no grid point is valid. The sines and cosines of the points' angles are taken once per row
+    and per column (the integrand is :func:`_half_weight`'s, value for value)."""
     omega = np.zeros((n_theta, n_phi))
     k = gx.shape[0]
     dphi = _TWO_PI / n_phi
+    # per column: cos, sin of the test grid's, the Gauss nodes' and the sub-cells' azimuths
+    cg = np.empty((n_phi, k + 1))
+    sg = np.empty((n_phi, k + 1))
+    cn = np.empty((n_phi, k))
+    sn = np.empty((n_phi, k))
+    cf = np.empty((n_phi, s_fine))
+    sf = np.empty((n_phi, s_fine))
+    for j in range(n_phi):
+        ph0 = j * dphi
+        for b in range(k + 1):
+            ph = ph0 + dphi * b / k
+            cg[j, b] = math.cos(ph)
+            sg[j, b] = math.sin(ph)
+        for b in range(k):
+            ph = ph0 + 0.5 * dphi * (gx[b] + 1.0)
+            cn[j, b] = math.cos(ph)
+            sn[j, b] = math.sin(ph)
+        for b in range(s_fine):
+            ph = ph0 + dphi * (b + 0.5) / s_fine
+            cf[j, b] = math.cos(ph)
+            sf[j, b] = math.sin(ph)
     for i in numba.prange(n_theta):
         th0 = (i / n_theta) ** 2 * _HALF_PI
         th1 = ((i + 1.0) / n_theta) ** 2 * _HALF_PI
+        stg = np.empty(k + 1)
+        ctg = np.empty(k + 1)
+        stn = np.empty(k)
+        ctn = np.empty(k)
+        for a in range(k + 1):
+            th = th0 + (th1 - th0) * a / k
+            stg[a] = math.sin(th)
+            ctg[a] = math.cos(th)
+        for a in range(k):
+            th = th0 + 0.5 * (th1 - th0) * (gx[a] + 1.0)
+            stn[a] = math.sin(th)
+            ctn[a] = math.cos(th)
+        fine = False
+        stf = np.empty(s_fine)
+        ctf = np.empty(s_fine)
+        dwf = np.empty(s_fine)
         for j in range(n_phi):
-            ph0 = j * dphi
             n_in = 0
             for a in range(k + 1):
                 for b in range(k + 1):
-                    _, vz, lh = _half_weight(lx, ly, lz, th0 + (th1 - th0) * a / k, ph0 + dphi * b / k)
+                    _, vz, lh = _half_weight_sc(lx, ly, lz, stg[a], ctg[a], cg[j, b], sg[j, b])
                     if vz > 0.0 and lh > 0.0:
                         n_in += 1
             acc = 0.0
@@ -278,24 +344,26 @@ def _half_omega_exact(lx, ly, lz, n_theta, n_phi, gx, gw, s_fine):
                 pass  # entirely on the invalid side
             elif n_in == (k + 1) * (k + 1):
                 for a in range(k):
-                    th = th0 + 0.5 * (th1 - th0) * (gx[a] + 1.0)
                     for b in range(k):
-                        ph = ph0 + 0.5 * dphi * (gx[b] + 1.0)
-                        acc += gw[a] * gw[b] * _half_weight(lx, ly, lz, th, ph)[0]
+                        acc += gw[a] * gw[b] * _half_weight_sc(lx, ly, lz, stn[a], ctn[a], cn[j, b], sn[j, b])[0]
                 acc *= 0.25 * (th1 - th0) * dphi
             else:
+                if not fine:
+                    # the row's sub-cell centres and h-space solid angles, once
+                    for a in range(s_fine):
+                        u0 = (i + a / s_fine) / n_theta
+                        u1 = (i + (a + 1.0) / s_fine) / n_theta
+                        uc = (i + (a + 0.5) / s_fine) / n_theta
+                        dwf[a] = (math.cos(u0 * u0 * _HALF_PI) - math.cos(u1 * u1 * _HALF_PI)) * dphi / s_fine
+                        thc = uc * uc * _HALF_PI
+                        stf[a] = math.sin(thc)
+                        ctf[a] = math.cos(thc)
+                    fine = True
                 for a in range(s_fine):
-                    u0 = (i + a / s_fine) / n_theta
-                    u1 = (i + (a + 1.0) / s_fine) / n_theta
-                    uc = (i + (a + 0.5) / s_fine) / n_theta
-                    dw = (math.cos(u0 * u0 * _HALF_PI) - math.cos(u1 * u1 * _HALF_PI)) * dphi / s_fine
-                    thc = uc * uc * _HALF_PI
-                    stc = math.sin(thc)
                     for b in range(s_fine):
-                        ph = ph0 + dphi * (b + 0.5) / s_fine
-                        w = _half_weight(lx, ly, lz, thc, ph)[0]
+                        w = _half_weight_sc(lx, ly, lz, stf[a], ctf[a], cf[j, b], sf[j, b])[0]
                         if w > 0.0:
-                            acc += w / stc * dw
+                            acc += w / stf[a] * dwf[a]
             omega[i, j] = acc
     return omega
 

@@ -64,6 +64,50 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
     run concurrently themselves, like Dask worker threads). ``buffers`` (from
     :func:`chunk_buffers`) saves allocating the per-chunk histograms on every call.
     """
+    outs = _trace_chunks(stack, settings, m, first_task, count, parallel, buffers)
+    nb = outs[0].shape[0]
+    cpt = settings.chunks_per_task
+    results = []
+    for t in range(count):
+        first, last = t * cpt, min((t + 1) * cpt, nb)
+        if first >= last:
+            results.append(Sums.zeros(stack, settings))
+            continue
+        # the task's sum starts from its first chunk (0 + x == x) and adds the others in chunk order
+        total = Sums(*(o[first].copy() for o in outs))
+        for b in range(first + 1, last):
+            total.add(Sums(*(o[b] for o in outs)))
+        results.append(total)
+    return results
+
+
+def _add_task(acc: Sums, outs: tuple[np.ndarray, ...], first: int, last: int) -> None:
+    """``acc += (task sum of chunks first .. last - 1)``, bit for bit what adding the
+    :func:`trace_tasks` sum does, without materialising it: each histogram element's chunk values
+    are added in chunk order and the total added to ``acc`` in one pass (:func:`_add_chunk_sum`)."""
+    for a, o in zip((acc.brdf, acc.btdf), outs[:2]):
+        _add_chunk_sum(a.reshape(-1), o.reshape(o.shape[0], -1), first, last)
+    for a, o in zip((acc.energy, acc.energy_sq, acc.counts), outs[2:]):
+        total = o[first].copy()
+        for b in range(first + 1, last):
+            total += o[b]
+        a += total
+
+
+@numba.njit(cache=True, error_model='numpy')
+def _add_chunk_sum(acc, chunks, first, last):
+    """``acc[e] += ((chunks[first, e] + chunks[first + 1, e]) + ...)`` for every element ``e``."""
+    for e in range(acc.shape[0]):
+        t = chunks[first, e]
+        for b in range(first + 1, last):
+            t += chunks[b, e]
+        acc[e] += t
+
+
+def _trace_chunks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
+                  parallel: bool, buffers: tuple[np.ndarray, ...] | None) -> tuple[np.ndarray, ...]:
+    """Run the kernel on the chunks of tasks ``first_task .. first_task + count - 1`` of incident
+    direction ``m``; returns the per-chunk outputs (views of ``buffers`` when given)."""
     p = pack(stack)
     l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
     nt, nph = settings.resolution
@@ -85,18 +129,7 @@ def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: 
                nt, nph, *tables, K, settings.event_cap, settings.first_order == "integrated",
                *tracer.kernel_flags(p, settings.masking == "height-correlated", False), *outs,
                *no_exit_records(nb))
-    results = []
-    for t in range(count):
-        first, last = t * cpt, min((t + 1) * cpt, nb)
-        if first >= last:
-            results.append(Sums.zeros(stack, settings))
-            continue
-        # the task's sum starts from its first chunk (0 + x == x) and adds the others in chunk order
-        total = Sums(*(o[first].copy() for o in outs))
-        for b in range(first + 1, last):
-            total.add(Sums(*(o[b] for o in outs)))
-        results.append(total)
-    return results
+    return outs
 
 
 def task_rays(settings: SimulationSettings, task: int) -> int:
@@ -129,10 +162,14 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     if buffers is None:
         buffers = incident_buffers(stack, settings)
     t0 = time.perf_counter()
+    cpt = settings.chunks_per_task
     for first in range(0, T, per_call):
         count = min(per_call, T - first)
-        for t, sums in enumerate(trace_tasks(stack, settings, m, first, count, buffers=buffers)):
-            acc.add(sums)
+        outs = _trace_chunks(stack, settings, m, first, count, True, buffers)
+        for t in range(count):
+            lo, hi = t * cpt, min((t + 1) * cpt, outs[0].shape[0])
+            if lo < hi:
+                _add_task(acc, outs, lo, hi)
             if progress is not None:
                 progress(task_rays(settings, first + t))
     return IncidentPart.from_sums(m, acc, settings.max_order, stack.transmits, time.perf_counter() - t0)
