@@ -1,8 +1,9 @@
 """The top interface's single reflection, integrated over the cells of a reflection slice.
 
 With ``first_order = "integrated"`` (``docs/first-order.md``) the kernel traces every path as
-usual but deposits no exit of bounce order 1 (a reflection on the top interface from above that
-leaves at once); :func:`first_order_fractions` supplies that order's expectation instead:
+usual but deposits no exit of bounce order 1 made of one microfacet reflection (a reflection on the
+top interface from above that leaves at once; on a multiple-scattering top, a walk of one bounce);
+:func:`first_order_fractions` supplies its expectation instead:
 
     I_c = Int_cell f_1(l, v) cos(theta_v) dw_v,
 
@@ -52,22 +53,21 @@ _NP = 14
 
 
 def check_supported(stack: Stack) -> None:
-    """Raise :class:`SettingsError` unless the first layer is a single-scattering interface (the
-    only case whose order 1 has a closed form)."""
+    """Raise :class:`SettingsError` unless the first layer is an interface (whose single
+    microfacet reflection has a closed form)."""
     top = stack.layers[0]
     if isinstance(top, Medium) or not isinstance(top, Interface):
         raise SettingsError(f"first_order: integrated needs an interface on top; {stack.name!r} starts with a "
                             f"{type(top).__name__.lower()}")
-    if top.multiple_scattering:
-        raise SettingsError(f"first_order: integrated needs a single-scattering top interface; {stack.name!r}'s "
-                            "scatters multiply (its order 1 has no closed form)")
 
 
 def first_order_fractions(stack: Stack, parametrization: str, n_theta: int, n_phi: int, light: np.ndarray,
                           masking: str) -> np.ndarray:
-    """Expected fraction of the incident flux that leaves each reflection cell at bounce order 1,
-    shape ``(3, n_theta, n_phi)`` (RGB), for the unit light direction ``light`` (pointing away from
-    the surface) and the masking ``"separable"`` or ``"height-correlated"``."""
+    """Expected fraction of the incident flux that leaves each reflection cell at bounce order 1
+    after one microfacet reflection, shape ``(3, n_theta, n_phi)`` (RGB), for the unit light
+    direction ``light`` (pointing away from the surface) and the masking ``"separable"`` or
+    ``"height-correlated"``. On a multiple-scattering top interface this is the walks of one bounce,
+    whose masking is height-correlated whatever ``masking`` says (Heitz et al. 2016)."""
     check_supported(stack)
     top = stack.layers[0]
     p = np.zeros(_NP)
@@ -90,8 +90,8 @@ def first_order_fractions(stack: Stack, parametrization: str, n_theta: int, n_ph
         return out
     gx, gw = np.polynomial.legendre.leggauss(_GAUSS)
     hx, hw = np.polynomial.legendre.leggauss(_GAUSS_COARSE)
-    _integrate_cells(out, p, conductor, masking == "height-correlated", param, n_theta, n_phi, gx, gw, hx, hw, RTOL,
-                     ATOL)
+    hc = masking == "height-correlated" or top.multiple_scattering
+    _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, hx, hw, RTOL, ATOL)
     return out
 
 

@@ -82,15 +82,20 @@ def lane_kernel_for(if_ms, region_tau, region_albedo) -> bool:
     return True
 
 
-def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
+def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO,
+                 skip_first: bool = False) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
     ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso)``. ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
-    cached) only when some stack needs it."""
+    cached) only when some stack needs it. ``skip_first`` (the integrated first order) on a
+    multiple-scattering top interface needs the per-path kernel, which tells one-bounce walks apart."""
     if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
         raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
     p = packed
+    if skip_first and kernel == KERNEL_LANES and p.if_ms.shape[0] > 0 and p.if_ms[0]:
+        raise ValueError("kernel: the lane kernel cannot integrate the first order of a multiple-scattering top "
+                         "interface (its walks are not told apart by bounces); use KERNEL_AUTO or KERNEL_PATHS")
     auto = bool(lane_kernel_for(p.if_ms, p.region_tau, p.region_albedo))
     lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and auto)
 

@@ -121,7 +121,10 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     meaning "K or more"), row ``K`` sums the squared weights of all exits and row ``K + 1``
     those of internal exits (order >= 2), for the standard errors. ``energy``: (N_ENERGY, 3) weight
     sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals; ``counts``:
-    (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced).
+    (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced). ``skip_first``: reflected
+    exits of bounce order 1 whose top event was one microfacet reflection (on a multiple-scattering
+    top, a walk of one bounce) are booked in ``energy`` but not deposited (``first_order =
+    "integrated"``, :mod:`goniometer.first_order`).
 
     A histogram exit is deposited when the next exit happens (or at the end of the chunk), its
     cell being prefetched meanwhile: each cell still receives its additions in path order, so the
@@ -179,6 +182,9 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         order = 0
         events = 0
         based = False  # the path has had an event at the base
+        # the top interface's last walk had one microfacet bounce (always True without walks):
+        # an order-1 exit then has the closed form of goniometer.first_order
+        single = True
         # path-level spectral MIS in chromatic scattering media: hero channel, technique shares
         hero = -1
         q0 = 1.0 / 3.0
@@ -230,7 +236,7 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         exit_w[ray, 0] = w0
                         exit_w[ray, 1] = w1
                         exit_w[ray, 2] = w2
-                    elif not (skip_first and order == 1):
+                    elif not (skip_first and order == 1 and single):
                         i, j = cell_index_fast(param, False, lx, ly, lz, dx, dy, dz, n_theta, n_phi,
                                                row_cos, col_cos, col_sin)
                         o = min(order, max_order) - 1
@@ -307,6 +313,8 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                             cond_g_is_r, cond_b_is_g, eta, inv_eta, max(1, event_cap - events + 1), state)
                         if is_cond:
                             w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
+                        if k == 0:
+                            single = nb == 1
                         if nb == 0:
                             # still on the microsurface at the cap: booked as capped at the loop top
                             events = event_cap
