@@ -14,8 +14,9 @@ mirror direction's cell for a smooth one. ``l`` and ``v`` point away from the su
 includes the cosine (it is a flux fraction, not a BRDF value).
 
 Cells are integrated in their own coordinates ((theta_v, phi_v) for classic slices, (theta_h,
-phi_h) for half slices) by adaptive Gauss-Legendre cubature (5 x 5 nodes checked against 3 x 3); cells near the specular peak start
-from sub-cells a quarter of the lobe's width wide, so that no sharp lobe falls between nodes.
+phi_h) for half slices) by adaptive Gauss-Legendre cubature (5 x 5 nodes checked against 3 x 3);
+cells near the specular peak start from sub-cells a quarter of the lobe's width wide, so that no
+sharp lobe falls between nodes.
 """
 
 from __future__ import annotations

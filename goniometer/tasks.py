@@ -127,8 +127,7 @@ def _trace_chunks(stack: Stack, settings: SimulationSettings, m: int, first_task
         kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
                first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
                nt, nph, *tables, K, settings.event_cap, settings.first_order == "integrated",
-               *tracer.kernel_flags(p, settings.masking == "height-correlated", False,
-                                    skip_first=settings.first_order == "integrated"), *outs,
+               *tracer.kernel_flags(p, settings.masking == "height-correlated", False), *outs,
                *no_exit_records(nb))
     return outs
 

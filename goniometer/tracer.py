@@ -42,10 +42,10 @@ from goniometer.kernel.deposit import BUFFER, X_COLS, flush
 from goniometer.kernel.event import RR_START, RR_THRESHOLD, step
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, C_CAPPED, C_EVENTS,
                                       E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED, E_REFLECTED_WITHOUT_BASE,
-                                      E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_ORDER, F_PATH,
-                                      F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ, N_FIELDS,
-                                      P_TABULATE, ST_ALIVE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED, T_MS,
-                                      TAU_SCATTER, relative_indices, stack_table, tau_modes)
+                                      E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_MULTI, F_ORDER,
+                                      F_PATH, F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ,
+                                      N_FIELDS, P_TABULATE, ST_ALIVE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
+                                      T_MS, TAU_SCATTER, relative_indices, stack_table, tau_modes)
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import free_flight, lane_steps, microsurface_walk
 from goniometer.rng import chunk_key, stream_state
@@ -69,33 +69,26 @@ KERNEL_PATHS = 2
 
 @numba.njit(cache=True)
 def lane_kernel_for(if_ms, region_tau, region_albedo) -> bool:
-    """True when the lane kernel traces the stack (``KERNEL_AUTO``): no scattering medium and no
-    multiple-scattering interface, so that every event is the vectorised one. Stacks with either
-    go to the per-path kernel, for which their per-lane steps would cost more in moving lane
-    state than the vectorised interface events save (``docs/kernel.md``, two kernels)."""
+    """True when the lane kernel traces the stack (``KERNEL_AUTO``): no scattering medium, so that
+    nearly every event is the vectorised one (on a multiple-scattering interface, the first bounce
+    of its walk; the rare walks that go on are per-lane steps). Stacks with a scattering medium go
+    to the per-path kernel, for which their free flights as per-lane steps would cost more in
+    moving lane state than the vectorised interface events save (``docs/kernel.md``, two kernels)."""
     for m in tau_modes(region_tau, region_albedo):
         if m >= TAU_SCATTER:
-            return False
-    for k in range(if_ms.shape[0]):
-        if if_ms[k]:
             return False
     return True
 
 
-def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO,
-                 skip_first: bool = False) -> tuple:
+def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso)``. ``kernel``:
+    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms)``. ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
-    cached) only when some stack needs it. ``skip_first`` (the integrated first order) on a
-    multiple-scattering top interface needs the per-path kernel, which tells one-bounce walks apart."""
+    cached) only when some stack needs it."""
     if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
         raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
     p = packed
-    if skip_first and kernel == KERNEL_LANES and p.if_ms.shape[0] > 0 and p.if_ms[0]:
-        raise ValueError("kernel: the lane kernel cannot integrate the first order of a multiple-scattering top "
-                         "interface (its walks are not told apart by bounces); use KERNEL_AUTO or KERNEL_PATHS")
     auto = bool(lane_kernel_for(p.if_ms, p.region_tau, p.region_albedo))
     lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and auto)
 
@@ -104,20 +97,23 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 
     if not lanes:
         # the per-path kernel has no variants but the masking's (one compiled kernel per masking)
-        return None, flag(height_correlated), None, None, None, None, None, None, None
+        return None, flag(height_correlated), None, None, None, None, None, None, None, None
     aniso = bool(np.any(p.if_alpha[:, 0] != p.if_alpha[:, 1]) or np.any(p.if_rot[:, 1] != 0.0))
     cond = p.base_kind == BASE_CONDUCTOR
     c = p.cond
-    return (True, flag(height_correlated), flag(tabulate), flag(not auto), flag(p.base_kind == BASE_LAMBERTIAN),
+    n_if = p.region_eta.shape[0] - 1
+    ms = bool(np.any(p.if_ms[:n_if])) if n_if > 0 else False
+    scattering = bool(np.any(tau_modes(p.region_tau, p.region_albedo) >= TAU_SCATTER))
+    return (True, flag(height_correlated), flag(tabulate), flag(ms or scattering), flag(p.base_kind == BASE_LAMBERTIAN),
             flag(cond), flag(cond and c[1] == c[0] and c[4] == c[3]), flag(cond and c[2] == c[1] and c[5] == c[4]),
-            flag(aniso))
+            flag(aniso), flag(ms))
 
 
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
                 lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy,
-                energy_sq, counts, exit_cell, exit_w):
+                height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf,
+                energy, energy_sq, counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
 
@@ -150,8 +146,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     walk_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
     # the interface that is the base (the bottom layer), -1 when the base is Lambertian
     base_k = -1 if base_kind == 2 else n_if - 1
-    # a new path's first action: the top interface from above (a walk if it scatters multiply)
-    first_status = ST_SCALAR if (n_if > 0 and table[T_MS] != 0.0) else ST_ALIVE
+    # a new path's first action: the top interface from above (a walk that the per-lane steps
+    # make, unless the vectorised event begins walks)
+    first_status = ST_SCALAR if (ms is None and n_if > 0 and table[T_MS] != 0.0) else ST_ALIVE
     # every lane starts as if it had just ended a path of nothing (index i - LANES): the first step
     # books zeros and gives it path i
     S = np.zeros(N_FIELDS * LANES)
@@ -170,7 +167,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
-             conductor, g_is_r, b_is_g, aniso)
+             conductor, g_is_r, b_is_g, aniso, ms)
         # ---- per-lane pass: per-lane steps, then the exits of the paths that left the stack at
         # this step (lanes listed without branches, then visited; booked at the next step)
         if steps is not None:
@@ -179,7 +176,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     S[F_STATUS * LANES + i] = lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau,
                                                          region_albedo, region_g, tau_mode, table, cond, walk_g_is_r,
                                                          walk_b_is_g, n_if, transmit_base, conductor_base, base_k,
-                                                         event_cap)
+                                                         event_cap, ms is not None)
         live = 0
         n_x = 0
         for i in range(LANES):
@@ -198,7 +195,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     exit_w[path, 0] = S[F_W0 * LANES + i]
                     exit_w[path, 1] = S[F_W1 * LANES + i]
                     exit_w[path, 2] = S[F_W2 * LANES + i]
-            elif not (skip_first and not trans and S[F_ORDER * LANES + i] == 1.0):
+            elif not (skip_first and not trans and S[F_ORDER * LANES + i] == 1.0 and S[F_MULTI * LANES + i] == 0.0):
                 xbuf[0, n_exit] = S[F_DX * LANES + i]
                 xbuf[1, n_exit] = S[F_DY * LANES + i]
                 xbuf[2, n_exit] = S[F_DZ * LANES + i]
@@ -242,7 +239,8 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
                col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, steps,
-               lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+               lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts, exit_cell,
+               exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
     ``exit_w[b]``: see :func:`trace_chunk`).
 
@@ -272,15 +270,16 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                     ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf[b], btdf[b],
-                    energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
+                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf[b],
+                    btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
                 lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
                 col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, steps,
-                lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+                lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
     ``aniso`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
@@ -289,7 +288,7 @@ def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts,
+                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
                    exit_cell, exit_w)
 
 
@@ -297,7 +296,7 @@ def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                        row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                       steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts,
+                       steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
                        exit_cell, exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
@@ -308,5 +307,5 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, brdf, btdf, energy, energy_sq, counts,
+                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
                    exit_cell, exit_w)

@@ -24,12 +24,12 @@ import numpy as np
 from goniometer import optics
 from goniometer.kernel.codegen import prefer_wide_vectors, stack_block, u64_as_double, u64_bits
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, F_AB0, F_AB1, F_AB2,
-                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY, F_LX, F_LY,
-                                      F_LZ, F_MK0, F_MK1, F_MK2, F_ORDER, F_PATH, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED,
-                                      F_STATUS, F_W0, F_W1, F_W2, IF_STRIDE, LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED,
-                                      ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED, T_AX, T_AY,
-                                      T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT, T_TAU0, T_TAU1,
-                                      T_TAU2)
+                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY, F_LX, F_LY, F_LZ,
+                                      F_MK0, F_MK1, F_MK2, F_ORDER, F_PATH, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_MULTI,
+                                      F_STATUS, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, IF_STRIDE,
+                                      LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR,
+                                      ST_TRANSMITTED, T_AX, T_AY, T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS, T_RC, T_RS,
+                                      T_SCAT, T_TAU0, T_TAU1, T_TAU2)
 from goniometer.rng import draw, path_key, uniform_pair
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
@@ -38,6 +38,7 @@ RR_START = 3
 RR_THRESHOLD = 0.05
 
 _U1 = np.uint64(1)
+_U2 = np.uint64(2)
 _THIRD = 1.0 / 3.0
 LN = LANES
 
@@ -45,7 +46,7 @@ LN = LANES
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
          lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian, conductor,
-         g_is_r, b_is_g, aniso):
+         g_is_r, b_is_g, aniso, ms):
     """One step for all lanes of ``S`` (see the module docstring).
 
     The last eight arguments are None or True and select what is compiled (numba compiles a None
@@ -61,7 +62,11 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
     * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
     * ``g_is_r``, ``b_is_g``: True when the conductor's green channel has the red one's complex
       index, resp. blue the green one's (their Fresnel values are computed once);
-    * ``aniso``: True when some interface is anisotropic (tangent-frame rotations).
+    * ``aniso``: True when some interface is anisotropic (tangent-frame rotations);
+    * ``ms``: True when some interface scatters multiply: the event on it is the first bounce of
+      its microsurface walk (the height of the hit, the visible normal, Fresnel, and whether the
+      ray then leaves the microsurface); a walk that goes on is continued by a per-lane step
+      (:func:`goniometer.kernel.steps.walk_from`).
 
     The loop bodies are written out here, as an inlined function taking the state array would
     keep reference counting in the loop and stop LLVM."""
@@ -213,6 +218,8 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         S[F_Q2 * LN + i] = _THIRD if ended else S[F_Q2 * LN + i]
         S[F_HPOS * LN + i] = -1.0 if ended else S[F_HPOS * LN + i]
         S[F_SEEDED * LN + i] = 0.0 if ended else S[F_SEEDED * LN + i]
+        S[F_WK * LN + i] = 0.0 if ended else S[F_WK * LN + i]
+        S[F_MULTI * LN + i] = 0.0 if ended else S[F_MULTI * LN + i]
     for i in range(LN):
         # ---------------- stage B: the event of the lanes whose next action it is
         st = np.int64(S[F_STATUS * LN + i])
@@ -315,8 +322,32 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         ox = rx if refl_ else sx
         oy = ry if refl_ else sy
         oz = rz if refl_ else sz
+        # a multiple-scattering interface: the walk's first bounce (Heitz et al. 2016; as
+        # optics.ms_sample_height draws heights): the hit's height CDF c1 = (1 - u)^(1 / (1 +
+        # Lambda(w))) below the ray's start at 1; from there (reflected) or from 1 - c1 seen from
+        # below (refracted) the ray leaves if it travels away from the microsurface and
+        # 1 - u' <= c^Lambda(o); otherwise the same u' gives the next hit's height, where the
+        # per-lane step goes on (steps.walk_from)
+        if ms is None:
+            walked = False
+            cont = False
+            c_next = 1.0
+        else:
+            walked = plain and T[io + T_MS] != 0.0
+            u5, u6 = uniform_pair(draw(key, c + _U2))
+            log_c1 = optics.log_pos(1.0 - u5) / (1.0 + optics.ggx_lambda(wx, wy, wz, ax, ay))
+            c1 = optics.exp_neg(log_c1)
+            log_c = log_c1 if refl_ else optics.log_pos(max(1.0 - c1, 1e-300))
+            lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
+            log_v = optics.log_pos(1.0 - u6)
+            away = oz > 0.0 if refl_ else oz < 0.0
+            leaves = away and log_v <= lam_o * log_c
+            cont = walked and not leaves
+            # the next hit: upward c / v^(1 / Lambda(o)) (<= 1), downward c v^(1 / (1 + Lambda(o)))
+            log_next = log_c - log_v / max(lam_o, 1e-300) if away else log_c + log_v / (1.0 + lam_o)
+            c_next = optics.exp_neg(min(log_next, 0.0))
         # single-scattering microfacet model: an exit on the wrong side is lost to masking
-        wrong = plain and (oz <= 0.0 if refl_ else oz >= 0.0)
+        wrong = plain and (not walked) and (oz <= 0.0 if refl_ else oz >= 0.0)
         if height_correlated is not None:
             lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
             lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
@@ -326,7 +357,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             # docs/kernel.md, precision)
             g = float(optics.smith_g1_dir(np.float32(ox), np.float32(oy), np.float32(oz), np.float32(ax),
                                           np.float32(ay)))
-        g = 0.0 if wrong else (g if plain else 1.0)
+        g = 0.0 if wrong else (g if (plain and not walked) else 1.0)
         # weight factors: conductor Fresnel, or the base's albedo; absorbed what they take
         h0 = rho0 if lamb else (f0 if (is_cond and plain) else 1.0)
         h1 = rho1 if lamb else (f1 if (is_cond and plain) else 1.0)
@@ -353,16 +384,17 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             gy = rs * ox + rc * oy
         gz = oz if from_above else -oz
         if lambertian is None:
-            nx = gx if plain else x
-            ny = gy if plain else y
-            nz = gz if plain else z
+            nx = gx if (plain and not cont) else x
+            ny = gy if (plain and not cont) else y
+            nz = gz if (plain and not cont) else z
         else:
             # the disk point sqrt(u2) (cos, sin) lifted onto the hemisphere (Malley)
             rad = math.sqrt(max(0.0, u2))
-            nx = rad * cp if lamb else (gx if plain else x)
-            ny = rad * sp if lamb else (gy if plain else y)
-            nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if plain else z)
-        crossed = (not lamb) and (not plain or not refl_)
+            nx = rad * cp if lamb else (gx if (plain and not cont) else x)
+            ny = rad * sp if lamb else (gy if (plain and not cont) else y)
+            nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if (plain and not cont) else z)
+        # (a walk that goes on keeps the lane's region and arrival direction for its per-lane step)
+        crossed = (not lamb) and (not cont) and (not plain or not refl_)
         nr = (k + 1 if from_above else k) if crossed else r
         ne = ev + 1
         top = (k == 0 and not lamb) or (lamb and n_if == 0)
@@ -380,10 +412,14 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         k2c = min(max(k2, 0), max(n_if, 1) - 1)
         if steps is None:
             to_steps = False
-        else:
+        elif ms is None:
             scat_next = T[off + nr * RG_STRIDE + T_SCAT] != 0.0
             ms_next = T[k2c * IF_STRIDE + T_MS] != 0.0
             to_steps = scat_next | ((k2 >= 0) & (k2 < n_if) & ms_next)
+        else:
+            # multiple-scattering interfaces are this event's: only scattering regions and walks
+            # that go on need per-lane steps
+            to_steps = cont | (T[off + nr * RG_STRIDE + T_SCAT] != 0.0)
         nst = ST_DONE if p >= n_rays else ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
             ST_TRANSMITTED if (transmit_base and nr == n_if and nz < 0.0) else (
                 ST_CAPPED if ne >= event_cap else (ST_SCALAR if to_steps else ST_ALIVE))))
@@ -406,5 +442,17 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         S[F_EV * LN + i] = float(ne if go else ev)
         S[F_ORDER * LN + i] = float(order + 1 if (go and top) else order)
         S[F_BASED * LN + i] = 1.0 if (go and based) else bo
-        S[F_CTR * LN + i] = float(np.int64(c) + 2 if go else np.int64(c))
+        S[F_CTR * LN + i] = float(np.int64(c) + (2 if ms is None else 3) if go else np.int64(c))
         S[F_STATUS * LN + i] = float(nst if go else st)
+        if ms is not None:
+            # where the walk goes on: the ray's direction of travel, the next hit's height CDF and
+            # the side (the refracted ray is seen from below: direction negated, heights 1 - c)
+            pend = go and cont
+            S[F_WK * LN + i] = float(kc + 1) if pend else S[F_WK * LN + i]
+            S[F_WVX * LN + i] = (ox if refl_ else -ox) if pend else S[F_WVX * LN + i]
+            S[F_WVY * LN + i] = (oy if refl_ else -oy) if pend else S[F_WVY * LN + i]
+            S[F_WVZ * LN + i] = (oz if refl_ else -oz) if pend else S[F_WVZ * LN + i]
+            S[F_WC * LN + i] = c_next if pend else S[F_WC * LN + i]
+            S[F_WIN * LN + i] = (0.0 if refl_ else 1.0) if pend else S[F_WIN * LN + i]
+            # a walk of one bounce on the top interface (its steps mark a longer one)
+            S[F_MULTI * LN + i] = 0.0 if (go and walked and k == 0) else S[F_MULTI * LN + i]

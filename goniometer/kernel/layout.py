@@ -59,17 +59,27 @@ F_KEY = 24                          # path key (bits)
 F_PATH = 25                         # index of the path in its chunk (lane i: i, i + LANES, ...)
 F_LX, F_LY, F_LZ = 26, 27, 28       # the path's light direction (a tabulation draws one per path)
 F_X0 = 29                           # xoshiro256** state, F_X0 .. F_X0 + 3 (bits)
+# a microsurface walk the vectorised event began and a per-lane step continues: interface + 1
+# (0: none), the ray's direction of travel and height CDF in the walk's frame, 1 if it is on the
+# far side of the microsurface (goniometer.kernel.steps.walk_from)
+F_WK = 33
+F_WVX, F_WVY, F_WVZ = 34, 35, 36
+F_WC = 37
+F_WIN = 38
+#: 1 when the path's last walk on a multiple-scattering top interface made more than one bounce
+#: (its order-1 exit is then not the closed form of goniometer.first_order)
+F_MULTI = 39
 # ---- per-lane sums over the lane's ended paths (summed over lanes at the end of the chunk)
-A_RE = 33       # reflected weight (3 channels), then its squares at A_RE + 3
-A_RB = 39       # reflected weight of paths that never reached the base, squares at + 3
-A_TR = 45       # transmitted weight, squares at + 3
-A_AB = 51       # absorbed, squares at + 3
-A_MK = 57       # masking loss, squares at + 3
-A_RL = 63       # roulette's net change of the weight (3)
-A_CP = 66       # capped weight (3)
-A_NCAP = 69     # capped paths
-A_NEV = 70      # events
-N_FIELDS = 71
+A_RE = 40       # reflected weight (3 channels), then its squares at A_RE + 3
+A_RB = 46       # reflected weight of paths that never reached the base, squares at + 3
+A_TR = 52       # transmitted weight, squares at + 3
+A_AB = 58       # absorbed, squares at + 3
+A_MK = 64       # masking loss, squares at + 3
+A_RL = 70       # roulette's net change of the weight (3)
+A_CP = 73       # capped weight (3)
+A_NCAP = 76     # capped paths
+A_NEV = 77      # events
+N_FIELDS = 78
 
 # ---- lane status after a step
 # (an ended path -- ST_REFLECTED .. ST_CAPPED -- is booked, and its lane given the next path, at the

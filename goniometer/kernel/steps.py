@@ -19,9 +19,9 @@ from goniometer import optics
 from goniometer.kernel.codegen import u64_as_double, u64_bits
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_BASED, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY,
-                                      F_ORDER, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_W0, F_W1,
-                                      F_W2, F_X0, IF_STRIDE, LANES, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED,
-                                      ST_TRANSMITTED, T_MS, TAU_SCATTER)
+                                      F_MULTI, F_ORDER, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_W0, F_W1, F_W2, F_WC,
+                                      F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, IF_STRIDE, LANES, ST_ALIVE, ST_CAPPED,
+                                      ST_DEAD, ST_REFLECTED, ST_TRANSMITTED, T_MS, TAU_SCATTER)
 from goniometer.rng import next_disk, next_float, seed_state
 
 LN = LANES
@@ -114,17 +114,24 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     (1 for a dielectric) and the number ``n >= 1`` of microfacet bounces; ``n = 0`` when the ray
     is still on the microsurface after ``max_bounces`` bounces (the caller books it as capped).
     """
-    vx = -wx
-    vy = -wy
-    vz = -wz
-    c = 1.0
-    inside = False
+    return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r,
+                     b_is_g, eta, inv_eta, max_bounces, state)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g, eta,
+              inv_eta, max_bounces, state):
+    """:func:`microsurface_walk` from a given point of the walk: the ray travels along ``v`` at
+    height CDF ``c`` after ``n`` bounces, on the far side of the microsurface if ``inside`` (there
+    ``v`` and ``c`` are in the flipped frame); with ``hit`` its next hit is already drawn, at ``c``.
+    Returns as :func:`microsurface_walk` (``n`` counts the bounces before this call too; the
+    Fresnel factors are those of the bounces from here)."""
     f0 = 1.0
     f1 = 1.0
     f2 = 1.0
-    n = 0
     while n < max_bounces:
-        cn = optics.ms_sample_height(vx, vy, vz, c, ax, ay, next_float(state))
+        cn = c if hit else optics.ms_sample_height(vx, vy, vz, c, ax, ay, next_float(state))
+        hit = False
         if cn < 0.0:
             if inside:
                 return -vx, -vy, -vz, f0, f1, f2, n, True
@@ -179,10 +186,12 @@ def _is_ms(table, k, n_if):
 
 @numba.njit(cache=True, error_model='numpy')
 def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, table,
-               cond, g_is_r, b_is_g, n_if, transmit_base, conductor_base, base_k, event_cap):
+               cond, g_is_r, b_is_g, n_if, transmit_base, conductor_base, base_k, event_cap, vector_walks):
     """Per-lane steps of lane ``i`` of the state ``S`` until its next action is the vectorised
     event or its path ends (booked at the next step); returns its new status (``ST_*``). ``xs``
-    is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``."""
+    is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``.
+    ``vector_walks``: the vectorised event begins walks on multiple-scattering interfaces (then
+    a walk it began is continued here first, and a walk ahead is left to it)."""
     dx = S[F_DX * LN + i]
     dy = S[F_DY * LN + i]
     dz = S[F_DZ * LN + i]
@@ -210,9 +219,15 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
         for j in range(4):
             xs[j] = u64_bits(S[(F_X0 + j) * LN + i])
     st = ST_ALIVE
+    # a walk the vectorised event began (its first bounce, the region's traversal and the event's
+    # bookkeeping done there): continued first
+    resume = S[F_WK * LN + i] != 0.0
+    multi = S[F_MULTI * LN + i] != 0.0
     while True:
         tm = tau_mode[region]
-        if tm >= TAU_SCATTER:
+        if resume:
+            walk = True
+        elif tm >= TAU_SCATTER:
             scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2 = free_flight(
                 tm == TAU_SCATTER, region_tau[region, 0], region_tau[region, 1], region_tau[region, 2],
                 region_albedo[region, 0], region_albedo[region, 1], region_albedo[region, 2], region_g[region],
@@ -226,7 +241,7 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
                 walk = False
             else:
                 # at the boundary the direction leaves by: a walk there, or the vectorised event
-                if not _is_ms(table, region - 1 if dz > 0.0 else region, n_if):
+                if vector_walks or not _is_ms(table, region - 1 if dz > 0.0 else region, n_if):
                     break
                 walk = True
         else:
@@ -240,11 +255,12 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
         if walk:
             from_above = dz < 0.0
             k = region if from_above else region - 1
-            events += 1
-            if k == 0:
-                order += 1
-            if k == base_k and from_above:
-                based = True
+            if not resume:
+                events += 1
+                if k == 0:
+                    order += 1
+                if k == base_k and from_above:
+                    based = True
             is_cond = conductor_base and k == n_if - 1
             # incoming direction in the local frame of the arrival side (z > 0), rotated into the
             # interface's tangent frame
@@ -260,9 +276,18 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
             inv_eta = eta_up[k] if from_above else eta_dn[k]
             # the whole walk on the microsurface is this one event (no masking loss); each further
             # microfacet bounce counts toward the event cap
-            ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
-                wx, wy, wz, if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3], cond[4],
-                cond[5], g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs)
+            if resume:
+                ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from( S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN
+                                                                    + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1,
+                                                                    True, if_alpha[k, 0], if_alpha[k, 1], is_cond,
+                                                                    cond[0], cond[1], cond[2], cond[3], cond[4],
+                                                                    cond[5], g_is_r, b_is_g, eta, inv_eta, max(1,
+                                                                    event_cap - events + 1), xs)
+                resume = False
+            else:
+                ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
+                    wx, wy, wz, if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3],
+                    cond[4], cond[5], g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs)
             if is_cond:
                 w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
             if nb == 0:
@@ -271,6 +296,8 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
                 st = ST_CAPPED
                 break
             events += nb - 1
+            if k == 0:
+                multi = nb > 1
             dx = rc * ox - rs * oy
             dy = rs * ox + rc * oy
             dz = oz if from_above else -oz
@@ -301,7 +328,8 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
         if events >= event_cap:
             st = ST_CAPPED
             break
-        if tau_mode[region] < TAU_SCATTER and not _is_ms(table, region - 1 if dz > 0.0 else region, n_if):
+        if tau_mode[region] < TAU_SCATTER and (vector_walks or not _is_ms(table, region - 1 if dz > 0.0 else region,
+                                                                            n_if)):
             break
     S[F_DX * LN + i] = dx
     S[F_DY * LN + i] = dy
@@ -325,6 +353,8 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
     S[F_Q2 * LN + i] = q2
     S[F_HPOS * LN + i] = hpos
     S[F_SEEDED * LN + i] = 1.0
+    S[F_WK * LN + i] = 0.0
+    S[F_MULTI * LN + i] = 1.0 if multi else 0.0
     for j in range(4):
         S[(F_X0 + j) * LN + i] = u64_as_double(xs[j])
     return st

@@ -282,6 +282,24 @@ def test_cos_sin_2pi_matches_libm():
     assert optics.cos_sin_2pi(0.0) == (1.0, 0.0)
 
 
+def test_exp_neg_and_log_pos_match_libm():
+    """The call-free exponential (x <= 0) and logarithm (x > 0) agree with libm: exp_neg to a few
+    ulp, log_pos within 1e-15 max(1, |log x|) (as their docstrings state), at table edges too."""
+    rng = np.random.default_rng(8)
+    xs = np.concatenate([rng.random(20000), 1.0 - rng.random(2000) * 1e-9, 1.0 + np.arange(65) / 64.0 - 0.5,
+                         [1.0, 0.5, 2.0**-32, 2.0**-1022, 1e-300]])
+    log_pos = numba.njit(lambda x: optics.log_pos(x))
+    exp_neg = numba.njit(lambda x: optics.exp_neg(x))
+    for x in xs:
+        x = float(min(x, 1.0))
+        assert abs(log_pos(x) - math.log(x)) <= 1e-15 * max(1.0, abs(math.log(x))), x
+    assert log_pos(1.0) == 0.0
+    for x in np.concatenate([-rng.random(20000) * 50.0, [0.0, -1e-300, -700.0]]):
+        e = math.exp(float(x))
+        assert abs(exp_neg(float(x)) - e) <= 4e-16 * e, x
+    assert exp_neg(0.0) == 1.0
+
+
 @numba.njit(cache=True)
 def _disk_points(n, seed):
     state = stream_state(np.uint64(seed), np.uint64(1), np.uint64(2))

@@ -31,6 +31,9 @@ STACKS = {
                               Interface(0.2, (1.1,) * 3, (2.0,) * 3)), "metal"),
     "ms-slab": Stack("w", (Interface(0.5, (1.5,) * 3, multiple_scattering=True), Medium((0.1, 0.1, 0.1)),
                            Interface(0.6, (1.0,) * 3, multiple_scattering=True)), "slab"),
+    "ms-aniso-metal": Stack("x", (Interface(0.4, (1.5,) * 3, roughness_y=0.1, rotation_deg=30.0,
+                                            multiple_scattering=True), Medium((0.1, 0.2, 0.4)),
+                                  Interface(0.5, (1.1, 1.2, 1.3), (1.0, 0.5, 2.0), multiple_scattering=True)), "metal"),
 }
 
 
@@ -88,8 +91,10 @@ def test_lane_and_path_kernels_agree(name):
 
 
 def test_the_lane_kernel_is_picked_where_every_event_is_vectorised():
+    """Every stack without a scattering medium (on a multiple-scattering interface the vectorised
+    event is the walk's first bounce)."""
     for name, expect in [("metal", True), ("aniso-plastic", True), ("slab-matched", True), ("scattering", False),
-                         ("ms-slab", False)]:
+                         ("ms-slab", True), ("ms-aniso-metal", True)]:
         p = pack(STACKS[name])
         assert tracer.lane_kernel_for(p.if_ms, p.region_tau, p.region_albedo) == expect, name
 

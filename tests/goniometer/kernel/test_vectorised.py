@@ -24,15 +24,19 @@ def _host_has(feature: str) -> bool:
 
 
 @pytest.mark.skipif(not _host_has("avx2"), reason="the packed-instruction check is for x86-64 CPUs with AVX2 or AVX-512")
-def test_the_step_loop_is_vectorised():
+@pytest.mark.parametrize("walks", [False, True], ids=["metal", "multiple-scattering-metal"])
+def test_the_step_loop_is_vectorised(walks):
     """The coated metal's specialisation of the step, compiled afresh (cached code cannot be
-    inspected), holds packed square roots, divisions and gathers."""
+    inspected), holds packed square roots, divisions and gathers; so does the one whose interfaces
+    scatter multiply (the walks' first bounces, their heights from table-driven logarithms)."""
     f = numba.njit(error_model="numpy", boundscheck=False)(event.step.py_func)
     S = np.zeros(N_FIELDS * LANES)
-    # a coated metal's variant: separable masking, slices, no per-lane steps, no Lambertian base,
-    # a conductor whose blue channel shares the green one's index, isotropic
+    # a coated metal's variant: separable masking, slices, no per-lane steps (with walks: steps for
+    # the walks that go on), no Lambertian base, a conductor whose blue channel shares the green
+    # one's index, isotropic
+    flag = True if walks else None
     f(S, np.zeros(30), 8, 2, False, 1, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 10000, 0.5, 0.0, 0.8,
-      np.uint64(1), 0, 0, 5, None, None, None, None, True, None, True, None)
+      np.uint64(1), 0, 0, 5, None, None, flag, None, True, None, True, None, flag)
     asm = f.inspect_asm(f.signatures[0])
     for op in ("vsqrtpd", "vdivpd", "vgatherqpd"):
         assert re.search(rf"\b{op}\b[^\n]*%[yz]mm", asm), f"no packed {op} in the step"
