@@ -52,7 +52,9 @@ _BITS = textwrap.dedent('''
     stacks = [Stack("m", (Interface(0.05, (1.5,) * 3), Medium((0.1, 0.2, 0.5)),
                           Interface(0.2, (1.45,) * 3, (1.0, 0.01, 0.01))), "metal"),
               Stack("p", (Interface(0.3, (1.5,) * 3, roughness_y=0.1, rotation_deg=20.0), Medium((0.1, 0.2, 0.3)),
-                          Lambertian((0.2, 0.5, 0.8))), "plastic")]
+                          Lambertian((0.2, 0.5, 0.8))), "plastic"),
+              Stack("w", (Interface(0.3, (1.5,) * 3), Medium((0.1, 0.2, 0.5)),
+                          Interface(0.4, (1.45,) * 3, (1.0, 0.01, 0.01))), "metal").with_multiple_scattering()]
     h = hashlib.sha256()
     for stack in stacks:
         s = SimulationSettings(incident_deg=(30.0,), rays=200_000, resolution=(18, 72), threads=1, seed=3)
@@ -66,7 +68,8 @@ _BITS = textwrap.dedent('''
 @pytest.mark.slow
 def test_generic_cpu_and_host_give_the_same_bits(tmp_path):
     """``NUMBA_CPU_NAME=generic`` (SSE2, no FMA) and the host CPU (its widest vectors) trace the
-    same bits (each compiles afresh, about a minute each)."""
+    same bits, walks on multiple-scattering interfaces included (each compiles afresh, about a
+    minute each)."""
     out = []
     for name, extra in (("generic", {"NUMBA_CPU_NAME": "generic"}), ("host", {})):
         env = dict(os.environ, GONIOMETER_CACHE=str(tmp_path / name), **extra)
