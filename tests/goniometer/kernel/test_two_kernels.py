@@ -105,3 +105,30 @@ def test_a_check_between_kernels_can_fail():
     other = Stack("m2", s.layers[:2] + (Interface(0.35, (1.1, 1.2, 1.3), (1.0, 0.5, 2.0)),), "metal")
     chi2, dof = _cells_chi2(_trace(s, tracer.KERNEL_LANES, 1)[0], _trace(other, tracer.KERNEL_PATHS, 2)[0])
     assert chi2 > chi2_limit(dof)
+
+
+def _tabulate_energy(stack: Stack, kernel: int, seed: int, rays: int = 200_000):
+    """Energy sums of a tabulation's paths (each draws its own light direction, cosine-weighted)."""
+    p = pack(stack)
+    cr = 1 << 14
+    nb = -(-rays // cr)
+    energy = np.empty((nb, tracer.N_ENERGY, 3))
+    energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
+    exit_w = np.empty((nb, cr, 3))
+    tracer.trace_batch(*p.as_tuple(), 0.0, 0.0, 1.0, rays, cr, 0, seed, 9, tracer.P_TABULATE, 1, 1,
+                       *boundary_tables("classic", 1, 1), 1, tracer.EVENT_CAP, False,
+                       *tracer.kernel_flags(p, False, True, kernel), np.empty((nb, 1, 1, 3, 3)),
+                       np.empty((nb, 1, 1, 3, 3)), energy, energy_sq, np.empty((nb, tracer.N_COUNTS), dtype=np.int64),
+                       np.empty((nb, cr), dtype=np.int64), exit_w)
+    return energy.sum(0), energy_sq.sum(0), rays
+
+
+@pytest.mark.parametrize("name", ["ms-aniso-metal"])
+def test_tabulations_agree_between_kernels(name):
+    """A tabulation (per-path light directions) of a stack with walks: the lane kernel's energies
+    against the per-path kernel's, within their standard errors."""
+    e_a, q_a, n = _tabulate_energy(STACKS[name], tracer.KERNEL_LANES, 1)
+    e_b, q_b, _ = _tabulate_energy(STACKS[name], tracer.KERNEL_PATHS, 2)
+    for row in (tracer.E_REFLECTED, tracer.E_TRANSMITTED, tracer.E_ABSORBED):
+        var = (q_a[row] - e_a[row] ** 2 / n) + (q_b[row] - e_b[row] ** 2 / n)
+        assert np.all(np.abs(e_a[row] - e_b[row]) <= Z_TOL * np.sqrt(var) + 1e-12 * n), (row, e_a[row], e_b[row])
