@@ -24,8 +24,9 @@ A reflected path that never had an event at the base (the bottom layer) also boo
 
 Kernel (``docs/kernel.md``): a chunk's paths run in :data:`~goniometer.kernel.layout.LANES`
 lanes advanced in lock-step; each step is one vectorised event for every lane
-(:mod:`goniometer.kernel.event`), then a pass over the lanes that runs per-lane steps (free
-flights, microsurface walks: :mod:`goniometer.kernel.steps`), books the paths that ended and
+(:mod:`goniometer.kernel.event`; on a multiple-scattering interface the first bounce of the
+walk), then a pass over the lanes that runs per-lane steps (free flights, walks that go on:
+:mod:`goniometer.kernel.steps`), books the paths that ended and
 gives their lanes the next path of the chunk. Every path draws its own random numbers, keyed by
 (seed, incident index, chunk, path) (:mod:`goniometer.rng`), so neither the lane a path runs in
 nor the number of threads changes a result. Kernel inputs are flat arrays (see
@@ -127,7 +128,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals;
     ``counts``: (N_COUNTS,) int64. ``skip_first`` (bool): reflected exits of bounce order 1 are
     booked in ``energy`` but not deposited (``first_order = "integrated"``,
-    :mod:`goniometer.first_order`). ``height_correlated`` .. ``aniso``: None or True, the compiled
+    :mod:`goniometer.first_order`). ``height_correlated`` .. ``ms``: None or True, the compiled
     variant (:func:`kernel_flags`, :func:`goniometer.kernel.event.step`); ``tabulate`` True goes
     with ``param`` = :data:`P_TABULATE`.
 
@@ -247,7 +248,7 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
     is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.rng.chunk_key`)
     for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.rng.stream_state`)
-    for the per-path kernel (``lanes`` None); ``lanes`` .. ``aniso``: None or True
+    for the per-path kernel (``lanes`` None); ``lanes`` .. ``ms``: None or True
     (:func:`kernel_flags`).
     """
     c = first_chunk + b
@@ -282,7 +283,7 @@ def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
-    ``aniso`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
+    ``ms`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
     the variant they name."""
     for b in numba.prange(brdf.shape[0]):
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,

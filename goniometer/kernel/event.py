@@ -4,7 +4,8 @@ A step first books, in per-lane sums, the path each lane ended at the previous s
 per-lane pass has deposited its exit meanwhile) and gives the lane its next path (lane ``i`` traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next
 action is not a per-lane step (:mod:`goniometer.kernel.steps`) takes one event: it traverses its region (Beer-Lambert; clear and scattering regions
 give a factor 1), then meets what lies at the end -- a rough single-scattering interface
-(visible-normal sample, Fresnel, reflection or refraction, masking), an index-matched
+(visible-normal sample, Fresnel, reflection or refraction, masking), the first bounce of a walk on
+a multiple-scattering one (and whether the ray then leaves the microsurface), an index-matched
 interface (crossed unchanged), or the Lambertian base -- and plays Russian roulette. The
 branches are selects, the stack's parameters are gathered per lane from a table on the loop's
 own stack, and the physics is that of :mod:`goniometer.optics`, inlined: LLVM vectorises the
@@ -49,7 +50,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
          g_is_r, b_is_g, aniso, ms):
     """One step for all lanes of ``S`` (see the module docstring).
 
-    The last eight arguments are None or True and select what is compiled (numba compiles a None
+    The last nine arguments are None or True and select what is compiled (numba compiles a None
     argument's specialisation without the other branch; LLVM vectorises the loops of the
     specialisations without ``height_correlated``):
 
