@@ -28,9 +28,8 @@ import math
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.extending import intrinsic
+
+from goniometer.bits import double_as_int64, int64_as_double
 
 _INV_PI = 1.0 / math.pi
 
@@ -108,32 +107,10 @@ def exp_neg(x: float) -> float:
     return _EXP2_TABLE[n & (_EXP_STEPS - 1)] * p * _pow2(n >> 6)
 
 
-@intrinsic
-def _bits_as_double(typingctx, x):
-    """The float64 whose bits are the int64 ``x`` (a bit cast; vectorisable, unlike ``ldexp``)."""
-    sig = types.float64(types.int64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], ir.DoubleType())
-
-    return sig, codegen
-
-
 @numba.njit(cache=True, inline='always')
 def _pow2(k: int) -> float:
     """``2.0 ** k`` for ``-1022 <= k <= 1023``, from the exponent bits."""
-    return _bits_as_double((k + 1023) << 52)
-
-
-@intrinsic
-def _double_bits(typingctx, x):
-    """The int64 whose bits are the float64 ``x`` (a bit cast; vectorisable)."""
-    sig = types.int64(types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], ir.IntType(64))
-
-    return sig, codegen
+    return int64_as_double((k + 1023) << 52)
 
 
 #: log(1 + j / 64) and 1 / (1 + j / 64), j = 0 .. 64
@@ -154,10 +131,10 @@ def log_pos(x: float) -> float:
     (truncation < 1e-18) and ``log(1 + j / 64)`` from a table; ``e ln 2`` in two parts. Error below
     ``1e-15 max(1, |log x|)`` (a few ulp where ``|log x| >= 0.5``; absolute near ``x = 1``, which is
     what counts where the walks use it, for probabilities); ``log_pos(1) = 0`` exactly."""
-    b = _double_bits(x)
+    b = double_as_int64(x)
     e = ((b >> 52) & 0x7FF) - 1023
     j = (b >> 46) & 0x3F
-    m = _bits_as_double((b & 0xFFFFFFFFFFFFF) | (1023 << 52))
+    m = int64_as_double((b & 0xFFFFFFFFFFFFF) | (1023 << 52))
     r = m * _INV_TABLE[j] - 1.0
     p = r * (1.0 + r * (-0.5 + r * (1.0 / 3.0 + r * (-0.25 + r * (0.2 + r * (-1.0 / 6.0 + r * (
         1.0 / 7.0 + r * (-0.125 + r * (1.0 / 9.0)))))))))

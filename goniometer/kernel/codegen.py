@@ -1,7 +1,8 @@
 """LLVM-level helpers of the lane kernel (``docs/kernel.md``): bit casts between ``float64`` and
-``uint64`` (the lane state stores path keys and generator states in the bits of doubles), a
-block of doubles on the stack of the calling function, a cache prefetch, and the hint that lets
-LLVM use 512-bit vectors in the calling function. None changes a computed value."""
+``uint64`` (from :mod:`goniometer.bits`; the lane state stores path keys and generator states in
+the bits of doubles), a block of doubles on the stack of the calling function, a cache prefetch,
+and the hint that lets LLVM use 512-bit vectors in the calling function. None changes a computed
+value."""
 
 from __future__ import annotations
 
@@ -9,30 +10,11 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from goniometer.bits import double_as_uint64 as u64_bits
+from goniometer.bits import uint64_as_double as u64_as_double
+
 #: doubles in the block :func:`stack_block` reserves
 STACK_BLOCK = 1024
-
-
-@intrinsic
-def u64_bits(typingctx, x):
-    """The bits of a float64 as a uint64 (inverse of :func:`u64_as_double`)."""
-    sig = types.uint64(types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], ir.IntType(64))
-
-    return sig, codegen
-
-
-@intrinsic
-def u64_as_double(typingctx, x):
-    """A uint64 kept in the bits of a float64 (only ever moved, never computed with)."""
-    sig = types.float64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], ir.DoubleType())
-
-    return sig, codegen
 
 
 @intrinsic
