@@ -605,15 +605,21 @@ def sample_hg_cos(g: float, u: float) -> float:
     return min(1.0, max(-1.0, c))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def hg_scatter(dx: float, dy: float, dz: float, g: float, u1: float, u2: float):
     """New propagation direction after a Henyey-Greenstein scattering of the unit direction ``d``:
     the scattering cosine from :func:`sample_hg_cos` (``u1``), the azimuth about ``d`` uniform
     (``u2``), in the orthonormal frame of Duff et al. 2017 (branch-free, continuous but for
     the sign of ``d_z``)."""
+    cos_ph, sin_ph = cos_sin_2pi(u2)
+    return hg_scatter_cs(dx, dy, dz, g, u1, cos_ph, sin_ph)
+
+
+@numba.njit(cache=True, inline="always")
+def hg_scatter_cs(dx: float, dy: float, dz: float, g: float, u1: float, cos_ph: float, sin_ph: float):
+    """:func:`hg_scatter` with the azimuth given by its cosine and sine (a caller that has them)."""
     c = sample_hg_cos(g, u1)
     st = math.sqrt(max(0.0, 1.0 - c * c))
-    cos_ph, sin_ph = cos_sin_2pi(u2)
     sgn = 1.0 if dz >= 0.0 else -1.0
     a = -1.0 / (sgn + dz)
     b = dx * dy * a

@@ -25,8 +25,8 @@ A reflected path that never had an event at the base (the bottom layer) also boo
 Kernel (``docs/kernel.md``): a chunk's paths run in :data:`~goniometer.kernel.layout.LANES`
 lanes advanced in lock-step; each step is one vectorised event for every lane
 (:mod:`goniometer.kernel.event`; on a multiple-scattering interface the first bounce of the
-walk), then a pass over the lanes that runs per-lane steps (free flights, walks that go on:
-:mod:`goniometer.kernel.steps`), books the paths that ended and
+walk; in a scattering medium a free flight and what it meets), then a pass over the lanes that
+continues the walks that go on (:mod:`goniometer.kernel.steps`), books the paths that ended and
 gives their lanes the next path of the chunk. Every path draws its own random numbers, keyed by
 (seed, incident index, chunk, path) (:mod:`goniometer.rng`), so neither the lane a path runs in
 nor the number of threads changes a result. Kernel inputs are flat arrays (see
@@ -39,16 +39,17 @@ import numba
 import numpy as np
 
 from goniometer.halfdiff import cell_of as halfdiff_cell
+from goniometer.kernel.codegen import STACK_BLOCK
 from goniometer.kernel.deposit import BUFFER, X_COLS, flush
 from goniometer.kernel.event import RR_START, RR_THRESHOLD, step
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, C_CAPPED, C_EVENTS,
                                       E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED, E_REFLECTED_WITHOUT_BASE,
                                       E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_MULTI, F_ORDER,
                                       F_PATH, F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ,
-                                      N_FIELDS, P_TABULATE, ST_ALIVE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
-                                      T_MS, TAU_SCATTER, relative_indices, stack_table, tau_modes)
+                                      N_FIELDS, P_TABULATE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
+                                      TAU_SCATTER, relative_indices, stack_table, tau_modes)
 from goniometer.kernel.paths import trace_paths
-from goniometer.kernel.steps import free_flight, lane_steps, microsurface_walk
+from goniometer.kernel.steps import continue_walk, free_flight, microsurface_walk
 from goniometer.rng import chunk_key, stream_state
 from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
 
@@ -68,30 +69,29 @@ KERNEL_PATHS = 2
 
 
 
-@numba.njit(cache=True)
-def lane_kernel_for(if_ms, region_tau, region_albedo) -> bool:
-    """True when the lane kernel traces the stack (``KERNEL_AUTO``): no scattering medium, so that
-    nearly every event is the vectorised one (on a multiple-scattering interface, the first bounce
-    of its walk; the rare walks that go on are per-lane steps). Stacks with a scattering medium go
-    to the per-path kernel, for which their free flights as per-lane steps would cost more in
-    moving lane state than the vectorised interface events save (``docs/kernel.md``, two kernels)."""
-    for m in tau_modes(region_tau, region_albedo):
-        if m >= TAU_SCATTER:
-            return False
-    return True
+def lane_kernel_for(height_correlated: bool) -> bool:
+    """True when ``KERNEL_AUTO`` picks the lane kernel: every stack with separable masking (every
+    event kind is vectorised: interfaces, the first bounce of a walk, free flights in scattering
+    media). With height-correlated masking the lane kernel's variant runs lane by lane (the
+    transmission's Beta function has no vector form) and the per-path kernel is faster
+    (``docs/kernel.md``, two kernels; ``benchmarks/README.md``)."""
+    return not height_correlated
 
 
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms)``. ``kernel``:
+    ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms)``. ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
     cached) only when some stack needs it."""
     if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
         raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
     p = packed
-    auto = bool(lane_kernel_for(p.if_ms, p.region_tau, p.region_albedo))
-    lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and auto)
+    n_if = p.region_eta.shape[0] - 1
+    # the masking setting concerns single-scattering interfaces only (a walk is height-correlated
+    # by construction): without one, both settings trace the same variant, hence the same bits
+    height_correlated = height_correlated and n_if > 0 and not bool(np.all(p.if_ms[:n_if]))
+    lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and lane_kernel_for(height_correlated))
 
     def flag(x: bool):
         return True if x else None
@@ -102,10 +102,9 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
     aniso = bool(np.any(p.if_alpha[:, 0] != p.if_alpha[:, 1]) or np.any(p.if_rot[:, 1] != 0.0))
     cond = p.base_kind == BASE_CONDUCTOR
     c = p.cond
-    n_if = p.region_eta.shape[0] - 1
     ms = bool(np.any(p.if_ms[:n_if])) if n_if > 0 else False
     scattering = bool(np.any(tau_modes(p.region_tau, p.region_albedo) >= TAU_SCATTER))
-    return (True, flag(height_correlated), flag(tabulate), flag(ms or scattering), flag(p.base_kind == BASE_LAMBERTIAN),
+    return (True, flag(height_correlated), flag(tabulate), flag(scattering), flag(p.base_kind == BASE_LAMBERTIAN),
             flag(cond), flag(cond and c[1] == c[0] and c[4] == c[3]), flag(cond and c[2] == c[1] and c[5] == c[4]),
             flag(aniso), flag(ms))
 
@@ -113,7 +112,7 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
                 lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf,
+                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf,
                 energy, energy_sq, counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
@@ -141,15 +140,15 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     conductor_base = base_kind == 1
     tau_mode = tau_modes(region_tau, region_albedo)
     eta_dn, eta_up = relative_indices(region_eta)
-    table, off = stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n_if, conductor_base)
+    table, off = stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, n_if,
+                             conductor_base)
+    if table.shape[0] > STACK_BLOCK:
+        raise ValueError("the stack's table does not fit the event's block (too many layers)")
     # conductor channels that share their complex index share their Fresnel value (walks)
     walk_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
     walk_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
     # the interface that is the base (the bottom layer), -1 when the base is Lambertian
     base_k = -1 if base_kind == 2 else n_if - 1
-    # a new path's first action: the top interface from above (a walk that the per-lane steps
-    # make, unless the vectorised event begins walks)
-    first_status = ST_SCALAR if (ms is None and n_if > 0 and table[T_MS] != 0.0) else ST_ALIVE
     # every lane starts as if it had just ended a path of nothing (index i - LANES): the first step
     # books zeros and gives it path i
     S = np.zeros(N_FIELDS * LANES)
@@ -167,17 +166,16 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     while True:
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
-             lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian,
+             lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian,
              conductor, g_is_r, b_is_g, aniso, ms)
-        # ---- per-lane pass: per-lane steps, then the exits of the paths that left the stack at
-        # this step (lanes listed without branches, then visited; booked at the next step)
-        if steps is not None:
+        # ---- per-lane pass: the walks that go on, then the exits of the paths that left the stack
+        # at this step (lanes listed without branches, then visited; booked at the next step)
+        if ms is not None:
             for i in range(LANES):
                 if S[F_STATUS * LANES + i] == ST_SCALAR:
-                    S[F_STATUS * LANES + i] = lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau,
-                                                         region_albedo, region_g, tau_mode, table, cond, walk_g_is_r,
-                                                         walk_b_is_g, n_if, transmit_base, conductor_base, base_k,
-                                                         event_cap, ms is not None)
+                    S[F_STATUS * LANES + i] = continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond,
+                                                            walk_g_is_r, walk_b_is_g, n_if, transmit_base,
+                                                            conductor_base, event_cap)
         live = 0
         n_x = 0
         for i in range(LANES):
@@ -210,7 +208,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                     flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,
                           max_order, brdf, btdf)
                     n_exit = 0
-        # (a lane whose path ended in its steps is booked at the next step; a lane is without paths
+        # (a lane whose path ended in its walk is booked at the next step; a lane is without paths
         # once its path index is past the chunk's)
         if live == 0:
             break
@@ -239,7 +237,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 @numba.njit(cache=True, error_model='numpy')
 def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
-               col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, steps,
+               col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, media,
                lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts, exit_cell,
                exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
@@ -271,14 +269,14 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
         trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                     ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                    height_correlated, tabulate, steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf[b],
+                    height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf[b],
                     btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
                 lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
-                col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, steps,
+                col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, media,
                 lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts, exit_cell,
                 exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
@@ -289,7 +287,7 @@ def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
+                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
                    exit_cell, exit_w)
 
 
@@ -297,7 +295,7 @@ def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                        row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                       steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
+                       media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
                        exit_cell, exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
@@ -308,5 +306,5 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
         trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   steps, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
+                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
                    exit_cell, exit_w)

@@ -14,7 +14,7 @@ from goniometer.bits import double_as_uint64 as u64_bits
 from goniometer.bits import uint64_as_double as u64_as_double
 
 #: doubles in the block :func:`stack_block` reserves
-STACK_BLOCK = 1024
+STACK_BLOCK = 2048
 
 
 @intrinsic

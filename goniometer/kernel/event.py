@@ -1,9 +1,11 @@
 """The vectorised step of the lane kernel (``docs/kernel.md``, the step).
 
 A step first books, in per-lane sums, the path each lane ended at the previous step (the
-per-lane pass has deposited its exit meanwhile) and gives the lane its next path (lane ``i`` traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next
-action is not a per-lane step (:mod:`goniometer.kernel.steps`) takes one event: it traverses its region (Beer-Lambert; clear and scattering regions
-give a factor 1), then meets what lies at the end -- a rough single-scattering interface
+per-lane pass has deposited its exit meanwhile) and gives the lane its next path (lane ``i``
+traces paths ``i, i + LANES, ...`` of the chunk). Then every lane whose next action is not the
+continuation of a walk (:func:`goniometer.kernel.steps.continue_walk`) takes one event: it
+traverses its region (Beer-Lambert; in a scattering region a free flight, whose collision is the
+event's outcome), then meets what lies at the end -- a rough single-scattering interface
 (visible-normal sample, Fresnel, reflection or refraction, masking), the first bounce of a walk on
 a multiple-scattering one (and whether the ray then leaves the microsurface), an index-matched
 interface (crossed unchanged), or the Lambertian base -- and plays Russian roulette. The
@@ -25,12 +27,13 @@ import numpy as np
 from goniometer import optics
 from goniometer.kernel.codegen import prefer_wide_vectors, stack_block, u64_as_double, u64_bits
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, F_AB0, F_AB1, F_AB2,
-                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY, F_LX, F_LY, F_LZ,
-                                      F_MK0, F_MK1, F_MK2, F_ORDER, F_PATH, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_MULTI,
+                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_HPOS, F_KEY, F_LX, F_LY, F_LZ, F_MK0,
+                                      F_MK1, F_MK2, F_MULTI, F_ORDER, F_PATH, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED,
                                       F_STATUS, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, IF_STRIDE,
                                       LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR,
-                                      ST_TRANSMITTED, T_AX, T_AY, T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS, T_RC, T_RS,
-                                      T_SCAT, T_TAU0, T_TAU1, T_TAU2)
+                                      ST_TRANSMITTED, T_ALB0, T_ALB1, T_ALB2, T_AX, T_AY, T_CHROM, T_ETA_DN, T_ETA_UP,
+                                      T_G, T_IEXT0, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT,
+                                      T_TAU0, T_TAU1, T_TAU2)
 from goniometer.rng import draw, path_key, uniform_pair
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
@@ -39,15 +42,20 @@ RR_START = 3
 RR_THRESHOLD = 0.05
 
 _U1 = np.uint64(1)
-_U2 = np.uint64(2)
+_U11 = np.uint64(11)
+_U32 = np.uint64(32)
+_INV_2_53 = 2.0 ** -53
+#: the counter of a path's draw that picks its hero channel (spectral MIS): far from those its
+#: events use (1, 2, ...) and from a tabulation's light direction (0)
+HERO_DRAW = np.uint64(1 << 63)
 _THIRD = 1.0 / 3.0
 LN = LANES
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
-         lx, ly, lz, ckey, n_rays, first_status, max_order, height_correlated, tabulate, steps, lambertian, conductor,
-         g_is_r, b_is_g, aniso, ms):
+         lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
+         aniso, ms):
     """One step for all lanes of ``S`` (see the module docstring).
 
     The last nine arguments are None or True and select what is compiled (numba compiles a None
@@ -58,8 +66,9 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
       ``G2 / G1(i)`` (its Beta function has no vector form: that specialisation runs lane by lane);
     * ``tabulate``: None, every path starts along ``-l``; True, each draws its light direction
       (cosine-weighted, its draw 0);
-    * ``steps``: True when lanes may need per-lane steps (a scattering medium, a multiple-scattering
-      interface): only lanes whose next action is the event take it; None, every lane takes it;
+    * ``media``: True when some region scatters: the event of a lane in such a region begins with a
+      free flight from the lane's height; a collision (Henyey-Greenstein scattering) is the event's
+      outcome, a flight that reaches the region's boundary goes on to what lies there;
     * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
     * ``g_is_r``, ``b_is_g``: True when the conductor's green channel has the red one's complex
       index, resp. blue the green one's (their Fresnel values are computed once);
@@ -67,13 +76,22 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
     * ``ms``: True when some interface scatters multiply: the event on it is the first bounce of
       its microsurface walk (the height of the hit, the visible normal, Fresnel, and whether the
       ray then leaves the microsurface); a walk that goes on is continued by a per-lane step
-      (:func:`goniometer.kernel.steps.walk_from`).
+      (:func:`goniometer.kernel.steps.continue_walk`), and only lanes whose next action is the
+      event take it (without, every lane takes it).
 
     The loop bodies are written out here, as an inlined function taking the state array would
     keep reference counting in the loop and stop LLVM."""
     prefer_wide_vectors()
     # the stack table on this function's stack (gathers that provably do not alias S)
     T = stack_block()
+    # 64-bit draws per event: two, a third for a walk's first bounce, one for a free flight
+    n_draws = 2 + (0 if ms is None else 1) + (0 if media is None else 1)
+    # an index-matched top interface that is not the base: a new path's first event, crossing it
+    # unchanged (no random number; an event at the top: bounce order 1), is made when the lane
+    # takes the path, and its first step goes on below
+    enter = n_if >= 1 and table[T_MATCHED] != 0.0 and base_k != 0 and event_cap > 1
+    r_new = 1 if enter else 0
+    e_new = 1 if enter else 0
     for q in range(table.shape[0]):
         T[q] = table[q]
     for i in range(LN):
@@ -171,7 +189,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             nlx = lx
             nly = ly
             nlz = lz
-        st = (first_status if p < n_rays else ST_DONE) if ended else st
+        st = (ST_ALIVE if p < n_rays else ST_DONE) if ended else st
         x = -nlx if ended else x
         y = -nly if ended else y
         z = -nlz if ended else z
@@ -184,9 +202,9 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         m0 = 0.0 if ended else m0
         m1 = 0.0 if ended else m1
         m2 = 0.0 if ended else m2
-        r = 0 if ended else r
-        ev = 0 if ended else ev
-        order = 0 if ended else order
+        r = r_new if ended else r
+        ev = e_new if ended else ev
+        order = e_new if ended else order
         bo = 0.0 if ended else bo
         c = np.uint64(1) if ended else np.uint64(np.int64(S[F_CTR * LN + i]))
         S[F_DX * LN + i] = x
@@ -213,7 +231,6 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         S[F_LY * LN + i] = nly if ended else S[F_LY * LN + i]
         S[F_LZ * LN + i] = nlz if ended else S[F_LZ * LN + i]
         # a new path's per-lane-step fields
-        S[F_HERO * LN + i] = -1.0 if ended else S[F_HERO * LN + i]
         S[F_Q0 * LN + i] = _THIRD if ended else S[F_Q0 * LN + i]
         S[F_Q1 * LN + i] = _THIRD if ended else S[F_Q1 * LN + i]
         S[F_Q2 * LN + i] = _THIRD if ended else S[F_Q2 * LN + i]
@@ -243,9 +260,9 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         c = np.uint64(np.int64(S[F_CTR * LN + i]))
         key = u64_bits(S[F_KEY * LN + i])
         p = np.int64(S[F_PATH * LN + i])
-        # without per-lane steps every lane takes the event, also a lane without paths left (its
+        # without walks to continue every lane takes the event, also a lane without paths left (its
         # values are never booked); only the roulette sum must not see it
-        go = True if steps is None else st == ST_ALIVE
+        go = True if ms is None else st == ST_ALIVE
         booked = go and p < n_rays
         up = z > 0.0
         # what lies at the end: interface k, or the Lambertian base below the last region
@@ -281,11 +298,60 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         sn = math.sqrt(optics.vndf_stretch_norm2(wx, wy, wz, ax, ay))
         inv = 1.0 / (za * sn)
         inv_mu = inv * sn
-        # traverse region r (Beer-Lambert; clear and scattering regions have depth 0)
+        # traverse region r (Beer-Lambert; clear regions have depth 0)
         ro = off + r * RG_STRIDE
-        a0 = optics.exp_neg(-T[ro + T_TAU0] * inv_mu)
-        a1 = optics.exp_neg(-T[ro + T_TAU1] * inv_mu)
-        a2 = optics.exp_neg(-T[ro + T_TAU2] * inv_mu)
+        if media is None:
+            a0 = optics.exp_neg(-T[ro + T_TAU0] * inv_mu)
+            a1 = optics.exp_neg(-T[ro + T_TAU1] * inv_mu)
+            a2 = optics.exp_neg(-T[ro + T_TAU2] * inv_mu)
+            coll = False
+            q0 = q1 = q2 = nq0 = nq1 = nq2 = _THIRD
+            hp = nh = -1.0
+        else:
+            # a scattering region (docs/material-format.md, media; as steps.free_flight): a free
+            # flight from the lane's height h (1 top, 0 bottom; at the boundary: the side it
+            # entered by) towards the boundary at distance `dist`, its length drawn with the hero
+            # channel's extinction (the path's hero from its own draw; the optical length
+            # -log(1 - u) with u on the grid 2^-53); a collision before the boundary is this
+            # event (the weights times the albedo and, chromatic, the spectral-MIS factor
+            # optics.spectral_mis_update of the density t_c exp(-t_c s)); otherwise the flight's
+            # factor exp(-t_c dist) (chromatic MIS) and the event goes on at the boundary. In any
+            # other region the path crosses it whole (dist = 1 / |z|): its Beer-Lambert factors
+            # are the same exponentials
+            scat = T[ro + T_SCAT] != 0.0
+            chrom = scat and T[ro + T_CHROM] != 0.0
+            hp = S[F_HPOS * LN + i]
+            q0 = S[F_Q0 * LN + i]
+            q1 = S[F_Q1 * LN + i]
+            q2 = S[F_Q2 * LN + i]
+            h = hp if hp >= 0.0 else (1.0 if from_above else 0.0)
+            dist = (h if from_above else 1.0 - h) * inv_mu
+            hero = np.int64(((draw(key, HERO_DRAW) >> _U32) * np.uint64(3)) >> _U32)
+            ud = float(np.int64(draw(key, c + np.uint64(2 if ms is None else 3)) >> _U11)) * _INV_2_53
+            sopt = -optics.log_pos(1.0 - ud)
+            coll = scat and sopt < T[ro + T_TAU0 + hero] * dist
+            d = sopt * T[ro + T_IEXT0 + hero] if coll else dist
+            t0 = T[ro + T_TAU0]
+            t1 = T[ro + T_TAU1]
+            t2 = T[ro + T_TAU2]
+            e0 = optics.exp_neg(-t0 * d)
+            e1 = optics.exp_neg(-t1 * d)
+            e2 = optics.exp_neg(-t2 * d)
+            p0 = t0 * e0 if coll else e0
+            p1 = t1 * e1 if coll else e1
+            p2 = t2 * e2 if coll else e2
+            mr0, mr1, mr2, mq0, mq1, mq2 = optics.spectral_mis_update(p0, p1, p2, q0, q1, q2)
+            # the weight factor per channel: Beer-Lambert, or the flight's
+            a0 = (T[ro + T_ALB0] * (mr0 if chrom else 1.0) if coll else (mr0 if chrom else 1.0)) if scat else e0
+            a1 = (T[ro + T_ALB1] * (mr1 if chrom else 1.0) if coll else (mr1 if chrom else 1.0)) if scat else e1
+            a2 = (T[ro + T_ALB2] * (mr2 if chrom else 1.0) if coll else (mr2 if chrom else 1.0)) if scat else e2
+            nq0 = mq0 if chrom else q0
+            nq1 = mq1 if chrom else q1
+            nq2 = mq2 if chrom else q2
+            nh = min(1.0, max(0.0, h + d * z)) if coll else -1.0
+            # a collision meets nothing at the end
+            lamb = lamb and not coll
+            plain = plain and not coll
         nb0 = b0 + v0 * (1.0 - a0)
         nb1 = b1 + v1 * (1.0 - a1)
         nb2 = b2 + v2 * (1.0 - a2)
@@ -296,6 +362,17 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         u1, u2 = uniform_pair(draw(key, c))
         u3, u4 = uniform_pair(draw(key, c + _U1))
         cp, sp = optics.cos_sin_2pi(u1)
+        if media is None:
+            fx = x
+            fy = y
+            fz = z
+        else:
+            # a collision's new direction: Henyey-Greenstein (u2: the scattering cosine, u1 the
+            # azimuth; a collision uses no interface number)
+            hx, hy, hz = optics.hg_scatter_cs(x, y, z, T[ro + T_G], u2, cp, sp)
+            fx = hx if coll else x
+            fy = hy if coll else y
+            fz = hz if coll else z
         mx, my, mz = optics.sample_vndf_polar(wx, wy, wz, ax, ay, cp, sp, u2, inv * za)
         wm = wx * mx + wy * my + wz * mz
         # dielectric and conductor Fresnel of the same cosine, one division between them
@@ -335,7 +412,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             c_next = 1.0
         else:
             walked = plain and T[io + T_MS] != 0.0
-            u5, u6 = uniform_pair(draw(key, c + _U2))
+            u5, u6 = uniform_pair(draw(key, c + np.uint64(2)))
             log_c1 = optics.log_pos(1.0 - u5) / (1.0 + optics.ggx_lambda(wx, wy, wz, ax, ay))
             c1 = optics.exp_neg(log_c1)
             log_c = log_c1 if refl_ else optics.log_pos(max(1.0 - c1, 1e-300))
@@ -385,45 +462,35 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             gy = rs * ox + rc * oy
         gz = oz if from_above else -oz
         if lambertian is None:
-            nx = gx if (plain and not cont) else x
-            ny = gy if (plain and not cont) else y
-            nz = gz if (plain and not cont) else z
+            nx = gx if (plain and not cont) else fx
+            ny = gy if (plain and not cont) else fy
+            nz = gz if (plain and not cont) else fz
         else:
             # the disk point sqrt(u2) (cos, sin) lifted onto the hemisphere (Malley)
             rad = math.sqrt(max(0.0, u2))
-            nx = rad * cp if lamb else (gx if (plain and not cont) else x)
-            ny = rad * sp if lamb else (gy if (plain and not cont) else y)
-            nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if (plain and not cont) else z)
-        # (a walk that goes on keeps the lane's region and arrival direction for its per-lane step)
-        crossed = (not lamb) and (not cont) and (not plain or not refl_)
+            nx = rad * cp if lamb else (gx if (plain and not cont) else fx)
+            ny = rad * sp if lamb else (gy if (plain and not cont) else fy)
+            nz = math.sqrt(max(0.0, 1.0 - u2)) if lamb else (gz if (plain and not cont) else fz)
+        # (a walk that goes on keeps the lane's region and arrival direction for its per-lane step;
+        # a collision in a medium met no interface)
+        crossed = (not coll) and (not lamb) and (not cont) and (not plain or not refl_)
         nr = (k + 1 if from_above else k) if crossed else r
         ne = ev + 1
-        top = (k == 0 and not lamb) or (lamb and n_if == 0)
-        based = lamb or (k == base_k and from_above)
+        top = (not coll) and ((k == 0 and not lamb) or (lamb and n_if == 0))
+        based = lamb or ((not coll) and k == base_k and from_above)
         # Russian roulette: survivors boosted by 1 / p (the added weight booked per lane); a killed
         # lane keeps its weight for booking as roulette
         wmax = max(nv0, max(nv1, nv2))
         pr = wmax * (1.0 / RR_THRESHOLD)
         rr = ne >= RR_START and wmax < RR_THRESHOLD
-        killed = wrong or (rr and u4 >= pr)
+        # (a collision that leaves no weight in any channel ends the path)
+        killed = wrong or (rr and u4 >= pr) or (coll and wmax == 0.0)
         boost = 1.0 / pr if (rr and not killed) else 1.0
-        # what comes next: an exit (nothing lies beyond), the cap, a per-lane step (a scattering
-        # region, or a multiple-scattering interface next) or another event
-        k2 = nr - 1 if nz > 0.0 else nr
-        k2c = min(max(k2, 0), max(n_if, 1) - 1)
-        if steps is None:
-            to_steps = False
-        elif ms is None:
-            scat_next = T[off + nr * RG_STRIDE + T_SCAT] != 0.0
-            ms_next = T[k2c * IF_STRIDE + T_MS] != 0.0
-            to_steps = scat_next | ((k2 >= 0) & (k2 < n_if) & ms_next)
-        else:
-            # multiple-scattering interfaces are this event's: only scattering regions and walks
-            # that go on need per-lane steps
-            to_steps = cont | (T[off + nr * RG_STRIDE + T_SCAT] != 0.0)
+        # what comes next: an exit (nothing lies beyond), the cap, a per-lane step (a walk that goes
+        # on) or another event
         nst = ST_DONE if p >= n_rays else ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
             ST_TRANSMITTED if (transmit_base and nr == n_if and nz < 0.0) else (
-                ST_CAPPED if ne >= event_cap else (ST_SCALAR if to_steps else ST_ALIVE))))
+                ST_CAPPED if ne >= event_cap else (ST_SCALAR if cont else ST_ALIVE))))
         S[(A_RL + 0) * LN + i] -= nv0 * (boost - 1.0) if booked else 0.0
         S[(A_RL + 1) * LN + i] -= nv1 * (boost - 1.0) if booked else 0.0
         S[(A_RL + 2) * LN + i] -= nv2 * (boost - 1.0) if booked else 0.0
@@ -443,8 +510,13 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         S[F_EV * LN + i] = float(ne if go else ev)
         S[F_ORDER * LN + i] = float(order + 1 if (go and top) else order)
         S[F_BASED * LN + i] = 1.0 if (go and based) else bo
-        S[F_CTR * LN + i] = float(np.int64(c) + (2 if ms is None else 3) if go else np.int64(c))
+        S[F_CTR * LN + i] = float(np.int64(c) + n_draws if go else np.int64(c))
         S[F_STATUS * LN + i] = float(nst if go else st)
+        if media is not None:
+            S[F_HPOS * LN + i] = nh if go else hp
+            S[F_Q0 * LN + i] = nq0 if go else q0
+            S[F_Q1 * LN + i] = nq1 if go else q1
+            S[F_Q2 * LN + i] = nq2 if go else q2
         if ms is not None:
             # where the walk goes on: the ray's direction of travel, the next hit's height CDF and
             # the side (the refracted ray is seen from below: direction negated, heights 1 - c)

@@ -49,43 +49,42 @@ F_EV = 13                           # events so far
 F_ORDER = 14                        # events at the top interface (the bounce order)
 F_CTR = 15                          # next counter-based draw of the path
 F_BASED = 16                        # 1 once the path had an event at the base
-F_HERO = 17                         # hero channel of spectral MIS (-1: not drawn yet)
-F_Q0, F_Q1, F_Q2 = 18, 19, 20       # spectral-MIS technique shares of the path
-F_HPOS = 21                         # height in a scattering region (< 0: at its boundary)
-F_SEEDED = 22                       # 1 once the path's xoshiro state (F_X0..) is seeded
-N_RESET = 23
-F_STATUS = 23                       # ST_*
-F_KEY = 24                          # path key (bits)
-F_PATH = 25                         # index of the path in its chunk (lane i: i, i + LANES, ...)
-F_LX, F_LY, F_LZ = 26, 27, 28       # the path's light direction (a tabulation draws one per path)
-F_X0 = 29                           # xoshiro256** state, F_X0 .. F_X0 + 3 (bits)
+F_Q0, F_Q1, F_Q2 = 17, 18, 19       # spectral-MIS technique shares of the path
+F_HPOS = 20                         # height in a scattering region (< 0: at its boundary)
+F_SEEDED = 21                       # 1 once the path's xoshiro state (F_X0..) is seeded
+N_RESET = 22
+F_STATUS = 22                       # ST_*
+F_KEY = 23                          # path key (bits)
+F_PATH = 24                         # index of the path in its chunk (lane i: i, i + LANES, ...)
+F_LX, F_LY, F_LZ = 25, 26, 27       # the path's light direction (a tabulation draws one per path)
+F_X0 = 28                           # xoshiro256** state, F_X0 .. F_X0 + 3 (bits)
 # a microsurface walk the vectorised event began and a per-lane step continues: interface + 1
 # (0: none), the ray's direction of travel and height CDF in the walk's frame, 1 if it is on the
-# far side of the microsurface (goniometer.kernel.steps.walk_from)
-F_WK = 33
-F_WVX, F_WVY, F_WVZ = 34, 35, 36
-F_WC = 37
-F_WIN = 38
+# far side of the microsurface (goniometer.kernel.steps.continue_walk)
+F_WK = 32
+F_WVX, F_WVY, F_WVZ = 33, 34, 35
+F_WC = 36
+F_WIN = 37
 #: 1 when the path's last walk on a multiple-scattering top interface made more than one bounce
 #: (its order-1 exit is then not the closed form of goniometer.first_order)
-F_MULTI = 39
+F_MULTI = 38
 # ---- per-lane sums over the lane's ended paths (summed over lanes at the end of the chunk)
-A_RE = 40       # reflected weight (3 channels), then its squares at A_RE + 3
-A_RB = 46       # reflected weight of paths that never reached the base, squares at + 3
-A_TR = 52       # transmitted weight, squares at + 3
-A_AB = 58       # absorbed, squares at + 3
-A_MK = 64       # masking loss, squares at + 3
-A_RL = 70       # roulette's net change of the weight (3)
-A_CP = 73       # capped weight (3)
-A_NCAP = 76     # capped paths
-A_NEV = 77      # events
-N_FIELDS = 78
+A_RE = 39       # reflected weight (3 channels), then its squares at A_RE + 3
+A_RB = 45       # reflected weight of paths that never reached the base, squares at + 3
+A_TR = 51       # transmitted weight, squares at + 3
+A_AB = 57       # absorbed, squares at + 3
+A_MK = 63       # masking loss, squares at + 3
+A_RL = 69       # roulette's net change of the weight (3)
+A_CP = 72       # capped weight (3)
+A_NCAP = 75     # capped paths
+A_NEV = 76      # events
+N_FIELDS = 77
 
 # ---- lane status after a step
 # (an ended path -- ST_REFLECTED .. ST_CAPPED -- is booked, and its lane given the next path, at the
 # start of the next vectorised step)
 ST_ALIVE = 0        # travelling; its next action is the vectorised event
-ST_SCALAR = 1       # travelling; its next action is a per-lane step (free flight, walk)
+ST_SCALAR = 1       # travelling; its next action is a per-lane step (a walk's continuation)
 ST_REFLECTED = 2    # left the stack upward (BRDF)
 ST_TRANSMITTED = 3  # left a transmitting stack downward (BTDF)
 ST_DEAD = 4         # ended: masking loss (weight 0) or killed by roulette (weight kept for booking)
@@ -98,10 +97,12 @@ ST_DONE = 6         # the lane has no path left in the chunk
 #: multiple-scattering
 IF_STRIDE = 8
 T_AX, T_AY, T_RC, T_RS, T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS = range(8)
-#: per region r, at region_offset + r * RG_STRIDE: Beer-Lambert optical depths (0 in a scattering
-#: region: its free flights are per-lane steps), 1.0 where the region scatters
-RG_STRIDE = 4
-T_TAU0, T_TAU1, T_TAU2, T_SCAT = range(4)
+#: per region r, at region_offset + r * RG_STRIDE: the optical depths (Beer-Lambert, or a scattering
+#: region's extinction), 1.0 where the region scatters, and for a scattering region the inverse
+#: depths (0 where zero), the single-scattering albedos, the Henyey-Greenstein g and 1.0 where the
+#: extinction is chromatic (spectral MIS)
+RG_STRIDE = 12
+T_TAU0, T_TAU1, T_TAU2, T_SCAT, T_IEXT0, T_IEXT1, T_IEXT2, T_ALB0, T_ALB1, T_ALB2, T_G, T_CHROM = range(12)
 
 # tau_mode per region (as the steps read it): 0 clear, 1 achromatic absorption, 2 chromatic;
 # TAU_SCATTER (+ 1 chromatic extinction) a scattering medium
@@ -139,7 +140,8 @@ def relative_indices(region_eta: np.ndarray):
 
 
 @numba.njit(cache=True)
-def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n_if, conductor_base):
+def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, n_if,
+                conductor_base):
     """The flat table of the event (layout above) and the offset of its region part."""
     n_k = max(n_if, 1)
     off = n_k * IF_STRIDE
@@ -157,9 +159,14 @@ def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, tau_mode, n
         t[b + T_MS] = 1.0 if (k < n_if and if_ms[k] and t[b + T_MATCHED] == 0.0) else 0.0
     for r in range(n_if + 1):
         b = off + r * RG_STRIDE
-        if tau_mode[r] == 1 or tau_mode[r] == 2:
-            t[b + T_TAU0] = region_tau[r, 0]
-            t[b + T_TAU1] = region_tau[r, 1]
-            t[b + T_TAU2] = region_tau[r, 2]
-        t[b + T_SCAT] = 1.0 if tau_mode[r] >= TAU_SCATTER else 0.0
+        t[b + T_TAU0] = region_tau[r, 0]
+        t[b + T_TAU1] = region_tau[r, 1]
+        t[b + T_TAU2] = region_tau[r, 2]
+        if tau_mode[r] >= TAU_SCATTER:
+            t[b + T_SCAT] = 1.0
+            t[b + T_CHROM] = 1.0 if tau_mode[r] > TAU_SCATTER else 0.0
+            t[b + T_G] = region_g[r]
+            for c in range(3):
+                t[b + T_IEXT0 + c] = 1.0 / region_tau[r, c] if region_tau[r, c] > 0.0 else 0.0
+                t[b + T_ALB0 + c] = region_albedo[r, c]
     return t, off

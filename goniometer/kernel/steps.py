@@ -1,9 +1,9 @@
-"""What a lane of the kernel does alone (``docs/kernel.md``, per-lane steps): free flights in
-scattering media and random walks on multiple-scattering interfaces, whose number of random
-numbers varies from path to path. A lane comes here when the vectorised event
-(:mod:`goniometer.kernel.event`) found its next action to be one of these, and leaves when its
-next action is the vectorised event again, or when its path ends. Random numbers come from the
-path's own xoshiro256** stream, seeded from its key the first time (:func:`goniometer.rng.seed_state`).
+"""Steps whose number of random numbers varies from path to path (``docs/kernel.md``): free
+flights in scattering media and random walks on multiple-scattering interfaces, as the per-path
+kernel (:mod:`goniometer.kernel.paths`) takes them, and the lane kernel's per-lane step: the
+continuation of a walk whose first bounce the vectorised event (:mod:`goniometer.kernel.event`)
+made. A lane's random numbers there come from the path's own xoshiro256** stream, seeded from its
+key the first time (:func:`goniometer.rng.seed_state`).
 
 Directions as in :mod:`goniometer.kernel.event` (world frame, direction of travel).
 """
@@ -18,10 +18,9 @@ import numpy as np
 from goniometer import optics
 from goniometer.kernel.codegen import u64_as_double, u64_bits
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
-from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_BASED, F_DX, F_DY, F_DZ, F_EV, F_HERO, F_HPOS, F_KEY,
-                                      F_MULTI, F_ORDER, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_W0, F_W1, F_W2, F_WC,
-                                      F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, IF_STRIDE, LANES, ST_ALIVE, ST_CAPPED,
-                                      ST_DEAD, ST_REFLECTED, ST_TRANSMITTED, T_MS, TAU_SCATTER)
+from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_DZ, F_EV, F_HPOS, F_KEY, F_MULTI, F_REG,
+                                      F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, LANES,
+                                      ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED, ST_TRANSMITTED)
 from goniometer.rng import next_disk, next_float, seed_state
 
 LN = LANES
@@ -178,20 +177,16 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, c
     return vx, vy, vz, f0, f1, f2, 0, inside
 
 
-@numba.njit(cache=True, inline="always")
-def _is_ms(table, k, n_if):
-    """True when interface ``k`` exists and scatters multiply."""
-    return k >= 0 and k < n_if and table[k * IF_STRIDE + T_MS] != 0.0
-
-
 @numba.njit(cache=True, error_model='numpy')
-def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, table,
-               cond, g_is_r, b_is_g, n_if, transmit_base, conductor_base, base_k, event_cap, vector_walks):
-    """Per-lane steps of lane ``i`` of the state ``S`` until its next action is the vectorised
-    event or its path ends (booked at the next step); returns its new status (``ST_*``). ``xs``
-    is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``.
-    ``vector_walks``: the vectorised event begins walks on multiple-scattering interfaces (then
-    a walk it began is continued here first, and a walk ahead is left to it)."""
+def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is_g, n_if, transmit_base,
+                  conductor_base, event_cap):
+    """Continue, in lane ``i`` of the state ``S``, the microsurface walk whose first bounce the
+    vectorised event made (fields ``F_WK`` .. ``F_WIN``: the walk's interface, the ray's direction
+    of travel and next hit, the side) until the ray leaves the microsurface, then play Russian
+    roulette as the event does; returns the lane's new status (``ST_*``: its next action is the
+    vectorised event, or its path ended and is booked at the next step). The event counted the
+    walk, traversed the region and did its bookkeeping; each further bounce counts toward the cap.
+    ``xs`` is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``."""
     dx = S[F_DX * LN + i]
     dy = S[F_DY * LN + i]
     dz = S[F_DZ * LN + i]
@@ -201,109 +196,41 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
     ab0 = S[F_AB0 * LN + i]
     ab1 = S[F_AB1 * LN + i]
     ab2 = S[F_AB2 * LN + i]
-    rl0 = 0.0
-    rl1 = 0.0
-    rl2 = 0.0
     region = np.int64(S[F_REG * LN + i])
     events = np.int64(S[F_EV * LN + i])
-    order = np.int64(S[F_ORDER * LN + i])
-    based = S[F_BASED * LN + i] != 0.0
-    hero = np.int64(S[F_HERO * LN + i])
-    q0 = S[F_Q0 * LN + i]
-    q1 = S[F_Q1 * LN + i]
-    q2 = S[F_Q2 * LN + i]
-    hpos = S[F_HPOS * LN + i]
     if S[F_SEEDED * LN + i] == 0.0:
         seed_state(xs, u64_bits(S[F_KEY * LN + i]))
     else:
         for j in range(4):
             xs[j] = u64_bits(S[(F_X0 + j) * LN + i])
+    k = np.int64(S[F_WK * LN + i]) - 1
+    from_above = dz < 0.0
+    is_cond = conductor_base and k == n_if - 1
+    eta = eta_dn[k] if from_above else eta_up[k]
+    inv_eta = eta_up[k] if from_above else eta_dn[k]
+    ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from(
+        S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1, True,
+        if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3], cond[4], cond[5], g_is_r, b_is_g,
+        eta, inv_eta, max(1, event_cap - events + 1), xs)
     st = ST_ALIVE
-    # a walk the vectorised event began (its first bounce, the region's traversal and the event's
-    # bookkeeping done there): continued first
-    resume = S[F_WK * LN + i] != 0.0
-    multi = S[F_MULTI * LN + i] != 0.0
-    while True:
-        tm = tau_mode[region]
-        if resume:
-            walk = True
-        elif tm >= TAU_SCATTER:
-            scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2 = free_flight(
-                tm == TAU_SCATTER, region_tau[region, 0], region_tau[region, 1], region_tau[region, 2],
-                region_albedo[region, 0], region_albedo[region, 1], region_albedo[region, 2], region_g[region],
-                hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2, xs)
-            if scattered:
-                # a scattering event inside the medium (an event, not at the top layer)
-                events += 1
-                if w0 == 0.0 and w1 == 0.0 and w2 == 0.0:
-                    st = ST_DEAD
-                    break
-                walk = False
-            else:
-                # at the boundary the direction leaves by: a walk there, or the vectorised event
-                if vector_walks or not _is_ms(table, region - 1 if dz > 0.0 else region, n_if):
-                    break
-                walk = True
-        else:
-            # clear or absorbing region (the factor of the vectorised event), then the walk
-            if tm != 0:
-                inv_mu = 1.0 / max(abs(dz), 1e-300)
-                w0, w1, w2, ab0, ab1, ab2 = _attenuate(
-                    w0, w1, w2, ab0, ab1, ab2, optics.exp_neg(-region_tau[region, 0] * inv_mu),
-                    optics.exp_neg(-region_tau[region, 1] * inv_mu), optics.exp_neg(-region_tau[region, 2] * inv_mu))
-            walk = True
-        if walk:
-            from_above = dz < 0.0
-            k = region if from_above else region - 1
-            if not resume:
-                events += 1
-                if k == 0:
-                    order += 1
-                if k == base_k and from_above:
-                    based = True
-            is_cond = conductor_base and k == n_if - 1
-            # incoming direction in the local frame of the arrival side (z > 0), rotated into the
-            # interface's tangent frame
-            rc = if_rot[k, 0]
-            rs = if_rot[k, 1]
-            wx = -dx
-            wy = -dy
-            wz = -dz if from_above else dz
-            tx = rc * wx + rs * wy
-            wy = rc * wy - rs * wx
-            wx = tx
-            eta = eta_dn[k] if from_above else eta_up[k]
-            inv_eta = eta_up[k] if from_above else eta_dn[k]
-            # the whole walk on the microsurface is this one event (no masking loss); each further
-            # microfacet bounce counts toward the event cap
-            if resume:
-                ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from( S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN
-                                                                    + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1,
-                                                                    True, if_alpha[k, 0], if_alpha[k, 1], is_cond,
-                                                                    cond[0], cond[1], cond[2], cond[3], cond[4],
-                                                                    cond[5], g_is_r, b_is_g, eta, inv_eta, max(1,
-                                                                    event_cap - events + 1), xs)
-                resume = False
-            else:
-                ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
-                    wx, wy, wz, if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3],
-                    cond[4], cond[5], g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs)
-            if is_cond:
-                w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
-            if nb == 0:
-                # still on the microsurface at the cap
-                events = event_cap
-                st = ST_CAPPED
-                break
-            events += nb - 1
-            if k == 0:
-                multi = nb > 1
-            dx = rc * ox - rs * oy
-            dy = rs * ox + rc * oy
-            dz = oz if from_above else -oz
-            if transmitted:
-                region = k + 1 if from_above else k
-            hpos = -1.0
+    if is_cond:
+        w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
+    if nb == 0:
+        # still on the microsurface at the cap
+        events = event_cap
+        st = ST_CAPPED
+    else:
+        events += nb - 1
+        if k == 0:
+            S[F_MULTI * LN + i] = 1.0 if nb > 1 else 0.0
+        # back to the world frame (the walk ran in the interface's tangent frame of the arrival side)
+        rc = if_rot[k, 0]
+        rs = if_rot[k, 1]
+        dx = rc * ox - rs * oy
+        dy = rs * ox + rc * oy
+        dz = oz if from_above else -oz
+        if transmitted:
+            region = k + 1 if from_above else k
         # ---- Russian roulette on the largest channel weight (as the vectorised event's)
         if events >= RR_START:
             wmax = max(w0, max(w1, w2))
@@ -311,26 +238,21 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
                 p = wmax * (1.0 / RR_THRESHOLD)
                 if next_float(xs) >= p:
                     st = ST_DEAD
-                    break
-                boost = 1.0 / p
-                rl0 -= w0 * (boost - 1.0)
-                rl1 -= w1 * (boost - 1.0)
-                rl2 -= w2 * (boost - 1.0)
-                w0 *= boost
-                w1 *= boost
-                w2 *= boost
-        if region == 0 and dz > 0.0:
-            st = ST_REFLECTED
-            break
-        if transmit_base and region == n_if and dz < 0.0:
-            st = ST_TRANSMITTED
-            break
-        if events >= event_cap:
-            st = ST_CAPPED
-            break
-        if tau_mode[region] < TAU_SCATTER and (vector_walks or not _is_ms(table, region - 1 if dz > 0.0 else region,
-                                                                            n_if)):
-            break
+                else:
+                    boost = 1.0 / p
+                    S[(A_RL + 0) * LN + i] -= w0 * (boost - 1.0)
+                    S[(A_RL + 1) * LN + i] -= w1 * (boost - 1.0)
+                    S[(A_RL + 2) * LN + i] -= w2 * (boost - 1.0)
+                    w0 *= boost
+                    w1 *= boost
+                    w2 *= boost
+        if st == ST_ALIVE:
+            if region == 0 and dz > 0.0:
+                st = ST_REFLECTED
+            elif transmit_base and region == n_if and dz < 0.0:
+                st = ST_TRANSMITTED
+            elif events >= event_cap:
+                st = ST_CAPPED
     S[F_DX * LN + i] = dx
     S[F_DY * LN + i] = dy
     S[F_DZ * LN + i] = dz
@@ -340,21 +262,11 @@ def lane_steps(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, region_tau, region_al
     S[F_AB0 * LN + i] = ab0
     S[F_AB1 * LN + i] = ab1
     S[F_AB2 * LN + i] = ab2
-    S[(A_RL + 0) * LN + i] += rl0
-    S[(A_RL + 1) * LN + i] += rl1
-    S[(A_RL + 2) * LN + i] += rl2
     S[F_REG * LN + i] = float(region)
     S[F_EV * LN + i] = float(events)
-    S[F_ORDER * LN + i] = float(order)
-    S[F_BASED * LN + i] = 1.0 if based else 0.0
-    S[F_HERO * LN + i] = float(hero)
-    S[F_Q0 * LN + i] = q0
-    S[F_Q1 * LN + i] = q1
-    S[F_Q2 * LN + i] = q2
-    S[F_HPOS * LN + i] = hpos
+    S[F_HPOS * LN + i] = -1.0
     S[F_SEEDED * LN + i] = 1.0
     S[F_WK * LN + i] = 0.0
-    S[F_MULTI * LN + i] = 1.0 if multi else 0.0
     for j in range(4):
         S[(F_X0 + j) * LN + i] = u64_as_double(xs[j])
     return st

@@ -3,8 +3,8 @@
 (``docs/kernel.md``): forced onto the same stacks, with independent random numbers, they agree
 cell by cell and in every energy term within their standard errors. Stacks cover every kind of
 event: rough dielectric and conductor interfaces, anisotropy, absorbing and scattering media
-(chromatic: spectral MIS), a Lambertian base, a transmitting base, multiple-scattering walks,
-an index-matched interface, height-correlated masking."""
+(chromatic: spectral MIS; achromatic; with walks, a Lambertian base, a transmitting base),
+multiple-scattering walks, an index-matched interface, height-correlated masking."""
 
 from __future__ import annotations
 
@@ -27,8 +27,19 @@ STACKS = {
                                  Lambertian((0.2, 0.5, 0.8))), "plastic"),
     "slab-matched": Stack("s", (Interface(0.2, (1.5,) * 3), Medium((0.05, 0.1, 0.2)), Interface(0.4, (1.5,) * 3),
                                 Interface(0.3, (1.0,) * 3)), "slab"),
-    "scattering": Stack("e", (Interface(0.1, (1.5,) * 3), Medium((0.5, 1.0, 2.0), (0.9, 0.6, 0.3), 0.7),
+    # (an index-matched top: the lane kernel crosses it when a lane takes a path)
+    "scattering": Stack("e", (Interface(0.0, (1.0,) * 3), Medium((0.5, 1.0, 2.0), (0.9, 0.6, 0.3), 0.7),
                               Interface(0.2, (1.1,) * 3, (2.0,) * 3)), "metal"),
+    # an achromatic medium (no spectral MIS), back-scattering, under an anisotropic multiple-scattering
+    # top, over a Lambertian base
+    "scattering-ms-plastic": Stack("q", (Interface(0.4, (1.5,) * 3, roughness_y=0.2, rotation_deg=20.0,
+                                                   multiple_scattering=True),
+                                         Medium((0.8,) * 3, (0.9, 0.7, 0.5), -0.3), Lambertian((0.6, 0.4, 0.2))),
+                                   "plastic"),
+    # a chromatic scattering medium and an absorbing one in one transmitting slab
+    "scattering-slab": Stack("t", (Interface(0.2, (1.5,) * 3), Medium((0.3, 0.6, 1.2), (0.95, 0.8, 0.6), 0.5),
+                                   Interface(0.3, (1.4,) * 3), Medium((0.1, 0.2, 0.3)), Interface(0.25, (1.0,) * 3)),
+                             "slab"),
     "ms-slab": Stack("w", (Interface(0.5, (1.5,) * 3, multiple_scattering=True), Medium((0.1, 0.1, 0.1)),
                            Interface(0.6, (1.0,) * 3, multiple_scattering=True)), "slab"),
     "ms-aniso-metal": Stack("x", (Interface(0.4, (1.5,) * 3, roughness_y=0.1, rotation_deg=30.0,
@@ -91,12 +102,16 @@ def test_lane_and_path_kernels_agree(name):
 
 
 def test_the_lane_kernel_is_picked_where_every_event_is_vectorised():
-    """Every stack without a scattering medium (on a multiple-scattering interface the vectorised
-    event is the walk's first bounce)."""
-    for name, expect in [("metal", True), ("aniso-plastic", True), ("slab-matched", True), ("scattering", False),
-                         ("ms-slab", True), ("ms-aniso-metal", True)]:
-        p = pack(STACKS[name])
-        assert tracer.lane_kernel_for(p.if_ms, p.region_tau, p.region_albedo) == expect, name
+    """Every stack with separable masking takes the lane kernel (scattering media and walks
+    included); height-correlated masking, whose lane variant runs lane by lane, the per-path one,
+    unless no interface scatters singly (a walk ignores the setting)."""
+    for name, stack in STACKS.items():
+        p = pack(stack)
+        assert tracer.kernel_flags(p, False, False)[0] is True, name
+        only_walks = all(layer.multiple_scattering for layer in stack.layers if isinstance(layer, Interface))
+        assert tracer.kernel_flags(p, True, False)[0] is (True if only_walks else None), name
+        # a scattering medium is the media variant's, whose event makes the free flights
+        assert (tracer.kernel_flags(p, False, False)[3] is True) == name.startswith("scattering"), name
 
 
 def test_a_check_between_kernels_can_fail():
@@ -123,10 +138,11 @@ def _tabulate_energy(stack: Stack, kernel: int, seed: int, rays: int = 200_000):
     return energy.sum(0), energy_sq.sum(0), rays
 
 
-@pytest.mark.parametrize("name", ["ms-aniso-metal"])
+@pytest.mark.parametrize("name", ["ms-aniso-metal", "scattering"])
 def test_tabulations_agree_between_kernels(name):
-    """A tabulation (per-path light directions) of a stack with walks: the lane kernel's energies
-    against the per-path kernel's, within their standard errors."""
+    """A tabulation (per-path light directions) of a stack with walks, and of one with a
+    scattering medium: the lane kernel's energies against the per-path kernel's, within their
+    standard errors."""
     e_a, q_a, n = _tabulate_energy(STACKS[name], tracer.KERNEL_LANES, 1)
     e_b, q_b, _ = _tabulate_energy(STACKS[name], tracer.KERNEL_PATHS, 2)
     for row in (tracer.E_REFLECTED, tracer.E_TRANSMITTED, tracer.E_ABSORBED):
