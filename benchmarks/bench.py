@@ -3,7 +3,8 @@
 For a plastic, a metal and a slab of the database (alpha0 = 0.05, half slices, 7 incident
 directions), the metal with multiple-scattering interfaces and a scattering medium (Bati 2019
 appendix E), it measures rays per second of
-wall time and rays per CPU-second (the stable figure on a shared machine) and mean events per ray, with 1 and 2 threads, compile time excluded; and the compile time
+wall time and rays per CPU-second (the stable figure on a shared machine), mean events per ray and
+the kernel that traced it (``kernel``: lanes or paths), with 1 and 2 threads, compile time excluded; and the compile time
 of the kernel from an empty numba cache (in a subprocess) and its load time from the cache.
 For the plastic, metal and slab it also times the yardstick (``reference_kernel.py``: a plain
 textbook kernel of the same physics, one thread) in the same run and reports the tracing speed
@@ -37,7 +38,8 @@ from goniometer.results import cell_geometry
 from goniometer.settings import SimulationSettings
 from goniometer.run import simulate
 from goniometer.tasks import warm_up
-from goniometer.stack import Interface, Lambertian, Medium, Stack
+from goniometer.stack import Interface, Lambertian, Medium, Stack, pack
+from goniometer.tracer import kernel_flags
 from goniometer.slices import light_direction
 
 from models.compare import noise_floor, reference_parts
@@ -143,6 +145,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
             nft = total_floor_of(r)
             row = {
                 "material": name, "threads": t, "rays": n, "first_order": "traced",
+                "kernel": "lanes" if kernel_flags(pack(stack), False, False)[0] else "paths",
                 "trace_wall_s": twall, "trace_cpu_s": tcpu,
                 "trace_rays_per_s": n / twall, "trace_rays_per_cpu_s": n / tcpu,
                 "simulate_wall_s": wall, "simulate_cpu_s": cpu,
