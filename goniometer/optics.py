@@ -278,6 +278,25 @@ def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float
             num * (e0 * e1) * inv)
 
 
+@numba.njit(cache=True, inline='always')
+def fresnel_conductor_channels(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, eta2: float,
+                               kappa2: float, g_is_r: bool, b_is_g: bool):
+    """The three channels' conductor Fresnel reflectances: computed once for channels that share
+    their complex index (``g_is_r``: green has red's, ``b_is_g``: blue has green's), the others
+    with one division between them (:func:`fresnel_conductor_pair`, :func:`fresnel_conductor_rgb`)."""
+    if g_is_r and b_is_g:
+        r0 = fresnel_conductor(cos_i, eta0, kappa0)
+        return r0, r0, r0
+    if b_is_g:
+        r0, r1, _ = fresnel_conductor_pair(cos_i, eta0, kappa0, eta1, kappa1)
+        return r0, r1, r1
+    if g_is_r:
+        r0, r2, _ = fresnel_conductor_pair(cos_i, eta0, kappa0, eta2, kappa2)
+        return r0, r0, r2
+    r0, r1, r2, _ = fresnel_conductor_rgb(cos_i, eta0, kappa0, eta1, kappa1, eta2, kappa2)
+    return r0, r1, r2
+
+
 # --------------------------------------------------------------------------- GGX
 
 @numba.njit(cache=True)

@@ -326,9 +326,8 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         wm = wx * mx + wy * my + wz * mz
                         transmitted = False
                         if is_cond:
-                            f0 = optics.fresnel_conductor(wm, cond[0], cond[3])
-                            f1 = f0 if cond_g_is_r else optics.fresnel_conductor(wm, cond[1], cond[4])
-                            f2 = f1 if cond_b_is_g else optics.fresnel_conductor(wm, cond[2], cond[5])
+                            f0, f1, f2 = optics.fresnel_conductor_channels(wm, cond[0], cond[3], cond[1], cond[4], cond[2],
+                                                                           cond[5], cond_g_is_r, cond_b_is_g)
                             w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
                             ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
                         else:

@@ -144,19 +144,7 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, c
         mx, my, mz = optics.sample_vndf_disk(ix, iy, iz, ax, ay, qx, qy)
         im = ix * mx + iy * my + iz * mz
         if conductor:
-            # channels that differ share one division (optics.fresnel_conductor_pair / _rgb)
-            if g_is_r and b_is_g:
-                r0 = optics.fresnel_conductor(im, ce0, ck0)
-                r1 = r0
-                r2 = r0
-            elif b_is_g:
-                r0, r1, _ = optics.fresnel_conductor_pair(im, ce0, ck0, ce1, ck1)
-                r2 = r1
-            elif g_is_r:
-                r0, r2, _ = optics.fresnel_conductor_pair(im, ce0, ck0, ce2, ck2)
-                r1 = r0
-            else:
-                r0, r1, r2, _ = optics.fresnel_conductor_rgb(im, ce0, ck0, ce1, ck1, ce2, ck2)
+            r0, r1, r2 = optics.fresnel_conductor_channels(im, ce0, ck0, ce1, ck1, ce2, ck2, g_is_r, b_is_g)
             f0 *= r0
             f1 *= r1
             f2 *= r2

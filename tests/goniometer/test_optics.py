@@ -193,6 +193,22 @@ def test_fresnel_conductor_tabulated():
         assert optics.fresnel_conductor(c, 0.0, 0.0) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("g_is_r,b_is_g", [(False, False), (True, False), (False, True), (True, True)])
+def test_conductor_channels_are_each_channels_fresnel(g_is_r, b_is_g):
+    """The channels' Fresnel values with shared divisions equal each channel's own
+    (``fresnel_conductor``) to rounding, for each way channels may share their index."""
+    n = [0.2, 0.958, 1.45]
+    k = [3.0, 6.69, 1.0]
+    if g_is_r:
+        n[1], k[1] = n[0], k[0]
+    if b_is_g:
+        n[2], k[2] = n[1], k[1]
+    for c in np.linspace(0.0, 1.0, 21):
+        got = optics.fresnel_conductor_channels(c, n[0], k[0], n[1], k[1], n[2], k[2], g_is_r, b_is_g)
+        want = [optics.fresnel_conductor(c, n[j], k[j]) for j in range(3)]
+        np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-16)
+
+
 def test_refract_obeys_snell_and_reflect_is_mirror():
     w = np.array([0.3, -0.2, 0.0])
     w[2] = math.sqrt(1 - w[0] ** 2 - w[1] ** 2)
