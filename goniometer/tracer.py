@@ -56,32 +56,25 @@ from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
            "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
-           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS", "lane_kernel_for",
+           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
            "kernel_flags"]
 
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
-#: ``kernel`` of :func:`trace_batch`: the kernel :func:`lane_kernel_for` picks for the stack, the
-#: lane kernel (:func:`trace_chunk`) or the per-path kernel (:func:`goniometer.kernel.paths.trace_paths`)
+#: ``kernel`` of :func:`kernel_flags`: the kernel commands use (the lane kernel, :func:`trace_chunk`,
+#: for every stack), the lane kernel, or the per-path kernel
+#: (:func:`goniometer.kernel.paths.trace_paths`: the second implementation the tests check the
+#: lane kernel against, docs/kernel.md)
 KERNEL_AUTO = 0
 KERNEL_LANES = 1
 KERNEL_PATHS = 2
 
 
 
-def lane_kernel_for(height_correlated: bool) -> bool:
-    """True when ``KERNEL_AUTO`` picks the lane kernel: every stack with separable masking (every
-    event kind is vectorised: interfaces, the first bounce of a walk, free flights in scattering
-    media). With height-correlated masking the lane kernel's variant runs lane by lane (the
-    transmission's Beta function has no vector form) and the per-path kernel is faster
-    (``docs/kernel.md``, two kernels; ``benchmarks/README.md``)."""
-    return not height_correlated
-
-
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
     ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms)``. ``kernel``:
-    ``KERNEL_AUTO`` (the lane kernel where :func:`lane_kernel_for`), ``KERNEL_LANES`` or
+    ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
     cached) only when some stack needs it."""
     if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
@@ -91,7 +84,7 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
     # the masking setting concerns single-scattering interfaces only (a walk is height-correlated
     # by construction): without one, both settings trace the same variant, hence the same bits
     height_correlated = height_correlated and n_if > 0 and not bool(np.all(p.if_ms[:n_if]))
-    lanes = kernel == KERNEL_LANES or (kernel == KERNEL_AUTO and lane_kernel_for(height_correlated))
+    lanes = kernel != KERNEL_PATHS
 
     def flag(x: bool):
         return True if x else None

@@ -63,7 +63,8 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
     specialisations without ``height_correlated``):
 
     * ``height_correlated``: None, separable masking ``G1(o)``; True, height-correlated
-      ``G2 / G1(i)`` (its Beta function has no vector form: that specialisation runs lane by lane);
+      ``G2 / G1(i)`` (the transmission's Beta function from
+      :func:`goniometer.optics.smith_g2_height_correlated`, which vectorises);
     * ``tabulate``: None, every path starts along ``-l``; True, each draws its light direction
       (cosine-weighted, its draw 0);
     * ``media``: True when some region scatters: the event of a lane in such a region begins with a
@@ -429,7 +430,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         if height_correlated is not None:
             lam_o = optics.ggx_lambda(ox, oy, oz, ax, ay)
             lam_i = optics.ggx_lambda(wx, wy, wz, ax, ay)
-            g = optics.smith_g2(lam_i, lam_o, not refl_, True) * (1.0 + lam_i)
+            g = optics.smith_g2_height_correlated(lam_i, lam_o, not refl_) * (1.0 + lam_i)
         else:
             # in single precision (well conditioned: a sum of positives; relative error < 1e-6,
             # docs/kernel.md, precision)

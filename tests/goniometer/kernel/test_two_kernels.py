@@ -102,14 +102,15 @@ def test_lane_and_path_kernels_agree(name):
 
 
 def test_the_lane_kernel_is_picked_where_every_event_is_vectorised():
-    """Every stack with separable masking takes the lane kernel (scattering media and walks
-    included); height-correlated masking, whose lane variant runs lane by lane, the per-path one,
-    unless no interface scatters singly (a walk ignores the setting)."""
+    """Every stack takes the lane kernel (scattering media, walks and height-correlated masking
+    included); the height-correlated variant only where some interface scatters singly (a walk
+    ignores the setting)."""
     for name, stack in STACKS.items():
         p = pack(stack)
         assert tracer.kernel_flags(p, False, False)[0] is True, name
         only_walks = all(layer.multiple_scattering for layer in stack.layers if isinstance(layer, Interface))
-        assert tracer.kernel_flags(p, True, False)[0] is (True if only_walks else None), name
+        flags = tracer.kernel_flags(p, True, False)
+        assert flags[0] is True and flags[1] is (None if only_walks else True), name
         # a scattering medium is the media variant's, whose event makes the free flights
         assert (tracer.kernel_flags(p, False, False)[3] is True) == name.startswith("scattering"), name
 
