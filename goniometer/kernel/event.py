@@ -59,8 +59,8 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
     """One step for all lanes of ``S`` (see the module docstring).
 
     The last nine arguments are None or True and select what is compiled (numba compiles a None
-    argument's specialisation without the other branch; LLVM vectorises the loops of the
-    specialisations without ``height_correlated``):
+    argument's specialisation without the other branch; LLVM vectorises the loops of every
+    specialisation):
 
     * ``height_correlated``: None, separable masking ``G1(o)``; True, height-correlated
       ``G2 / G1(i)`` (the transmission's Beta function from
