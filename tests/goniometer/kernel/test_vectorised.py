@@ -24,20 +24,21 @@ def _host_has(feature: str) -> bool:
 
 
 @pytest.mark.skipif(not _host_has("avx2"), reason="the packed-instruction check is for x86-64 CPUs with AVX2 or AVX-512")
-@pytest.mark.parametrize("walks", [False, True], ids=["metal", "multiple-scattering-and-medium"])
+@pytest.mark.parametrize("walks", [False, True], ids=["metal", "multiple-scattering-medium-height-correlated"])
 def test_the_step_loop_is_vectorised(walks):
     """The coated metal's specialisation of the step, compiled afresh (cached code cannot be
     inspected), holds packed square roots, divisions and gathers; so does the one whose interfaces
-    scatter multiply (the walks' first bounces, their heights from table-driven logarithms) and
-    whose medium scatters (free flights, Henyey-Greenstein directions)."""
+    scatter multiply (the walks' first bounces, their heights from table-driven logarithms), whose
+    medium scatters (free flights, Henyey-Greenstein directions) and whose masking is
+    height-correlated (the Beta function from a series)."""
     f = numba.njit(error_model="numpy", boundscheck=False)(event.step.py_func)
     S = np.zeros(N_FIELDS * LANES)
     # a coated metal's variant: separable masking, slices, no Lambertian base, a conductor whose
     # blue channel shares the green one's index, isotropic; with walks: multiple-scattering
-    # interfaces and a scattering medium
+    # interfaces, a scattering medium and height-correlated masking
     flag = True if walks else None
     f(S, np.zeros(60), 16, 2, False, 1, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 10000, 0.5, 0.0, 0.8,
-      np.uint64(1), 0, 5, None, None, flag, None, True, None, True, None, flag)
+      np.uint64(1), 0, 5, flag, None, flag, None, True, None, True, None, flag)
     asm = f.inspect_asm(f.signatures[0])
     for op in ("vsqrtpd", "vdivpd", "vgatherqpd"):
         assert re.search(rf"\b{op}\b[^\n]*%[yz]mm", asm), f"no packed {op} in the step"
