@@ -97,9 +97,15 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
     c = p.cond
     ms = bool(np.any(p.if_ms[:n_if])) if n_if > 0 else False
     scattering = bool(np.any(tau_modes(p.region_tau, p.region_albedo) >= TAU_SCATTER))
+    g_is_r = cond and c[1] == c[0] and c[4] == c[3]
+    b_is_g = cond and c[2] == c[1] and c[5] == c[4]
+    if height_correlated:
+        # the rarer masking gets fewer, more general variants (each is a compile of its own): the
+        # tangent-frame rotation (exact for an isotropic stack) and three conductor channels
+        aniso = True
+        g_is_r = b_is_g = False
     return (True, flag(height_correlated), flag(tabulate), flag(scattering), flag(p.base_kind == BASE_LAMBERTIAN),
-            flag(cond), flag(cond and c[1] == c[0] and c[4] == c[3]), flag(cond and c[2] == c[1] and c[5] == c[4]),
-            flag(aniso), flag(ms))
+            flag(cond), flag(g_is_r), flag(b_is_g), flag(aniso), flag(ms))
 
 
 @numba.njit(cache=True, error_model='numpy')
