@@ -6,10 +6,11 @@ lane of the kernel traces the path:
 
 * counter-based draws, ``draw(key, n)``: the SplitMix64 finaliser of ``key + n * golden``, the
   ``n``-th 64-bit number of the path whose key is ``key`` (:func:`path_key`); the kernel's
-  vectorised event takes two per event (:func:`uniform_pair`: two 32-bit uniforms each);
-* a xoshiro256** stream (state ``uint64[4]``), for the per-path steps of variable length
-  (free flights, microsurface walks), seeded from the path key by :func:`seed_state`, and for
-  code outside the kernel (:func:`stream_state`).
+  vectorised event takes two to four per event (:func:`uniform_pair`: two 32-bit uniforms each;
+  ``docs/kernel.md``, random numbers);
+* a xoshiro256** stream (state ``uint64[4]``), for the continuation of a microsurface walk
+  (variable length), seeded from the path key by :func:`seed_state`, and for the per-path kernel
+  and code outside the kernel (:func:`stream_state`).
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ The weight is then multiplied by the masking term (separable: ``G1(o)``; height-
 ``G2 / G1(i)``) and an outgoing direction on the wrong side of the macro-surface ends the path
 (``masking_loss``). On a multiple-scattering interface the event is instead a random walk on the
 microsurface (:func:`goniometer.kernel.steps.microsurface_walk`, Heitz et al. 2016) that always leaves it: no masking loss. Absorbing media attenuate deterministically (Beer-Lambert); in a scattering
-medium the path makes free flights between collisions (:func:`goniometer.kernel.steps.free_flight`: spectral-MIS
+medium the path makes free flights between collisions (the lane kernel's event,
+:mod:`goniometer.kernel.event`; the per-path kernel's :func:`goniometer.kernel.steps.free_flight`: spectral-MIS
 distance sampling, Henyey-Greenstein directions). Lambertian bases reflect with cosine sampling
 and weight *= rho. A path leaving the top upward is recorded in the BRDF
 slice of its bounce order (number of events at the top layer); one leaving the bottom of a

@@ -1,9 +1,8 @@
 """The per-path kernel (``docs/kernel.md``, two kernels): each path of a chunk is traced from start
-to end before the next, all from the chunk's one random stream. It traces the stacks whose events
-are mostly per-path steps -- a scattering medium or a multiple-scattering interface -- for which
-the lane kernel (:func:`goniometer.tracer.trace_chunk`) would spend more time moving lane state
-than its vectorised event saves. Physics, bookkeeping and outputs as the lane kernel's (the
-transport rules: :mod:`goniometer.tracer`).
+to end before the next, all from the chunk's one random stream: the transport written the plain
+way, the reference the lane kernel (:func:`goniometer.tracer.trace_chunk`, which traces every
+stack) is checked against, forced with ``KERNEL_PATHS``. Physics, bookkeeping and outputs as the
+lane kernel's (the transport rules: :mod:`goniometer.tracer`).
 
 A histogram exit is deposited when the next exit happens (or at the end of the chunk), its cell
 being prefetched meanwhile: each cell still receives its additions in path order.
