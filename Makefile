@@ -1,4 +1,6 @@
 # The verbs users type. Each target creates .venv and installs the project when missing.
+# Simulations resume and never replace a finished file; the targets that derive reports (and the demo,
+# which is small) pass --overwrite, so that rerunning a target rebuilds its output (docs/outputs.md).
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -35,14 +37,14 @@ test-slow: $(STAMP)
 demo: $(STAMP)
 	mkdir -p $(DEMO)
 	@for m in plastic metal slab; do \
-	  $(GONIO) simulate configs/examples/$$m.toml --out $(DEMO)/$$m.h5 --rays $(DEMO_RAYS) || exit $$?; \
+	  $(GONIO) simulate configs/examples/$$m.toml --out $(DEMO)/$$m.h5 --rays $(DEMO_RAYS) --overwrite || exit $$?; \
 	done
 	@echo
 	@for m in plastic metal slab; do $(GONIO) info $(DEMO)/$$m.h5 || exit $$?; echo; done
 	$(GONIO) evaluate $(DEMO)/metal.h5
 	@echo
 	$(GONIO) database simulate $(DATABASE) --out $(DEMO)/bati2019 --quality demo --only '*2-a0_0.2*'
-	$(GONIO) report $(DEMO)/bati2019 --out $(DEMO)/bati2019-report
+	$(GONIO) report $(DEMO)/bati2019 --out $(DEMO)/bati2019-report --overwrite
 	@echo
 	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5 and $(DEMO)/bati2019/"
 	@echo "HTML report: $(abspath $(DEMO))/bati2019-report/index.html"
@@ -51,12 +53,12 @@ database: $(STAMP)
 	$(GONIO) database simulate $(DATABASE) --out $(DB_OUT) --quality $(QUALITY)
 
 report: $(STAMP)
-	$(GONIO) report $(DB_OUT) --out $(DB_OUT)/report
+	$(GONIO) report $(DB_OUT) --out $(DB_OUT)/report --overwrite
 
 # resumable: rerunning after an interruption traces only what is missing; the report reuses its cache
 appendix-e: $(STAMP)
 	$(GONIO) database simulate configs/appendix-e.toml --out $(APPE_OUT) --quality $(APPE_QUALITY)
-	$(GONIO) report $(APPE_OUT) --out $(APPE_OUT)-report --model belcour-fwd --incidents 30,80
+	$(GONIO) report $(APPE_OUT) --out $(APPE_OUT)-report --model belcour-fwd --incidents 30,80 --overwrite
 	@echo "appendix E: $(abspath $(APPE_OUT))-report/appendix-e.md"
 
 # resumable; simulates the single-scattering twin too if $(DB_OUT) lacks it (same QUALITY), then the
@@ -64,11 +66,11 @@ appendix-e: $(STAMP)
 ms-database: $(STAMP)
 	$(GONIO) database simulate configs/bati2019-ms.toml --out $(MS_OUT) --quality $(QUALITY)
 	$(GONIO) database simulate $(DATABASE) --out $(DB_OUT) --quality $(QUALITY)
-	$(GONIO) report $(MS_OUT) --out $(MS_OUT)-report --compare-to $(DB_OUT)
+	$(GONIO) report $(MS_OUT) --out $(MS_OUT)-report --compare-to $(DB_OUT) --overwrite
 	@echo "multiple scattering: $(abspath $(MS_OUT))-report/multiple-scattering.md"
 
 validate-inverse: $(STAMP)
-	$(GONIO) validate-inverse configs/inverse/cases.toml --simulate --json results/inverse/validation.json --report results/inverse/report
+	$(GONIO) validate-inverse configs/inverse/cases.toml --simulate --json results/inverse/validation.json --report results/inverse/report --overwrite
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py
@@ -95,5 +97,5 @@ PRODUCTION_FLAGS ?=
 
 production: $(STAMP)
 	$(GONIO) database simulate $(PRODUCTION_CONFIG) --out $(PRODUCTION_DB) --quality $(PRODUCTION_QUALITY) $(PRODUCTION_FLAGS)
-	$(GONIO) production $(PRODUCTION_DB) --out $(PRODUCTION_OUT)
+	$(GONIO) production $(PRODUCTION_DB) --out $(PRODUCTION_OUT) --overwrite
 	@echo "production coats: $(abspath $(PRODUCTION_OUT))/production.md"

@@ -13,7 +13,7 @@ import contextlib
 import os
 import uuid
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -22,12 +22,18 @@ TEMP_GLOB = ".*.tmp-*"
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
+def atomic_path(path: str | os.PathLike, commit: Callable[[], None] | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
+
+    ``commit``, if given, is called between the block and the rename: an exception it raises
+    (a Ctrl-C recorded while the file was written, say) removes the temporary file and leaves
+    ``path`` as it was."""
     p = Path(path)
     tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     try:
         yield tmp
+        if commit is not None:
+            commit()
         os.replace(tmp, p)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -231,6 +231,11 @@ def _partial_dir(out_dir: Path, material: Material) -> Path:
     return Path(out_dir) / ".partial" / material.name
 
 
+def checkpointed_incidents(out_dir: Path, material: Material) -> int:
+    """Number of incident directions of ``material`` kept in checkpoints under ``out_dir``."""
+    return len(list(_partial_dir(out_dir, material).glob("m*.npz")))
+
+
 def _manifest(db: Database, quality: str) -> dict:
     return {"format": RESULTS_FORMAT, "format_version": RESULTS_VERSION, "slices_format": store.FORMAT,
             "slices_format_version": store.FORMAT_VERSION, "database": db.name, "fingerprint": db.fingerprint(),
@@ -271,7 +276,7 @@ def material_status(db: Database, out_dir: Path, material: Material, quality: st
         if stack.to_json() != material.stack.to_json() or not same_run(settings, expected):
             return "corrupt"
         return "done"
-    if any(_partial_dir(out_dir, material).glob("m*.npz")):
+    if checkpointed_incidents(out_dir, material):
         return "partial"
     return "missing"
 
@@ -290,7 +295,7 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
                       resimulate_corrupted: bool = False,
                       progress: Callable[[int], None] | None = None,
                       on_material: Callable[[Material, str], None] | None = None,
-                      client: Any = None) -> RunSummary:
+                      client: Any = None, overwrite: bool = False) -> RunSummary:
     """Simulate the selected materials of ``db`` into ``out_dir`` (resumable; see module docstring).
 
     ``progress(rays)`` is called as rays finish (for an overall bar); ``on_material(material,
@@ -298,7 +303,9 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     address such as ``tcp://host:8786``) or ``client`` (a ``distributed.Client``) runs the
     (material, incident, task) tasks on a Dask cluster; results are bit-identical to a local run.
     The kernel is compiled on first use unless the caller has compiled it
-    (:func:`goniometer.tasks.warm_up`).
+    (:func:`goniometer.tasks.warm_up_runs` of :func:`runs`). ``overwrite``: the selected finished
+    materials are simulated again and their files replaced (``docs/outputs.md``); without it they
+    are skipped.
     """
     out = Path(out_dir)
     materials = db.select(only)
@@ -318,9 +325,11 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     todo = []
     for m in materials:
         st = statuses[m.name]
-        if st == "done":
+        if st == "done" and not overwrite:
             summary.skipped.append(m.name)
             continue
+        if st == "done":
+            summary.resimulated.append(m.name)
         if st == "corrupt":
             p = material_path(out, m)
             os.replace(p, p.with_name(p.name + f".corrupt-{int(time.time())}"))
@@ -346,6 +355,12 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
             own_client.close()
     summary.elapsed_s = time.perf_counter() - t0
     return summary
+
+
+def runs(db: Database, materials: list[Material], quality: str) -> list[tuple[Stack, SimulationSettings]]:
+    """The (stack, settings) of each material's run at ``quality`` (to compile their kernel
+    variants before tracing: :func:`goniometer.tasks.warm_up_runs`)."""
+    return [(m.stack, db.settings_for(m, quality)) for m in materials]
 
 
 def _simulate_material(db: Database, out: Path, material: Material, quality: str, threads: int | None,

@@ -28,14 +28,16 @@ ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
 #: the settings that make two runs of one stack the same run (``threads`` is not one of them:
 #: results are bit-identical whatever the thread count)
 RUN_KEYS = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
-            "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order")
+            "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order", "rgl")
 
 
 def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
     """What makes two runs the same, as JSON-ready data: the stack and the :data:`RUN_KEYS`
     (``first_order`` only when it is not the default "traced": descriptions of traced runs keep
     their bytes, ``docs/file-identity.md``)."""
-    s = {k: getattr(settings, k) for k in RUN_KEYS if not (k == "first_order" and settings.first_order == "traced")}
+    d = settings.to_dict()
+    s = {k: d[k] for k in RUN_KEYS
+         if not (k == "first_order" and settings.first_order == "traced") and not (k == "rgl" and settings.rgl is None)}
     return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
 
 
@@ -215,7 +217,10 @@ def cell_geometry(parametrization: str, n_theta: int, n_phi: int, theta_deg: flo
 def cell_geometries(settings: SimulationSettings) -> list[tuple[np.ndarray, np.ndarray]]:
     """(Omega, mask) of the grid of ``settings`` for each of its incident directions
     (:func:`cell_geometry`, memoised). The CLI calls it before tracing, where Ctrl-C is deferred,
-    so that the numba kernels of the final assembly are compiled and run there."""
+    so that the numba kernels of the final assembly are compiled and run there. On the RGL grid
+    Omega is the dual cells' sample-space area above the horizon (:meth:`RGLGrid.cell_geometry`)."""
+    if settings.rgl is not None:
+        return [settings.rgl.cell_geometry(m) for m in range(len(settings.incident_deg))]
     nt, nph = settings.resolution
     return [cell_geometry(settings.parametrization, nt, nph, t, p)
             for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
@@ -239,7 +244,7 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
                  for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
     brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n, first)
     btdf = None
-    if stack.transmits:
+    if stack.transmits and settings.rgl is None:  # the RGL format is reflection-only
         btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), omegas, masks,
                                 [p.btdf for p in parts], [p.btdf_sq for p in parts], n)
     energy: dict[str, np.ndarray] = {}

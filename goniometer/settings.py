@@ -9,15 +9,18 @@ whatever ``threads``, locally or distributed.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
 import numba
 import numpy as np
 
+from goniometer.rgl.grid import RGLGrid
 from goniometer.tracer import EVENT_CAP
 
 DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
+#: cell grids: theta/phi of v, of the half vector, or the RGL format's sample space (docs/rgl-format.md)
+PARAMETRIZATIONS = ("classic", "half", "rgl")
 MASKING = ("separable", "height-correlated")
 #: how bounce order 1 (a single reflection on the top interface) gets into the reflection slices:
 #: traced like every other order, or integrated over the cells (``docs/first-order.md``)
@@ -38,7 +41,9 @@ class SimulationSettings:
     determinism contract: the same (seed, chunk_rays, chunks_per_task) gives the same bits
     whatever ``threads``, locally or distributed. ``first_order`` is ``"traced"`` (the default) or
     ``"integrated"``: the top interface's single reflection computed per cell instead of traced, a
-    variance reduction for the total BRDF (``docs/first-order.md``).
+    variance reduction for the total BRDF (``docs/first-order.md``). ``parametrization = "rgl"``
+    records on the RGL format's grid ``rgl`` (:class:`goniometer.rgl.RGLGrid`, which then sets the
+    incident directions and ``resolution = (n, n)``; ``docs/rgl-format.md``).
     """
 
     incident_deg: tuple[float, ...] = DEFAULT_INCIDENT
@@ -54,6 +59,7 @@ class SimulationSettings:
     chunks_per_task: int = 8
     event_cap: int = EVENT_CAP
     first_order: str = "traced"
+    rgl: RGLGrid | None = None
 
     def __post_init__(self) -> None:
         inc = tuple(float(x) for x in self.incident_deg)
@@ -75,9 +81,16 @@ class SimulationSettings:
         for p in self.incident_phi_deg:
             if not (math.isfinite(p) and 0.0 <= p < 360.0):
                 raise SettingsError(f"incident_phi_deg: {p:g} is outside [0, 360)")
+        seen: set[tuple[float, float]] = set()
+        for t, p in zip(self.incident_deg, self.incident_phi_deg):
+            if (t, p) in seen:
+                at = f"{t:g}" + (f" (phi {p:g})" if p else "")
+                raise SettingsError(f"incident_deg: {at} is given twice; each incident direction is traced once")
+            seen.add((t, p))
         _int_in(self.rays, "rays", 1, 10**13)
-        if self.parametrization not in ("classic", "half"):
-            raise SettingsError(f"parametrization: {self.parametrization!r} is not one of classic, half")
+        if self.parametrization not in PARAMETRIZATIONS:
+            raise SettingsError(f"parametrization: {self.parametrization!r} is not one of {', '.join(PARAMETRIZATIONS)}")
+        self._validate_rgl()
         if len(self.resolution) != 2:
             raise SettingsError(f"resolution: {list(self.resolution)} must be [n_theta, n_phi]")
         _int_in(self.resolution[0], "resolution (n_theta)", 1, 10_000)
@@ -94,6 +107,31 @@ class SimulationSettings:
         if self.first_order not in FIRST_ORDER:
             raise SettingsError(f"first_order: {self.first_order!r} is not one of {', '.join(FIRST_ORDER)}")
 
+    def _validate_rgl(self) -> None:
+        if self.parametrization != "rgl":
+            if self.rgl is not None:
+                raise SettingsError(f"rgl: an RGL grid goes with parametrization rgl, not {self.parametrization}")
+            return
+        if not isinstance(self.rgl, RGLGrid):
+            raise SettingsError("rgl: parametrization rgl needs its grid (goniometer.rgl.grid_for(stack); "
+                                "gonio simulate --parametrization rgl makes it from the stack)")
+        if (self.incident_deg, self.incident_phi_deg) != self.rgl.incidents():
+            raise SettingsError("incident_deg: on the RGL grid the incident directions are the grid's theta_i and "
+                                "phi_i nodes (set them with --rgl-grid, not --incident)")
+        if tuple(self.resolution) != (self.rgl.n, self.rgl.n):
+            raise SettingsError(f"resolution: on the RGL grid it is the grid's {self.rgl.n} x {self.rgl.n} nodes "
+                                f"(set it with --rgl-grid, not --resolution)")
+        if self.first_order != "traced":
+            raise SettingsError("first_order: integrated is for classic and half slices; the RGL grid traces it")
+
+    @classmethod
+    def on_rgl_grid(cls, grid: RGLGrid, **kw: Any) -> "SimulationSettings":
+        """Settings recording on ``grid``: its incident directions and resolution, the other fields
+        from ``kw``."""
+        theta, phi = grid.incidents()
+        return cls(incident_deg=theta, incident_phi_deg=phi, parametrization="rgl", resolution=(grid.n, grid.n),
+                   rgl=grid, **kw)
+
     @property
     def n_threads(self) -> int:
         return self.threads if self.threads is not None else numba.config.NUMBA_NUM_THREADS
@@ -101,6 +139,27 @@ class SimulationSettings:
     def with_overrides(self, **kw: Any) -> "SimulationSettings":
         """A copy with the given non-None fields replaced."""
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field, JSON-ready (tuples as lists, the RGL grid as its dict); :meth:`from_dict`
+        reads it back."""
+        def plain(v: Any) -> Any:
+            return list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, RGLGrid) else v
+        return {f.name: plain(getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "SimulationSettings":
+        """Settings from a :meth:`to_dict` mapping; a missing key takes the field's default (the one
+        place defaults live: files that predate a field are read with it). An unknown key is an
+        error."""
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise SettingsError(f"{unknown[0]}: unknown key (expected some of {', '.join(sorted(names))})")
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        if isinstance(kw.get("rgl"), dict):
+            kw["rgl"] = RGLGrid.from_dict(kw["rgl"])
+        return cls(**kw)
 
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], source: str = "simulation") -> "SimulationSettings":

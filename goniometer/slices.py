@@ -20,9 +20,14 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from goniometer.rgl.warp import invert_point
+
 CLASSIC = 0
 HALF = 1
-PARAMETRIZATIONS = {"classic": CLASSIC, "half": HALF}
+#: the RGL format's sample space (``docs/rgl-format.md``): cells are the dual cells of its n x n nodes,
+#: found through the warp of :mod:`goniometer.rgl.warp` (3: 2 is the tracer's tabulation mode)
+RGL = 3
+PARAMETRIZATIONS = {"classic": CLASSIC, "half": HALF, "rgl": RGL}
 
 #: Gauss-Legendre points per axis for the projected solid angle of half cells entirely above the
 #: horizon (the integrand is smooth there: exact to rounding)
@@ -127,7 +132,12 @@ def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: fl
                     row_cos: np.ndarray, col_cos: np.ndarray, col_sin: np.ndarray):
     """:func:`cell_index` for the tracer: :func:`cell_index_lanes` for ``n_phi >= 8``, libm's
     ``atan2`` for the azimuth of coarser grids. Agrees with :func:`cell_index` except within
-    rounding of a boundary."""
+    rounding of a boundary. On the RGL grid (``param`` = :data:`RGL`; reflection only) the tables
+    are the warp's (:func:`goniometer.rgl.warp.invert_point`)."""
+    if param == RGL:
+        if transmission:
+            return -1, -1
+        return invert_point(lx, ly, lz, vx, vy, vz, n_theta, row_cos, col_cos, col_sin)
     if n_phi >= 8:
         return cell_index_lanes(param, transmission, lx, ly, lz, vx, vy, vz, n_theta, n_phi, row_cos, col_cos,
                                 col_sin)
@@ -382,7 +392,7 @@ class SliceGrid:
 
     def __post_init__(self) -> None:
         if self.parametrization not in PARAMETRIZATIONS:
-            raise ValueError(f"parametrization: {self.parametrization!r} is not one of classic, half")
+            raise ValueError(f"parametrization: {self.parametrization!r} is not one of classic, half, rgl")
         if self.side not in ("reflection", "transmission"):
             raise ValueError(f"side: {self.side!r} is not one of reflection, transmission")
         for name in ("n_theta", "n_phi"):

@@ -38,7 +38,6 @@ _BASE_WORDS = {"lambertian": "a Lambertian base", "conductor": "a conductor inte
 BASE_TRANSMIT = 0
 BASE_CONDUCTOR = 1
 BASE_LAMBERTIAN = 2
-BASE_KINDS = {BASE_TRANSMIT: "transmit", BASE_CONDUCTOR: "conductor", BASE_LAMBERTIAN: "lambertian"}
 #: most interfaces a stack may have (the tracer keeps the stack's tables in a fixed-size block on
 #: the stack of its lane loop, ``docs/kernel.md``)
 MAX_INTERFACES = 64
@@ -438,14 +437,6 @@ def _check_g(g: float, where: str) -> None:
         raise StackError(f"{where}: {g!r} is outside (-1, 1) (the Henyey-Greenstein asymmetry)")
 
 
-def _scalar(d: dict, key: str, where: str, lo=None, hi=None) -> float:
-    if key not in d:
-        raise StackError(f"{where}.{key}: required")
-    v = _number(d[key], f"{where}.{key}")
-    _check_range(v, f"{where}.{key}", lo, hi, False)
-    return v
-
-
 def _rgb(d: dict, key: str, where: str, lo=None, hi=None, positive=False, default=None) -> RGB:
     if key not in d:
         if default is None:
@@ -487,6 +478,9 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
                 if not 0.0 <= a <= 1.0:
                     raise StackError(f"{where}.scattering_albedo: {a!r} is outside [0, 1]")
             _check_g(x.g, f"{where}.g")
+            if x.g != 0.0 and max(x.scattering_albedo) == 0.0:
+                raise StackError(f"{where}.g: only a scattering medium takes g; add scattering_albedo in (0, 1] "
+                                 f"(or remove g: a medium without scattering_albedo only absorbs)")
             if prev is None:
                 raise StackError(f"{where}.type: a medium cannot be the top layer (it must lie below an interface)")
             if isinstance(prev, Medium):

@@ -50,10 +50,11 @@ def check_writable(path: str | Path) -> Path:
     return p
 
 
-def write(path: str | Path, result: SimulationResult) -> Path:
-    """Write ``result`` to ``path`` atomically; returns the path."""
+def write(path: str | Path, result: SimulationResult, commit: Callable[[], None] | None = None) -> Path:
+    """Write ``result`` to ``path`` atomically; returns the path. ``commit``: see
+    :func:`goniometer.atomic.atomic_path`."""
     p = check_writable(path)
-    with atomic_path(p) as tmp:
+    with atomic_path(p, commit) as tmp:
         with h5py.File(tmp, "w") as f:
             _write(f, result)
     return p
@@ -83,6 +84,8 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     sim.create_dataset("mean_events", data=r.mean_events)
 
     _write_slices(f, "brdf", r.brdf, r.theta_deg, r.phi_deg)
+    if s.rgl is not None:
+        write_rgl_warp(f, s.rgl)
     if r.btdf is not None:
         _write_slices(f, "btdf", r.btdf, r.theta_deg, r.phi_deg)
 
@@ -101,6 +104,26 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     # last: named dimensions for every dataset of the two per-incident groups (xarray without phony dims)
     attach_incident_dims(sim, r.theta_deg, r.phi_deg, describe=SIMULATION_ATTRS.get)
     attach_incident_dims(en, r.theta_deg, r.phi_deg, describe=energy_attrs)
+
+
+#: what /rgl holds: the warp's tables as the exported tensor file holds them (float32)
+RGL_TABLES = {"theta_i": ("rad", "incident elevations theta_i (the format's nodes)"),
+              "phi_i": ("rad", "incident azimuths phi_i (one: isotropic, relative azimuths)"),
+              "ndf": ("1/sr", "the warp's NDF D on (rows phi_m, columns sqrt(theta_m / (pi / 2)))"),
+              "sigma": ("1", "projected area of the warp's NDF on the same grid"),
+              "vndf": ("1", "visible-normal density on the square per (phi_i, theta_i), the warp's table")}
+
+
+def write_rgl_warp(f: h5py.File, grid) -> None:
+    """``/rgl``: the RGL grid (attribute ``grid``, JSON) and its warp tables (``docs/rgl-format.md``)."""
+    g = f.create_group("rgl")
+    g.attrs["grid"] = json.dumps(grid.to_dict())
+    g.attrs["description"] = ("the warp of the RGL format (Dupuy & Jakob 2018) this file's /brdf is recorded "
+                              "on: /brdf/value[m, c, k, j] is the stored value S at sample-space node "
+                              "(u_x, u_y) = (j, k) / (n - 1) of incident direction m; docs/rgl-format.md")
+    for name, a in grid.tables().items():
+        d = g.create_dataset(name, data=a, **(_COMPRESSION if a.ndim > 1 else {}))
+        d.attrs["units"], d.attrs["description"] = RGL_TABLES[name]
 
 
 def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name: str | None = None):
@@ -216,15 +239,25 @@ class SliceGroupWriter:
         self.scales = {
             "incident": _scaled(g, "incident", theta_deg, "deg", _INCIDENT_LONG),
             "channel": _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
-            "theta": _scaled(g, "theta", grid.theta_centers_deg(), "deg",
-                             f"cell centre {th_name}" + (" (square-root mapped rows)" if grid.parametrization == "half" else "")),
-            "phi": _scaled(g, "phi", grid.phi_centers_deg(), "deg", f"cell centre {ph_name}"),
         }
+        if grid.parametrization == "rgl":
+            # rows u_y, columns u_x: the nodes of the RGL format's stored values (docs/rgl-format.md)
+            nodes = np.linspace(0.0, 1.0, grid.n_theta)
+            edges = np.clip((np.arange(grid.n_theta + 1) - 0.5) / (grid.n_theta - 1), 0.0, 1.0)
+            self.scales["theta"] = _scaled(g, "theta", nodes, "1", "sample-space node u_y (rows)")
+            self.scales["phi"] = _scaled(g, "phi", nodes, "1", "sample-space node u_x (columns)")
+            _scaled(g, "theta_edges_deg", edges, "1", "dual-cell edges in u_y (the name is the other grids')")
+            _scaled(g, "phi_edges_deg", edges, "1", "dual-cell edges in u_x (the name is the other grids')")
+        else:
+            self.scales["theta"] = _scaled(g, "theta", grid.theta_centers_deg(), "deg",
+                                           f"cell centre {th_name}" + (" (square-root mapped rows)"
+                                                                       if grid.parametrization == "half" else ""))
+            self.scales["phi"] = _scaled(g, "phi", grid.phi_centers_deg(), "deg", f"cell centre {ph_name}")
+            _scaled(g, "theta_edges_deg", grid.theta_edges_deg(), "deg", f"cell edges in {th_name}")
+            _scaled(g, "phi_edges_deg", grid.phi_edges_deg(), "deg", f"cell edges in {ph_name}")
         if K is not None:
             self.scales["order"] = _scaled(g, "order", np.arange(1, K + 1, dtype=np.int64), None,
                                            f"bounce order (events at the top layer); {K} means {K} or more")
-        _scaled(g, "theta_edges_deg", grid.theta_edges_deg(), "deg", f"cell edges in {th_name}")
-        _scaled(g, "phi_edges_deg", grid.phi_edges_deg(), "deg", f"cell edges in {ph_name}")
         self.has_phi = phi_deg is not None
         if self.has_phi:
             _incident_phi(g, self.scales["incident"], phi_deg)
@@ -262,22 +295,35 @@ _MASKED = " Meaningless where mask is False (see mask)."
 def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
     w = SliceGroupWriter(f, name, sd.grid, theta_deg, K=sd.orders.shape[1], phi_deg=phi_deg)
     what = "BRDF" if name == "brdf" else "BTDF"
-    v = w.put("value", sd.value, CELLS, "1/sr", long_name=f"{what} cell mean",
-              description=f"cosine-weighted mean of the {what} over the cell, Int f |cos theta_v| dw / "
-                          "proj_solid_angle, all bounce orders, without the cosine factor." + _MASKED)
+    rgl = sd.grid.parametrization == "rgl"
+    unit = "1" if rgl else "1/sr"
+    if rgl:
+        v = w.put("value", sd.value, CELLS, unit, long_name="RGL stored value S",
+                  description="the RGL format's stored value S = f cos(theta_o) 4 sigma(l) / D(h) at the node: "
+                              "the reflected energy per unit sample-space area of the node's dual cell "
+                              "(docs/rgl-format.md), all bounce orders." + _MASKED)
+    else:
+        v = w.put("value", sd.value, CELLS, "1/sr", long_name=f"{what} cell mean",
+                  description=f"cosine-weighted mean of the {what} over the cell, Int f |cos theta_v| dw / "
+                              "proj_solid_angle, all bounce orders, without the cosine factor." + _MASKED)
     v.attrs["ancillary_variables"] = "stderr mask"
-    w.put("stderr", sd.stderr, CELLS, "1/sr", long_name=f"standard error of the {what} cell mean",
+    w.put("stderr", sd.stderr, CELLS, unit, long_name=f"standard error of the {what} cell mean",
           description="Monte Carlo standard error of value." + _MASKED)
     if sd.stderr_internal is not None:
-        w.put("stderr_internal", sd.stderr_internal, CELLS, "1/sr", long_name="standard error of the internal part",
+        w.put("stderr_internal", sd.stderr_internal, CELLS, unit, long_name="standard error of the internal part",
               description="standard error of the internal part (bounce orders >= 2)." + _MASKED)
-    w.put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), "1/sr", dtype=np.float32,
+    w.put("orders", sd.orders, ("incident", "order", "channel", "theta", "phi"), unit, dtype=np.float32,
           long_name=f"{what} cell mean per bounce order",
           description="value of each bounce order (events at the top layer); the last order holds "
                       "that order or more; float32." + _MASKED)
     w.put("mask", sd.mask, MAPS, "1", long_name="cell valid for comparisons", description=MASK_DESCRIPTION)
-    w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "sr", long_name="projected solid angle of the cell",
-          description="Int over the part of the cell on this side of |cos theta_v| dw_v")
+    if rgl:
+        w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "1", long_name="sample-space area of the dual cell",
+              description="area in u of the part of the node's dual cell whose outgoing directions lie above the "
+                          "horizon (the estimator's measure; the name is the other grids')")
+    else:
+        w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "sr", long_name="projected solid angle of the cell",
+              description="Int over the part of the cell on this side of |cos theta_v| dw_v")
 
 
 def write_header(f: h5py.File, fmt: str, stack: Stack, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
@@ -368,20 +414,25 @@ def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
         raise StoreError(f"{p}: /material/config is not a valid stack ({e})") from None
     sim = f["simulation"].attrs
     brdf = f["brdf"].attrs
-    settings = SimulationSettings(
-        incident_deg=tuple(float(x) for x in f["incident/theta_deg"][()]),
-        incident_phi_deg=tuple(float(x) for x in f["incident/phi_deg"][()]),
-        rays=int(sim["rays_per_slice"]),
-        parametrization=str(brdf["parametrization"]),
-        resolution=(int(brdf["n_theta"]), int(brdf["n_phi"])),
-        seed=int(sim["seed"]),
-        masking=str(sim["masking"]),
-        max_order=int(sim["max_order"]),
-        chunk_rays=int(sim.get("chunk_rays", 1 << 17)),
-        chunks_per_task=int(sim.get("chunks_per_task", 8)),
-        event_cap=int(sim.get("event_cap", 10_000)),
-        first_order=str(sim.get("first_order", "traced")),
-    )
+    d = {"incident_deg": [float(x) for x in f["incident/theta_deg"][()]],
+         "incident_phi_deg": [float(x) for x in f["incident/phi_deg"][()]],
+         "rays": int(sim["rays_per_slice"]), "parametrization": str(brdf["parametrization"]),
+         "resolution": [int(brdf["n_theta"]), int(brdf["n_phi"])], "seed": int(sim["seed"]),
+         "masking": str(sim["masking"]), "max_order": int(sim["max_order"])}
+    # attributes added in later versions of the format: absent, the field's default
+    for key in ("chunk_rays", "chunks_per_task", "event_cap"):
+        if key in sim:
+            d[key] = int(sim[key])
+    if "first_order" in sim:
+        d["first_order"] = str(sim["first_order"])
+    if d["parametrization"] == "rgl":
+        if "rgl" not in f or "grid" not in f["rgl"].attrs:
+            raise StoreError(f"{p}: an RGL-grid file without /rgl (its warp)")
+        try:
+            d["rgl"] = json.loads(f["rgl"].attrs["grid"])
+        except ValueError as e:
+            raise StoreError(f"{p}: /rgl@grid is not valid JSON ({e})") from None
+    settings = SimulationSettings.from_dict(d)
     return stack, settings
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import h5py
 import numpy as np
@@ -135,11 +136,12 @@ def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums
 
 # ---------------------------------------------------------------------- writing
 
-def write_tabulated(path: str | Path, tab: TabulatedBRDF) -> Path:
-    """Write ``tab`` to ``path`` atomically (the layout of ``docs/tabulated-format.md``)."""
+def write_tabulated(path: str | Path, tab: TabulatedBRDF, commit: Callable[[], None] | None = None) -> Path:
+    """Write ``tab`` to ``path`` atomically (the layout of ``docs/tabulated-format.md``); ``commit``:
+    see :func:`goniometer.atomic.atomic_path`."""
     from goniometer import store
     p = store.check_writable(path)
-    with atomic_path(p) as tmp:
+    with atomic_path(p, commit) as tmp:
         with h5py.File(tmp, "w") as f:
             store.write_material(f, FORMAT, FORMAT_VERSION, tab.stack)
             _write(f, tab)

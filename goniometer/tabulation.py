@@ -166,14 +166,16 @@ def _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq
     chunk[0] += exit_cell.shape[0]
 
 
-def warm_up() -> float:
-    """Compile (or load from the on-disk cache) the kernel and the accumulation, and compute the
-    cell measures; returns the seconds spent."""
+def warm_up(stack: Stack | None = None, settings: TabulationSettings | None = None) -> float:
+    """Compile (or load from the on-disk cache) the tabulation kernel variant ``stack`` needs under
+    ``settings``' masking and the accumulation, by tabulating 8 rays; returns the seconds spent.
+    Without arguments: a Lambertian stack, separable masking."""
     from goniometer.stack import Lambertian
-    from goniometer.tasks import warm_up as warm_up_slices
     t0 = time.perf_counter()
-    warm_up_slices()
-    tabulate(Stack("warm-up", (Lambertian((0.5,) * 3),)), TabulationSettings(rays=8, chunk_rays=8, threads=1))
+    if stack is None:
+        stack = Stack("warm-up", (Lambertian((0.5,) * 3),))
+    masking = settings.masking if settings is not None else "separable"
+    tabulate(stack, TabulationSettings(rays=8, chunk_rays=8, threads=1, masking=masking))
     return time.perf_counter() - t0
 
 
@@ -184,7 +186,8 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     anisotropic stack). ``checkpoint``: resume from it and save to it (the caller clears it once
     the file is written); ``on_resume(rays)`` is told how many rays were loaded. ``progress(rays)``
     is called after every batch. A KeyboardInterrupt (from ``progress`` or a signal handler)
-    saves the checkpoint, then propagates."""
+    saves the checkpoint, then propagates; once every chunk is traced the checkpoint is saved too,
+    so that an interrupt while the caller writes the file loses nothing."""
     check_tabulable(stack)
     settings.validate()
     state = checkpoint.load() if checkpoint is not None else None
@@ -233,10 +236,12 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
                 last_save = time.monotonic()
             if progress is not None:
                 progress(int(n_valid.sum()))
+        if checkpoint is not None and n_chunks > 0 and state.next_chunk * cr > done_rays:
+            checkpoint.save(state)
+        return from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy, state.energy_sq,
+                         state.counts, state.elapsed_s, threads, compile_s)
     except KeyboardInterrupt:
         # the state is always whole chunks (_commit is one compiled call): keep it
-        if checkpoint is not None and 0 < state.next_chunk < n_chunks:
+        if checkpoint is not None and state.next_chunk > 0:
             checkpoint.save(state)
         raise
-    return from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy, state.energy_sq,
-                     state.counts, state.elapsed_s, threads, compile_s)

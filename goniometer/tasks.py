@@ -19,17 +19,48 @@ import numpy as np
 from goniometer import tracer
 from goniometer.results import IncidentPart, Sums
 from goniometer.settings import SimulationSettings
-from goniometer.slices import boundary_tables, light_direction
+from goniometer.slices import PARAMETRIZATIONS, boundary_tables, light_direction
 from goniometer.stack import Stack, pack
 
 
-def warm_up() -> float:
-    """Compile (or load from the on-disk cache) the tracing kernel; returns the seconds spent."""
+def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
+    """What decides which compiled code a local run of ``stack`` under ``settings`` needs: the
+    kernel's variant arguments (:func:`goniometer.tracer.kernel_flags`), the grid and the first
+    order. Two runs with the same key run the same compiled functions."""
+    flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
+    return flags, settings.parametrization, settings.first_order
+
+
+def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = None) -> float:
+    """Compile (or load from the on-disk cache) every numba function a local run of ``stack``
+    under ``settings`` calls -- the kernel variant its layers need, the chunk summation, the
+    assembly (cell geometry, the integrated first order) -- by running that code on 8 rays and a
+    2 x 4 grid; returns the seconds spent. Without arguments: a coated diffuse stack under the
+    default settings. Callers time this as compile time, so that a first run does not book
+    compiling as tracing."""
+    from goniometer.results import assemble
     from goniometer.stack import Interface, Lambertian, Medium
     t0 = time.perf_counter()
-    tiny = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
-    trace_incident(tiny, SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4),
-                                            chunk_rays=8, threads=1), 0)
+    if stack is None:
+        stack = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
+    s = settings if settings is not None else SimulationSettings()
+    tiny = SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4), chunk_rays=8, threads=1,
+                              parametrization=s.parametrization, masking=s.masking, max_order=s.max_order,
+                              first_order=s.first_order, event_cap=s.event_cap)
+    assemble(stack, tiny, [trace_incident(stack, tiny, 0)])
+    return time.perf_counter() - t0
+
+
+def warm_up_runs(runs) -> float:
+    """:func:`warm_up` for each distinct :func:`run_variant` of the (stack, settings) pairs
+    ``runs`` (a database's materials, say); returns the seconds spent."""
+    t0 = time.perf_counter()
+    seen: set = set()
+    for stack, settings in runs:
+        key = run_variant(stack, settings)
+        if key not in seen:
+            seen.add(key)
+            warm_up(stack, settings)
     return time.perf_counter() - t0
 
 
@@ -108,28 +139,46 @@ def _trace_chunks(stack: Stack, settings: SimulationSettings, m: int, first_task
                   parallel: bool, buffers: tuple[np.ndarray, ...] | None) -> tuple[np.ndarray, ...]:
     """Run the kernel on the chunks of tasks ``first_task .. first_task + count - 1`` of incident
     direction ``m``; returns the per-chunk outputs (views of ``buffers`` when given)."""
-    p = pack(stack)
-    l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
-    nt, nph = settings.resolution
-    K = settings.max_order
-    cpt = settings.chunks_per_task
-    n_chunks_total = -(-settings.rays // settings.chunk_rays)
-    first_chunk = first_task * cpt
-    nb = max(0, min(count * cpt, n_chunks_total - first_chunk))
+    first_chunk, nb = _chunk_range(settings, first_task, count)
     if buffers is None or buffers[0].shape[0] < nb:
         buffers = chunk_buffers(stack, settings, nb)
     outs = tuple(b[:nb] for b in buffers)
+    if nb > 0:
+        _run_kernel(_kernel_inputs(stack, settings, m), settings, first_chunk, outs, parallel)
+    return outs
+
+
+def _chunk_range(settings: SimulationSettings, first_task: int, count: int) -> tuple[int, int]:
+    """(first chunk, number of chunks) of tasks ``first_task .. first_task + count - 1``."""
+    cpt = settings.chunks_per_task
+    n_chunks_total = -(-settings.rays // settings.chunk_rays)
+    first_chunk = first_task * cpt
+    return first_chunk, max(0, min(count * cpt, n_chunks_total - first_chunk))
+
+
+def _kernel_inputs(stack: Stack, settings: SimulationSettings, m: int) -> tuple:
+    """The kernel's arguments before the chunk range, and after it, for incident direction ``m``:
+    worked out once per direction."""
+    p = pack(stack)
+    l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
+    nt, nph = settings.resolution
+    tables = settings.rgl.kernel_tables(m) if settings.rgl is not None else boundary_tables(settings.parametrization,
+                                                                                              nt, nph)
+    head = (*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays)
+    tail = (settings.seed, m, PARAMETRIZATIONS[settings.parametrization], nt, nph, *tables, settings.max_order,
+            settings.event_cap, settings.first_order == "integrated",
+            *tracer.kernel_flags(p, settings.masking == "height-correlated", False))
+    return head, tail
+
+
+def _run_kernel(inputs: tuple, settings: SimulationSettings, first_chunk: int, outs: tuple[np.ndarray, ...],
+                parallel: bool) -> None:
+    """Trace chunks ``first_chunk .. first_chunk + len(outs[0]) - 1`` into ``outs``."""
+    head, tail = inputs
     if parallel:
         numba.set_num_threads(settings.n_threads)
     kernel = tracer.trace_batch if parallel else tracer.trace_batch_serial
-    if nb > 0:
-        tables = boundary_tables(settings.parametrization, nt, nph)
-        kernel(*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays,
-               first_chunk, settings.seed, m, 0 if settings.parametrization == "classic" else 1,
-               nt, nph, *tables, K, settings.event_cap, settings.first_order == "integrated",
-               *tracer.kernel_flags(p, settings.masking == "height-correlated", False), *outs,
-               *no_exit_records(nb))
-    return outs
+    kernel(*head, first_chunk, *tail, *outs, *no_exit_records(outs[0].shape[0]))
 
 
 def task_rays(settings: SimulationSettings, task: int) -> int:
@@ -155,7 +204,9 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
                    buffers: tuple[np.ndarray, ...] | None = None) -> "IncidentPart":
     """Trace every task of incident direction ``m`` locally and sum them in task order.
     ``buffers`` (from :func:`incident_buffers`) saves allocating and faulting in the per-chunk
-    histograms for every direction."""
+    histograms for every direction. ``progress(rays)`` is told after every kernel call, each of
+    one chunk per thread (so a bar moves within a direction); which chunks a call traces changes
+    no bit of the result (each chunk fills its own histogram)."""
     T = n_tasks(settings)
     per_call = _tasks_per_call(settings)
     acc = Sums.zeros(stack, settings)
@@ -163,15 +214,20 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
         buffers = incident_buffers(stack, settings)
     t0 = time.perf_counter()
     cpt = settings.chunks_per_task
+    inputs = _kernel_inputs(stack, settings, m)
+    step = max(1, settings.n_threads)
     for first in range(0, T, per_call):
         count = min(per_call, T - first)
-        outs = _trace_chunks(stack, settings, m, first, count, True, buffers)
+        first_chunk, nb = _chunk_range(settings, first, count)
+        outs = tuple(b[:nb] for b in buffers)
+        for lo in range(0, nb, step):
+            hi = min(lo + step, nb)
+            _run_kernel(inputs, settings, first_chunk + lo, tuple(o[lo:hi] for o in outs), True)
+            if progress is not None:
+                progress(min(hi * settings.chunk_rays, settings.rays - first_chunk * settings.chunk_rays)
+                         - lo * settings.chunk_rays)
         for t in range(count):
-            lo, hi = t * cpt, min((t + 1) * cpt, outs[0].shape[0])
+            lo, hi = t * cpt, min((t + 1) * cpt, nb)
             if lo < hi:
                 _add_task(acc, outs, lo, hi)
-            if progress is not None:
-                progress(task_rays(settings, first + t))
     return IncidentPart.from_sums(m, acc, settings.max_order, stack.transmits, time.perf_counter() - t0)
-
-

@@ -33,10 +33,10 @@ _EXPORTS = {
     "FurnaceResult": ("models.furnace", "FurnaceResult"),
     "directional_albedo": ("models.compare.albedo", "directional_albedo"),
     # fitted models
-    "fit": ("models.fitted.fit", "fit"),
+    "fit": ("models.fitted", "fit"),
     # the inverse method (Bati 2021)
-    "Lobe": ("models.inverse.solver", "Lobe"), "parse_lobe": ("models.inverse.solver", "parse_lobe"),
-    "invert": ("models.inverse.solver", "invert"), "InverseError": ("models.inverse.solver", "InverseError"),
+    "Lobe": ("models.inverse", "Lobe"), "parse_lobe": ("models.inverse", "parse_lobe"),
+    "invert": ("models.inverse", "invert"), "InverseError": ("models.inverse", "InverseError"),
 }
 
 __all__ = sorted(_EXPORTS)

@@ -27,7 +27,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from goniometer.results import SimulationResult
+from goniometer.results import ENERGY_TERMS as SLICE_ENERGY_TERMS, SimulationResult
 from goniometer.run import run_incidents
 from goniometer.settings import SimulationSettings
 from goniometer.slices import light_direction
@@ -42,7 +42,7 @@ RAYS = 100_000
 #: the slice grid of a furnace run: one cell (only the energy rows are used)
 GRID = ("classic", (1, 1))
 #: the energy terms of the bookkeeping, in the order of the JSON object
-ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss", "roulette", "capped")
+ENERGY_TERMS = SLICE_ENERGY_TERMS + ("roulette", "capped")
 
 
 def furnace_settings(table: Mapping[str, Any] | None = None, *, incident_deg: tuple[float, ...] | None = None,
@@ -193,7 +193,7 @@ def run_furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[
     models = model_albedos(stack, theta, phi, progress=model_progress)
     result = run_incidents(stack, settings, progress=progress)
     albedo, stderr = simulated_albedo(result)
-    energy = {k: result.energy[k] for k in ("reflected", "transmitted", "absorbed", "masking_loss")}
+    energy = {k: result.energy[k] for k in SLICE_ENERGY_TERMS}
     energy["roulette"] = result.roulette
     energy["capped"] = result.capped
     quadrature = {"rule": "composite Gauss-Legendre in (theta, phi), graded about the mirror and Snell directions",

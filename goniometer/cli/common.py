@@ -10,15 +10,73 @@ import contextlib
 import signal
 import sys
 import threading
+from typing import Any, Callable
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 #: the help of every ``--threads`` option
 THREADS_HELP = "numba threads; no effect on the results (default: all cores, NUMBA_NUM_THREADS)"
+#: the help of every ``--overwrite`` option (docs/outputs.md)
+OVERWRITE_HELP = ("replace an existing finished output (default: refuse, saying what it holds; "
+                  "docs/outputs.md)")
 
 
 class UsageError(Exception):
     """A user error the CLI reports as one line ``gonio: error: ...`` with exit status 2."""
+
+
+@contextlib.contextmanager
+def usage_errors(*kinds: type[BaseException], prefix: str | None = None):
+    """Turn the library errors ``kinds`` raised in the block into a :class:`UsageError` (one line,
+    exit 2). ``prefix`` (a file or option name) is put in front of a message that does not start
+    with it already."""
+    try:
+        yield
+    except kinds as e:
+        msg = str(e)
+        if prefix and not msg.startswith(prefix):
+            msg = f"{prefix}: {msg}"
+        raise UsageError(msg) from None
+
+
+def add_overwrite(parser) -> None:
+    """Add ``--overwrite`` (docs/outputs.md) to a command's parser."""
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+
+
+def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--out", directory: bool = False,
+                marker: str | None = None):
+    """:func:`goniometer.outputs.check_output` with its refusal as a :class:`UsageError`; returns the
+    path. Also refuses a file whose directory does not exist or cannot be written."""
+    from pathlib import Path
+
+    from goniometer import outputs
+    with usage_errors(outputs.OutputError):
+        out = outputs.check_output(path, inputs=inputs, overwrite=overwrite, option=option, directory=directory,
+                                   marker=marker)
+    if not directory:
+        from goniometer import store
+        with usage_errors(store.StoreError, prefix=option):
+            store.check_writable(out)
+    return Path(out)
+
+
+def whole_number(text: str) -> int:
+    """An argparse ``type`` for counts: an integer, also written as ``1e5`` or ``2.5e6`` when that is
+    a whole number."""
+    import argparse
+    import math
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (e.g. 100000 or 1e5)") from None
+    if not math.isfinite(x) or x != int(x):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (e.g. 100000 or 1e5)")
+    return int(x)
 
 
 class Interrupts:
@@ -28,6 +86,8 @@ class Interrupts:
         self.hit = False
         self.deferring = False
         self.finished = False
+        #: what a Ctrl-C inside :meth:`deferred` waits for (printed when it arrives)
+        self.note = "stopping once the kernel is compiled"
 
     def handler(self, signum, frame) -> None:
         if self.finished:
@@ -35,7 +95,8 @@ class Interrupts:
         self.hit = True
         if not self.deferring:
             raise KeyboardInterrupt
-        print("gonio: interrupt received; stopping once the kernel is compiled", file=sys.stderr)
+        if self.note:
+            print(f"gonio: interrupt received; {self.note}", file=sys.stderr)
 
     def check(self) -> None:
         """Raise KeyboardInterrupt if Ctrl-C was pressed since entry."""
@@ -47,6 +108,20 @@ class Interrupts:
         (removing checkpoints) must not be reported as an interrupted run."""
         self.finished = True
         self.hit = False
+
+    @contextlib.contextmanager
+    def writing(self):
+        """The final write of a command's output: within the block Ctrl-C is only recorded, and the
+        ``commit`` the block yields (for :func:`goniometer.atomic.atomic_path`) raises
+        KeyboardInterrupt if it was pressed before the file took its name, so the output is not
+        written and the run stays resumable. Once the file has its name the run is over: a
+        Ctrl-C after that is ignored (:meth:`finish`)."""
+        self.deferring, note, self.note = True, self.note, ""
+        try:
+            yield self.check
+        finally:
+            self.deferring, self.note = False, note
+        self.finish()
 
     @contextlib.contextmanager
     def deferred(self):
@@ -120,22 +195,86 @@ def resolution(text: str) -> tuple[int, int]:
         raise UsageError(f"--resolution: {text!r} is not of the form N_THETAxN_PHI (e.g. 90x360)") from None
 
 
+#: a first cold compile of one kernel variant takes about this long on 2 cores (measured: 40-55 s for
+#: the first variant with its shared functions, 10-20 s for each further one); only the estimate in
+#: the notice below uses it
+COMPILE_FIRST_S = 45.0
+COMPILE_MORE_S = 15.0
+#: a warm-up still running after this many seconds is compiling, not loading from the cache
+COMPILE_NOTICE_AFTER_S = 1.0
+
+
+def compile_kernels(warm_up: Callable[[], float], variants: int = 1, file=None, clock=None) -> float:
+    """Run ``warm_up()`` (which compiles or loads the kernels a run needs) and return its seconds.
+
+    Loading from the on-disk cache takes well under a second and shows nothing. A warm-up that is
+    still going after :data:`COMPILE_NOTICE_AFTER_S` is compiling: the user sees ``compiling
+    kernels (first run only, about N s)`` and the elapsed time (on a terminal one line that counts
+    up; in a log a line every 15 s and one when done), so a first run does not sit silent. The
+    warm-up runs in a worker thread so that the main thread can report; Ctrl-C is the caller's
+    (inside :meth:`Interrupts.deferred`, it takes effect once compiling is over)."""
+    import time
+    clock = clock or time.monotonic
+    file = file if file is not None else sys.stderr
+    box: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            box["s"] = warm_up()
+        except BaseException as e:  # re-raised in the caller's thread
+            box["error"] = e
+
+    worker = threading.Thread(target=work, name="gonio-compile", daemon=True)
+    t0 = clock()
+    worker.start()
+    worker.join(COMPILE_NOTICE_AFTER_S)
+    if worker.is_alive():
+        estimate = COMPILE_FIRST_S + COMPILE_MORE_S * max(0, variants - 1)
+        tty = file.isatty() if hasattr(file, "isatty") else False
+        head = f"compiling kernels (first run only, about {estimate:.0f} s)"
+        if not tty:
+            print(f"{head} ...", file=file, flush=True)
+        last = clock()
+        while worker.is_alive():
+            worker.join(0.25 if tty else 1.0)
+            now = clock()
+            if tty:
+                file.write(f"\r{head}: {now - t0:4.0f} s elapsed")
+                file.flush()
+            elif now - last >= 15.0:
+                print(f"  {now - t0:.0f} s elapsed", file=file, flush=True)
+                last = now
+        elapsed = clock() - t0
+        if tty:
+            file.write("\r\033[K")
+        print(f"compiled kernels in {elapsed:.1f} s (cached for later runs)", file=file, flush=True)
+    else:
+        worker.join()
+    if "error" in box:
+        raise box["error"]
+    return box["s"]
+
+
 class LineProgress:
     """Progress for a stderr that is not a terminal (a log file, a pipe, a batch job): one line
     ``DESC: 40% (4.00M/10.0M ray) 1.23M ray/s, ETA 00:05 [postfix]`` each time another tenth of
-    ``total`` is done, and a last line at 100 %. The subset of tqdm's interface the commands use:
-    ``update``, ``write``, ``set_postfix_str``, ``refresh``, ``close``, the ``n`` and ``total``
-    attributes, and the context manager."""
+    ``total`` is done, or :data:`every_s` seconds after the last line, whichever comes first, and a
+    last line at 100 %. The subset of tqdm's interface the commands use: ``update``, ``write``,
+    ``set_postfix_str``, ``refresh``, ``close``, the ``n`` and ``total`` attributes, and the context
+    manager; and :meth:`skip` (work found done, e.g. checkpoints, which the rate leaves out)."""
 
     def __init__(self, total: int | None, desc: str, unit: str = "ray", file=None, step: float = 0.1,
-                 clock=None, unit_scale: bool = True) -> None:
+                 clock=None, unit_scale: bool = True, every_s: float = 30.0) -> None:
         import time
         self.total, self.desc, self.unit, self.n = total, desc, unit, 0
         self.unit_scale = unit_scale
         self.file = file if file is not None else sys.stderr
         self.step = step
+        self.every_s = every_s
         self.clock = clock or time.monotonic
         self.start = self.clock()
+        self.last_line = self.start
+        self.skipped = 0  # work found done, left out of the rate
         self.postfix = ""
         self.printed = 0  # tenths printed so far
         self.closed = False
@@ -150,6 +289,14 @@ class LineProgress:
         self.n += n
         self.refresh()
 
+    def skip(self, n: int) -> None:
+        """Count ``n`` units as done without having done them now (the rate and the time left
+        are of the work this run does)."""
+        self.n += n
+        self.skipped += n
+        self.start = self.clock()
+        self.refresh()
+
     def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
         self.postfix = s
         if refresh:
@@ -162,8 +309,10 @@ class LineProgress:
         if not self.total or self.closed:
             return
         reached = int(min(self.n / self.total, 1.0) / self.step + 1e-9)
-        if reached > self.printed:
-            self.printed = reached
+        now = self.clock()
+        if reached > self.printed or (self.n < self.total and now - self.last_line >= self.every_s):
+            self.printed = max(self.printed, reached)
+            self.last_line = now
             self.file.write(self.line() + "\n")
             self.file.flush()
 
@@ -171,7 +320,7 @@ class LineProgress:
         from tqdm import tqdm
         size = tqdm.format_sizeof if self.unit_scale else (lambda x: f"{x:.3g}" if x != int(x) else f"{int(x)}")
         elapsed = max(self.clock() - self.start, 1e-9)
-        rate = self.n / elapsed
+        rate = (self.n - self.skipped) / elapsed
         frac = self.n / self.total if self.total else 0.0
         eta = tqdm.format_interval((self.total - self.n) / rate) if rate > 0 and self.total else "?"
         text = (f"{self.desc}: {100 * frac:3.0f}% ({size(self.n)}/{size(self.total or 0)} {self.unit}) "
@@ -180,6 +329,43 @@ class LineProgress:
 
     def close(self) -> None:
         self.closed = True
+
+
+def skip_progress(bar, n: int) -> None:
+    """Count ``n`` units of ``bar`` as done before this run (resumed from checkpoints), so that its
+    rate and time left are of the work this run does: :meth:`LineProgress.skip`, or for a tqdm bar
+    its ``initial`` count."""
+    if hasattr(bar, "skip"):
+        bar.skip(n)
+        return
+    bar.update(n)
+    bar.initial = bar.n
+    bar.last_print_n = bar.n
+    bar.start_t = bar.last_print_t = bar._time()
+    bar.refresh()
+
+
+class ResumeAware:
+    """A progress callback for :func:`goniometer.run.run_incidents` and the like, which report the
+    rays of finished work they load (checkpoints) through ``progress`` too: those, announced by
+    :meth:`resumed`, go to :func:`skip_progress`; the rest updates the bar."""
+
+    def __init__(self, bar, check: Callable[[], None] | None = None) -> None:
+        self.bar, self.check, self.pending = bar, check, 0
+
+    def resumed(self, n: int) -> None:
+        self.pending += n
+
+    def __call__(self, n: int) -> None:
+        if self.check is not None:
+            self.check()
+        if self.pending > 0:
+            k = min(n, self.pending)
+            self.pending -= k
+            skip_progress(self.bar, k)
+            n -= k
+        if n:
+            self.bar.update(n)
 
 
 def progress_bar(total: int | None, desc: str, unit: str = "ray", **tqdm_options):

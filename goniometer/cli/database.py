@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
-from goniometer.cli.common import THREADS_HELP, UsageError, progress_bar, sigint_latch
+from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, compile_kernels, output_path,
+                                   progress_bar, sigint_latch, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -25,13 +27,17 @@ def register(sub) -> None:
     q.add_argument("config", metavar="CONFIG.toml")
     q.add_argument("--out", required=True, metavar="DIR", help="the results directory (required)")
     q.add_argument("--quality", default="quick",
-                   help="a quality of the definition's [quality] table (quick, paper) (default: %(default)s)")
+                   help="a quality of the definition's [quality] table (e.g. demo, quick, paper: "
+                        "`gonio database list` does not need it) (default: %(default)s)")
     q.add_argument("--only", metavar="GLOB", help="materials whose name matches, e.g. 'metal/M2-*' (default: all)")
-    q.add_argument("--threads", type=int, help=THREADS_HELP)
+    q.add_argument("--threads", type=whole_number, help=THREADS_HELP)
     q.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run the tasks on a Dask distributed cluster (default: this machine)")
     q.add_argument("--resimulate-corrupted", action="store_true",
                    help="move unreadable finished files aside and simulate them again")
+    q.add_argument("--overwrite", action="store_true",
+                   help="simulate the selected finished materials again and replace their files (default: "
+                        "finished materials are skipped; docs/outputs.md)")
     q.set_defaults(func=cmd_database_simulate)
 
 
@@ -58,43 +64,50 @@ def cmd_database_list(args: argparse.Namespace) -> int:
 
 
 def cmd_database_simulate(args: argparse.Namespace) -> int:
-    from goniometer.database import DatabaseError, load_database, simulate_database
+    from goniometer.database import DatabaseError, load_database, material_status, runs, simulate_database
     from goniometer.results import cell_geometries
     from goniometer.settings import SettingsError
-    from goniometer.tasks import warm_up
-    try:
+    from goniometer.tasks import run_variant, warm_up_runs
+    with usage_errors(DatabaseError):
         db = load_database(args.config)
         materials = db.select(args.only)
         if args.quality not in db.qualities:
             raise DatabaseError(f"--quality: {args.quality!r} is not one of {', '.join(db.qualities)}")
         rays = db.qualities[args.quality] * len(db.incident_deg)
-    except DatabaseError as e:
-        raise UsageError(str(e)) from None
+    output_path(args.out, inputs=[args.config], directory=True)
     print(f"{db.name}: {len(materials)} material(s), quality {args.quality} "
           f"({db.qualities[args.quality]:,} rays per slice), into {args.out}", file=sys.stderr)
-    bar = progress_bar(rays * len(materials), db.name, smoothing=0.05)
 
     try:
-        with sigint_latch() as interrupts, bar:
-            def on_material(m, status):
-                interrupts.check()
-                bar.set_postfix_str(f"{m.name} ({status})")
-
-            def progress(n: int) -> None:
-                interrupts.check()
-                bar.update(n)
-
-            if args.scheduler is None:
+        with sigint_latch() as interrupts:
+            todo = [m for m in materials
+                    if args.overwrite or material_status(db, Path(args.out), m, args.quality) != "done"]
+            if args.scheduler is None and todo:
+                pairs = runs(db, todo, args.quality)
                 with interrupts.deferred():
-                    warm_up()
+                    variants = len({run_variant(s, st) for s, st in pairs})
+                    compile_kernels(lambda: warm_up_runs(pairs), variants=variants)
                     # the final assembly's numba kernels, for each grid of the run: compiled and run here
-                    grids = {m.parametrization: m for m in materials}
+                    grids = {m.parametrization: m for m in todo}
                     for m in grids.values():
                         cell_geometries(db.settings_for(m, args.quality))
-            summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
-                                        scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
-                                        progress=progress, on_material=on_material)
-            bar.update(bar.total - bar.n) if bar.total else None
+            bar = progress_bar(rays * len(materials), db.name, smoothing=0.05)
+            progress = ResumeAware(bar, interrupts.check)
+
+            def on_material(m, status):
+                interrupts.check()
+                if status == "partial":
+                    progress.resumed(_checkpointed_rays(db, args.out, m, args.quality))
+                bar.set_postfix_str(f"{m.name} ({status})")
+
+            with bar:
+                if len(todo) < len(materials):  # finished materials: done before this run, not in its rate
+                    skip_progress(bar, rays * (len(materials) - len(todo)))
+                summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
+                                            scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
+                                            progress=progress, on_material=on_material, overwrite=args.overwrite)
+                if bar.total and bar.n < bar.total:
+                    bar.update(bar.total - bar.n)
     except (DatabaseError, SettingsError) as e:
         raise UsageError(str(e)) from None
     print(f"{len(summary.simulated)} simulated ({len(summary.resumed)} resumed, {len(summary.resimulated)} "
@@ -102,3 +115,7 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checkpointed_rays(db, out: str, material, quality: str) -> int:
+    """Rays of the incident directions an unfinished material has in its checkpoints."""
+    from goniometer.database import checkpointed_incidents
+    return db.qualities[quality] * checkpointed_incidents(Path(out), material)

@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from goniometer.cli.common import THREADS_HELP, UsageError, incident_list, progress_bar, resolution, sigint_latch
+from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, add_overwrite, compile_kernels, incident_list,
+                                   output_path, progress_bar, resolution, sigint_latch, usage_errors, whole_number)
 
 
 #: the help's phrase for a setting the material file may give
@@ -28,7 +29,7 @@ def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a material file into an HDF5 slices file")
     p.add_argument("config", metavar="CONFIG.toml")
     p.add_argument("--out", required=True, metavar="FILE.h5", help="the slices file to write (required)")
-    p.add_argument("--rays", type=int, help=f"rays per incident direction (default: {FROM_FILE}{d['rays']})")
+    p.add_argument("--rays", type=whole_number, help=f"rays per incident direction (default: {FROM_FILE}{d['rays']})")
     p.add_argument("--incident", metavar="LIST",
                    help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth) "
                         f"(default: {FROM_FILE}{d['incident_deg']})")
@@ -36,11 +37,11 @@ def register(sub) -> None:
                    help=f"cell grid (default: {FROM_FILE}{d['parametrization']})")
     p.add_argument("--resolution", metavar="N_THETAxN_PHI",
                    help=f"cells per slice, e.g. 90x360 (default: {FROM_FILE}{d['resolution']})")
-    p.add_argument("--seed", type=int, help=f"random seed (default: {FROM_FILE}{d['seed']})")
-    p.add_argument("--threads", type=int, help=THREADS_HELP)
+    p.add_argument("--seed", type=whole_number, help=f"random seed (default: {FROM_FILE}{d['seed']})")
+    p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
     p.add_argument("--masking", choices=("separable", "height-correlated"),
                    help=f"microfacet masking-shadowing (default: {FROM_FILE}{d['masking']})")
-    p.add_argument("--max-order", dest="max_order", type=int,
+    p.add_argument("--max-order", dest="max_order", type=whole_number,
                    help=f"bounce orders stored separately (K) (default: {FROM_FILE}{d['max_order']})")
     p.add_argument("--first-order", dest="first_order", choices=("traced", "integrated"),
                    help="bounce order 1 (one reflection on the top interface): traced, or integrated over the "
@@ -51,6 +52,7 @@ def register(sub) -> None:
                         "the file's recorded stack shows it")
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("info", help="describe a simulated file (slices or tabulated)")
@@ -70,11 +72,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer.stack import StackError, load_toml
     from goniometer.tasks import warm_up
 
-    try:
+    with usage_errors(StackError, SettingsError):
         stack, table = load_toml(args.config)
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
-    except (StackError, SettingsError) as e:
-        raise UsageError(str(e)) from None
     if args.multiple_scattering:
         stack = stack.with_multiple_scattering()
     over: dict[str, Any] = {}
@@ -88,49 +88,45 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         value = getattr(args, key)
         if value is not None:
             over[key] = value
-    try:
+    with usage_errors(SettingsError):
         settings = base.with_overrides(**over)
         if settings.first_order == "integrated":
             check_supported(stack)
-    except SettingsError as e:
-        raise UsageError(str(e)) from None
-    try:
-        out = store.check_writable(args.out)
-    except store.StoreError as e:
-        raise UsageError(str(e)) from None
+    out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
 
     total = settings.rays * len(settings.incident_deg)
     print(f"simulating {stack.name} ({stack.category}): {len(settings.incident_deg)} incident direction(s) x "
           f"{settings.rays:,} rays, {settings.parametrization} {settings.resolution[0]}x{settings.resolution[1]}, "
           f"{settings.n_threads} thread(s)", file=sys.stderr)
-    with sigint_latch() as interrupts, progress_bar(total, stack.name) as bar:
-        def progress(n: int) -> None:
-            interrupts.check()
-            bar.update(n)
-
+    with sigint_latch() as interrupts:
         with interrupts.deferred():
-            compile_s = warm_up()
+            compile_s = compile_kernels(lambda: warm_up(stack, settings))
             cell_geometries(settings)  # the final assembly's numba kernels: compiled and run here
         checkpoints = Checkpoints(checkpoint_dir(out), run_description(stack, settings))
         if args.restart:
             checkpoints.clear()
+        bar = progress_bar(total, stack.name)
+        progress = ResumeAware(bar, interrupts.check)
 
         def on_resume(n: int) -> None:
+            progress.resumed(n * settings.rays)
             bar.write(f"resuming: {n} of {len(settings.incident_deg)} incident direction(s) already traced "
                       f"(checkpoints in {checkpoints.directory}; --restart to discard them)", file=sys.stderr)
 
         try:
-            result = run_incidents(stack, settings, checkpoints=checkpoints, progress=progress, on_resume=on_resume)
+            with bar:
+                result = run_incidents(stack, settings, checkpoints=checkpoints, progress=progress,
+                                       on_resume=on_resume)
             result.compile_s = compile_s
             interrupts.check()
-            store.write(out, result)  # atomic: interrupted, it leaves nothing under the name
+            with interrupts.writing() as commit:
+                store.write(out, result, commit)  # atomic: interrupted, it leaves nothing under the name
         except KeyboardInterrupt:
             kept = len(list(checkpoints.directory.glob("m*.npz"))) if checkpoints.directory.is_dir() else 0
             if kept:
                 print(f"gonio: {kept} finished incident direction(s) kept in {checkpoints.directory}; "
                       f"rerun the same command to resume", file=sys.stderr)
             raise
-        interrupts.finish()
         checkpoints.clear()
     print(f"wrote {out}")
     _print_summary(result)
@@ -138,12 +134,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _print_summary(r) -> None:
+    from goniometer.results import ENERGY_TERMS
     print(f"{r.rays_per_s:,.0f} rays/s with {r.threads} thread(s) ({r.rays_per_s / r.threads:,.0f} per thread); "
           f"compile/load {r.compile_s:.1f} s")
     print(f"{'theta_l':>8} {'phi_l':>6}  {'reflected (R G B)':>26}  {'transmitted':>26}  {'absorbed':>26}  {'masking_loss':>26}")
     for m in range(len(r.theta_deg)):
         row = [f"{r.theta_deg[m]:8.2f}", f"{r.phi_deg[m]:6.1f}"]
-        for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+        for k in ENERGY_TERMS:
             row.append(" ".join(f"{x:8.5f}" for x in r.energy[k][m]))
         print("  ".join(row))
     if np.any(r.capped_paths):
@@ -155,6 +152,7 @@ def _print_summary(r) -> None:
 
 def info_dict(path: Path) -> dict[str, Any]:
     """The JSON summary printed by ``gonio info --json``."""
+    from goniometer.results import ENERGY_TERMS
     from goniometer import store
     r = store.read(path)
     s = r.settings
@@ -177,7 +175,7 @@ def info_dict(path: Path) -> dict[str, Any]:
     }
     for m in range(len(r.theta_deg)):
         e = {"theta_deg": float(r.theta_deg[m]), "phi_deg": float(r.phi_deg[m])}
-        for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+        for k in ENERGY_TERMS:
             e[k] = [float(x) for x in r.energy[k][m]]
         if r.reflected_without_base is not None:
             e["reflected_without_base"] = [float(x) for x in r.reflected_without_base[m]]
@@ -187,6 +185,7 @@ def info_dict(path: Path) -> dict[str, Any]:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from goniometer.results import ENERGY_TERMS
     from goniometer import store
     if _is_tabulated(Path(args.file)):
         return _info_tabulated(args)
@@ -210,7 +209,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"  {p['rays_per_s']:,.0f} rays/s on {p['threads']} thread(s) ({p['elapsed_s']:.1f} s)")
     print(f"  {'theta_l':>7} {'phi_l':>6}  {'reflected (R G B)':>24}  {'transmitted':>24}  {'absorbed':>24}  {'masking_loss':>24}")
     for e in d["energy"]:
-        cols = [" ".join(f"{x:7.4f}" for x in e[k]) for k in ("reflected", "transmitted", "absorbed", "masking_loss")]
+        cols = [" ".join(f"{x:7.4f}" for x in e[k]) for k in ENERGY_TERMS]
         print(f"  {e['theta_deg']:7.2f} {e['phi_deg']:6.1f}  " + "  ".join(cols))
     if d["capped_paths"]:
         print(f"  warning: {d['capped_paths']} path(s) reached the event cap")
@@ -231,11 +230,10 @@ def _is_tabulated(path: Path) -> bool:
 
 def _info_tabulated(args: argparse.Namespace) -> int:
     """``gonio info`` of a tabulated file (``docs/tabulated-format.md``)."""
+    from goniometer.results import ENERGY_TERMS
     from goniometer.tabulated import TabulatedError, read_tabulated
-    try:
+    with usage_errors(TabulatedError):
         t = read_tabulated(args.file)
-    except TabulatedError as e:
-        raise UsageError(str(e)) from None
     s = t.settings
     n_data = int(np.count_nonzero(t.hits))
     d: dict[str, Any] = {
@@ -259,7 +257,7 @@ def _info_tabulated(args: argparse.Namespace) -> int:
           f"cells with data: {n_data:,} of {t.hits.size:,}")
     print(f"  {t.rays_per_s:,.0f} rays/s on {t.threads} thread(s) ({t.elapsed_s:.1f} s)")
     print("  energy under uniform diffuse light (R G B):")
-    for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+    for k in ENERGY_TERMS:
         print(f"    {k:13s} " + " ".join(f"{x:7.4f}" for x in t.energy[k]))
     if t.capped_paths:
         print(f"  warning: {t.capped_paths} path(s) reached the event cap")

@@ -8,7 +8,8 @@ import sys
 
 import numpy as np
 
-from goniometer.cli.common import UsageError, progress_bar, sigint_latch
+from goniometer.cli.common import (ResumeAware, UsageError, add_overwrite, compile_kernels, output_path, progress_bar,
+                                   sigint_latch, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -16,18 +17,21 @@ def register(sub) -> None:
     from goniometer.settings import TABULATE_RAYS
     p = sub.add_parser("tabulate", help="tabulate a material's whole isotropic BRDF on the MERL grid (HDF5)")
     p.add_argument("config", metavar="CONFIG.toml")
-    p.add_argument("--out", required=True, metavar="FILE.h5")
-    p.add_argument("--rays", type=int, help=f"paths in all, each with its own incident direction (default {TABULATE_RAYS:,})")
-    p.add_argument("--seed", type=int, help="random seed (default: the material file's, else 1)")
-    p.add_argument("--threads", type=int, help="numba threads (default: all cores); the file does not depend on it")
+    p.add_argument("--out", required=True, metavar="FILE.h5",
+                   help="the tabulated file to write (required; docs/tabulated-format.md)")
+    p.add_argument("--rays", type=whole_number, help=f"paths in all, each with its own incident direction (default {TABULATE_RAYS:,})")
+    p.add_argument("--seed", type=whole_number, help="random seed (default: the material file's, else 1)")
+    p.add_argument("--threads", type=whole_number, help="numba threads (default: all cores); the file does not depend on it")
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoint an interrupted run of the same command left (.FILE.h5.partial)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_tabulate)
 
     p = sub.add_parser("export", help="export a tabulated file to another format (MERL .binary)")
     p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate")
     p.add_argument("--format", required=True, choices=("merl",), help="output format: merl (MERL .binary)")
-    p.add_argument("--out", required=True, metavar="FILE.binary")
+    p.add_argument("--out", required=True, metavar="FILE.binary", help="the file to write (required)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_export)
 
 
@@ -40,55 +44,55 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable, tabulate,
                                        tabulation_description, warm_up)
 
-    try:
+    with usage_errors(StackError, SettingsError, TabulationError, store.StoreError):
         stack, table = load_toml(args.config)
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
         check_tabulable(stack)
         settings = TabulationSettings(seed=base.seed, masking=base.masking).with_overrides(
             rays=args.rays, seed=args.seed, threads=args.threads)
-        out = store.check_writable(args.out)
-    except (StackError, SettingsError, TabulationError, store.StoreError) as e:
-        raise UsageError(str(e)) from None
+    out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
 
     print(f"tabulating {stack.name} ({stack.category}): {settings.rays:,} rays over the hemisphere "
           f"(cos-weighted), MERL grid 90x90x180, {settings.n_threads} thread(s)", file=sys.stderr)
-    with sigint_latch() as interrupts, progress_bar(settings.rays, stack.name) as bar:
-        def progress(n: int) -> None:
-            bar.update(n)
-            interrupts.check()
-
+    with sigint_latch() as interrupts:
         with interrupts.deferred():
-            compile_s = warm_up()
+            compile_s = compile_kernels(lambda: warm_up(stack, settings))
         checkpoint = TabulationCheckpoint(checkpoint_dir(out), tabulation_description(stack, settings))
         if args.restart:
             checkpoint.clear()
+        bar = progress_bar(settings.rays, stack.name)
+        progress = ResumeAware(bar, interrupts.check)
 
         def on_resume(rays: int) -> None:
+            progress.resumed(rays)
             bar.write(f"resuming: {rays:,} of {settings.rays:,} rays already traced (checkpoint in "
                       f"{checkpoint.directory}; --restart to discard it)", file=sys.stderr)
 
         try:
-            tab = tabulate(stack, settings, checkpoint=checkpoint, progress=progress, on_resume=on_resume,
-                           compile_s=compile_s)
+            with bar:
+                tab = tabulate(stack, settings, checkpoint=checkpoint, progress=progress, on_resume=on_resume,
+                               compile_s=compile_s)
             interrupts.check()
+            with interrupts.writing() as commit:
+                write_tabulated(out, tab, commit)  # atomic: interrupted, it leaves nothing under the name
         except KeyboardInterrupt:
             if (checkpoint.directory / "state.npz").exists():
                 print(f"gonio: progress kept in {checkpoint.directory}; rerun the same command to resume",
                       file=sys.stderr)
             raise
-    write_tabulated(out, tab)
-    checkpoint.clear()
+        checkpoint.clear()
     print(f"wrote {out}")
     _print_summary(tab)
     return 0
 
 
 def _print_summary(t) -> None:
+    from goniometer.results import ENERGY_TERMS
     n_data = int(np.count_nonzero(t.hits))
     print(f"{t.rays_per_s:,.0f} rays/s with {t.threads} thread(s); compile/load {t.compile_s:.1f} s")
     print(f"cells with data: {n_data:,} of {t.hits.size:,}")
     print("energy under uniform diffuse light (R G B):")
-    for k in ("reflected", "transmitted", "absorbed", "masking_loss"):
+    for k in ENERGY_TERMS:
         print(f"  {k:13s} " + " ".join(f"{x:8.5f}" for x in t.energy[k]))
     if t.capped_paths:
         print(f"warning: {t.capped_paths} path(s) reached the event cap of {t.settings.event_cap}; "
@@ -96,14 +100,11 @@ def _print_summary(t) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from goniometer import store
     from goniometer.merl import write_merl
     from goniometer.tabulated import TabulatedError, read_tabulated
-    try:
+    with usage_errors(TabulatedError):
         tab = read_tabulated(args.file)
-        out = store.check_writable(args.out)
-    except (TabulatedError, store.StoreError) as e:
-        raise UsageError(str(e)) from None
+    out = output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
     write_merl(out, tab)
     n = int(np.count_nonzero(tab.hits))
     print(f"wrote {out} (MERL .binary, 90x90x180; {n:,} cells with data, {tab.hits.size - n:,} marked negative)")

@@ -10,3 +10,6 @@
 * :mod:`~goniometer.kernel.codegen` -- the few LLVM-level helpers (bit casts, a stack table,
   prefetch, the vector-width hint).
 """
+
+#: no public names: the kernel's parts are the tracer's internals (``goniometer.tracer`` is the face)
+__all__: list[str] = []

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 
 from goniometer.kernel.codegen import STACK_BLOCK, prefer_wide_vectors, prefetch, stack_block
-from goniometer.slices import cell_index_fast, cell_index_lanes
+from goniometer.slices import RGL, cell_index_fast, cell_index_lanes
 
 #: exits a buffer holds: rows d_x, d_y, d_z, w_0, w_1, w_2, order row, 1.0 if transmitted (one
 #: column per exit)
@@ -41,7 +41,7 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
     nb = n_theta * n_phi * row
     hb = brdf.reshape(-1)
     ht = btdf.reshape(-1)
-    if n_phi >= 8 and n_theta + 1 <= STACK_BLOCK and n_phi + 1 <= STACK_BLOCK:
+    if param != RGL and n_phi >= 8 and n_theta + 1 <= STACK_BLOCK and n_phi + 1 <= STACK_BLOCK:
         # the cells of all exits in one vectorised loop (the boundary tables on this function's
         # stack: gathers that provably do not alias the results)
         prefer_wide_vectors()

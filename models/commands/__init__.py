@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from models.commands import evaluate, furnace, inverse, production, render, report, tables
 
+__all__ = ["register"]
+
 
 def register(sub) -> None:
     """Add the models' commands to the ``gonio`` sub-command parser."""

@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import UsageError, at_least_one, incident_list
+from goniometer.cli.common import (UsageError, add_overwrite, at_least_one, incident_list, output_path, usage_errors,
+                                   whole_number)
 
 
 def register(sub) -> None:
@@ -17,8 +18,8 @@ def register(sub) -> None:
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"), help="the compact model (required)")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
-    p.add_argument("--starts", type=int, default=4, help="optimiser starts (default 4)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the optimiser starts (default: %(default)s)")
+    p.add_argument("--starts", type=whole_number, default=4, help="optimiser starts (default 4)")
+    p.add_argument("--seed", type=whole_number, default=0, help="seed of the optimiser starts (default: %(default)s)")
     p.add_argument("--weighting", choices=("paper", "eq4"), default="paper",
                    help="the paper's eq. 29 weighting (default) or eq. 4 directly")
     p.set_defaults(func=cmd_fit)
@@ -33,10 +34,11 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5",
                    help="write the integrated model slices (default: not written)")
-    p.add_argument("--subcells", type=int, default=5, help="sub-cells per cell axis (default 5)")
+    p.add_argument("--subcells", type=whole_number, default=5, help="sub-cells per cell axis (default 5)")
     p.add_argument("--isotropize", choices=("mean",),
                    help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the "
                         "output) (default: isotropic models skip anisotropic stacks)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
@@ -48,12 +50,13 @@ def register(sub) -> None:
                         "(default: the simulation alone)")
     p.add_argument("--incident", metavar="THETAS",
                    help="only these incident angles of the file, e.g. 0,60 (default: all of the file's)")
-    p.add_argument("--subcells", type=int, default=5,
+    p.add_argument("--subcells", type=whole_number, default=5,
                    help="sub-cells per cell side when integrating models (default: %(default)s)")
     p.add_argument("--isotropize", choices=("mean",),
                    help="feed isotropic models the mean roughness (default: isotropic models skip anisotropic stacks)")
     p.add_argument("--json", action="store_true",
                    help="print the figure paths (and the model errors) as JSON (default: one path a line)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_plot)
 
 
@@ -67,10 +70,14 @@ def cmd_models(args: argparse.Namespace) -> int:
                           for n, m in models.items()}, indent=2))
         return 0
     width = max(len(n) for n in models)
+    print(f"{'model':<{width}}  {'sides':9s} {'kind':8s}  {'aniso':5s}  {'scatter':7s}  description")
     for name, m in models.items():
         kind = "fitted" if name in FITTED else "analytic"
         scat = "scatter" if m.scattering else "-"
-        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {scat:7s}  {m.description}")
+        aniso = "yes" if m.anisotropic else "-"
+        print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {aniso:5s}  {scat:7s}  "
+              f"{m.description}")
+    print("(aniso: evaluates anisotropic stacks; the others skip them unless --isotropize mean)")
     print("(scatter: accepts scattering media (scattering_albedo > 0); the belcour-* models need g >= 0.1)")
     print("(fitted models are fitted to a file on request: gonio fit FILE.h5 --model hp15|ggx1|ggx2, "
           "or gonio evaluate FILE.h5 --model hp15-fit)")
@@ -116,9 +123,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from models.evaluation import evaluate, save_slices
 
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
+    if args.save_slices:
+        output_path(args.save_slices, inputs=[args.file], overwrite=args.overwrite, option="--save-slices")
     try:
-        if args.save_slices:
-            store.check_writable(args.save_slices)
         reference = store.read(args.file)
         ev = evaluate(reference, args.model or None, s=args.subcells, isotropize=args.isotropize,
                       progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
@@ -132,10 +139,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     what = "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF"
     print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
           f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
-    print(f"{'model':16s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
+    width = max([16] + [len(n) for n in ev.errors])
+    print(f"{'model':{width}s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
           f"{'total mean':>11s} {'its floor':>9s}")
     for name, e in ev.errors.items():
-        print(table_row(name, e["internal"], e["total"]))
+        print(table_row(name, e["internal"], e["total"], width))
     print(f"('internal' = {what}; each floor = the error a perfect model would show against this reference "
           f"on the part beside it, channel mean)")
     for name, note in ev.approximations.items():
@@ -147,12 +155,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def table_row(name: str, internal: dict, total: dict) -> str:
+def table_row(name: str, internal: dict, total: dict, width: int = 16) -> str:
     """One line of ``gonio evaluate``'s table: each part's channel-mean RMSE beside its own noise
     floor (the total error is compared with the total floor, the internal error with the internal
     floor; ``models.compare.errors``)."""
     rgb = " ".join(f"{x:9.3e}" for x in internal["rmse"])
-    return (f"{name:16s} {internal['rmse_mean']:13.4e} {rgb:>30s} {internal['rmse_luminance']:10.3e} "
+    return (f"{name:{width}s} {internal['rmse_mean']:13.4e} {rgb:>30s} {internal['rmse_luminance']:10.3e} "
             f"{internal['noise_floor_mean']:9.2e} {total['rmse_mean']:11.4e} {total['noise_floor_mean']:9.2e}")
 
 
@@ -163,6 +171,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise UsageError(f"--out: {args.out} is an existing file; give a directory for the figures")
+    # a finished set of figures holds energy.png (the first figure plot_file draws)
+    output_path(args.out, inputs=[args.file], overwrite=args.overwrite, directory=True, marker="energy.png")
     incidents = None
     if args.incident is not None:
         thetas, _ = incident_list(args.incident)

@@ -7,7 +7,8 @@ import argparse
 import json
 import sys
 
-from goniometer.cli.common import UsageError, incident_list, progress_bar, sigint_latch
+from goniometer.cli.common import (UsageError, add_overwrite, compile_kernels, incident_list, output_path, progress_bar,
+                                   sigint_latch, whole_number)
 
 
 def register(sub) -> None:
@@ -20,25 +21,22 @@ def register(sub) -> None:
     p.add_argument("--incident", metavar="LIST",
                    help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth); default: the "
                         "file's [simulation] incident_deg, else 0,5,...,85")
-    p.add_argument("--rays", type=int,
+    p.add_argument("--rays", type=whole_number,
                    help="rays per incident direction; default: the file's [simulation] rays, else 100000")
-    p.add_argument("--seed", type=int, help="random seed; default: the file's [simulation] seed, else 1")
-    p.add_argument("--threads", type=int,
+    p.add_argument("--seed", type=whole_number, help="random seed; default: the file's [simulation] seed, else 1")
+    p.add_argument("--threads", type=whole_number,
                    help="tracing threads; default: the file's [simulation] threads, else all of numba's threads")
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "default: as the file says")
+    add_overwrite(p)
     p.set_defaults(func=cmd_furnace)
 
 
-def _check_plot_path(path: str) -> None:
-    from goniometer import store
+def _check_plot_path(path: str, config: str, overwrite: bool) -> None:
     if not path.lower().endswith(".png"):
         raise UsageError(f"--plot: {path!r} must name a .png file")
-    try:
-        store.check_writable(path)
-    except store.StoreError as e:
-        raise UsageError(f"--plot: {e}") from None
+    output_path(path, inputs=[config], overwrite=overwrite, option="--plot")
 
 
 def cmd_furnace(args: argparse.Namespace) -> int:
@@ -64,7 +62,7 @@ def cmd_furnace(args: argparse.Namespace) -> int:
     except SettingsError as e:
         raise UsageError(str(e) if str(e).startswith(str(args.config)) else _option_error(str(e))) from None
     if args.plot:
-        _check_plot_path(args.plot)
+        _check_plot_path(args.plot, args.config, args.overwrite)
 
     quiet = args.json
     total = settings.rays * len(settings.incident_deg)
@@ -73,7 +71,7 @@ def cmd_furnace(args: argparse.Namespace) -> int:
               f"direction(s) x {settings.rays:,} rays, {settings.n_threads} thread(s)", file=sys.stderr)
     with sigint_latch() as interrupts:
         with interrupts.deferred():
-            warm_up()
+            compile_kernels(lambda: warm_up(stack, settings))
         try:
             with progress_bar(total, stack.name) as bar:
                 def progress(n: int) -> None:
@@ -114,13 +112,14 @@ def _rgb(a) -> str:
 
 
 def _print_table(r) -> None:
+    from goniometer.results import ENERGY_TERMS
     print(f"{r.material} ({r.category}, {r.base} base): directional albedo E = reflected + transmitted, "
           f"{r.rays:,} rays per angle, seed {r.seed}")
     print(f"{'theta_l':>7}  {'simulated E (R G B)':>23}  {'std. error':>23}  {'reflected':>23}  {'transmitted':>23}  "
           f"{'absorbed':>23}  {'masking_loss':>23}")
     for m, t in enumerate(r.incident_deg):
         cols = [_rgb(r.albedo[m]), " ".join(f"{x:7.1e}" for x in r.stderr[m])]
-        cols += [_rgb(r.energy[k][m]) for k in ("reflected", "transmitted", "absorbed", "masking_loss")]
+        cols += [_rgb(r.energy[k][m]) for k in ENERGY_TERMS]
         print(f"{t:7.2f}  " + "  ".join(cols))
     if any(abs(x) > 0 for k in ("roulette", "capped") for x in r.energy[k].ravel()):
         worst = {k: float(abs(r.energy[k]).max()) for k in ("roulette", "capped")}

@@ -16,7 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import THREADS_HELP, UsageError
+from goniometer.cli.common import THREADS_HELP, UsageError, add_overwrite, whole_number
 
 EXIT_NOT_ACHIEVABLE = 1
 
@@ -25,7 +25,8 @@ def _usage(msg: str) -> UsageError:
     return UsageError(msg)
 
 
-def _check_out(path: str | None, suffix: str, option: str, create_parent: bool = False) -> Path | None:
+def _check_out(path: str | None, suffix: str, option: str, create_parent: bool = False, overwrite: bool = False,
+               inputs=()) -> Path | None:
     if path is None:
         return None
     p = Path(path)
@@ -33,6 +34,11 @@ def _check_out(path: str | None, suffix: str, option: str, create_parent: bool =
         raise _usage(f"{option}: {path!r} should end in {suffix}")
     if p.exists() and p.is_dir():
         raise _usage(f"{option}: {path!r} is a directory")
+    from goniometer.outputs import OutputError, check_output
+    try:
+        check_output(p, inputs=inputs, overwrite=overwrite, option=option)
+    except OutputError as e:
+        raise _usage(str(e)) from None
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.exists():
         if not create_parent:
@@ -67,8 +73,8 @@ def cmd_invert(args: argparse.Namespace) -> int:
         picks = inverse.parse_picks(args.pick, len(lobes))
     except InverseError as e:
         raise _usage(str(e)) from None
-    out = _check_out(args.out, ".toml", "--out")
-    classes_png = _check_out(args.classes, ".png", "--classes")
+    out = _check_out(args.out, ".toml", "--out", overwrite=args.overwrite)
+    classes_png = _check_out(args.classes, ".png", "--classes", overwrite=args.overwrite)
     options = _options(args)
     try:
         inv = inverse.solve(lobes, args.base, picks, options, name=args.name)
@@ -118,9 +124,17 @@ def cmd_validate_inverse(args: argparse.Namespace) -> int:
         cases = V.load_cases(args.cases)
     except InverseError as e:
         raise _usage(str(e)) from None
-    json_out = _check_out(args.json, ".json", "--json", create_parent=True)
+    json_out = _check_out(args.json, ".json", "--json", create_parent=True, overwrite=args.overwrite,
+                          inputs=[args.cases])
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise _usage(f"--report: {args.report!r} exists and is not a directory")
+    if args.report:
+        from goniometer.outputs import OutputError, check_output
+        try:
+            check_output(args.report, inputs=[args.cases], overwrite=args.overwrite, option="--report",
+                         directory=True, marker="index.html")
+        except OutputError as e:
+            raise _usage(str(e)) from None
     if args.rays is not None and args.rays < 1000:
         raise _usage(f"--rays: at least 1000, got {args.rays}")
     resolution = (90, 8)
@@ -211,6 +225,7 @@ def register(subparsers) -> None:
     p.add_argument("--classes", metavar="OUT.png", help="plot the equivalence classes (default: no plot)")
     p.add_argument("--name", default="inverse", help="material name (default inverse)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_overwrite(p)
     p.set_defaults(func=cmd_invert)
 
     p = subparsers.add_parser("validate-inverse", help="run target lobe configurations through the inverse method "
@@ -220,10 +235,10 @@ def register(subparsers) -> None:
     p.add_argument("--simulate", action="store_true", help="also simulate every stack at normal incidence")
     p.add_argument("--report", metavar="DIR",
                    help="write report.md, index.html and figures into DIR (default: not written)")
-    p.add_argument("--rays", type=int, help="rays per simulation (default 4,000,000)")
+    p.add_argument("--rays", type=whole_number, help="rays per simulation (default 4,000,000)")
     p.add_argument("--resolution", metavar="N_THETAxN_PHI", help="half slices of the simulation (default 90x8)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the simulations (default: %(default)s)")
-    p.add_argument("--threads", type=int, help=THREADS_HELP)
+    p.add_argument("--seed", type=whole_number, default=1, help="seed of the simulations (default: %(default)s)")
+    p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
     p.add_argument("--only", metavar="GLOB", help="cases whose name matches (default: all)")
     p.add_argument("--eta-max", dest="eta_max", type=float, default=4.0,
                    help="largest dielectric index (default: %(default)g)")
@@ -231,4 +246,5 @@ def register(subparsers) -> None:
                    help="as for gonio invert (default: %(default)s)")
     p.add_argument("--top-variance", dest="top_variance", choices=("exact", "paper"), default="exact",
                    help="as for gonio invert (default: %(default)s)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_validate_inverse)

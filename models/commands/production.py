@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import UsageError
+from goniometer.cli.common import UsageError, add_overwrite, output_path, whole_number
 
 
 def register(sub) -> None:
@@ -17,10 +17,11 @@ def register(sub) -> None:
                                           "(a configs/production.toml results directory)")
     p.add_argument("results", metavar="RESULTS_DIR")
     p.add_argument("--out", required=True, metavar="DIR", help="report directory (summary.json, production.md, PNGs)")
-    p.add_argument("--seed", type=int, default=None, help="seed of the held-out coat-index draw (default 13)")
+    p.add_argument("--seed", type=whole_number, default=None, help="seed of the held-out coat-index draw (default 13)")
     p.add_argument("--no-belcour", dest="belcour", action="store_false",
                    help="skip belcour-fwd (its columns are then empty)")
     p.add_argument("--json", action="store_true", help="print summary.json")
+    add_overwrite(p)
     p.set_defaults(func=cmd_production)
 
 
@@ -33,6 +34,8 @@ def cmd_production(args: argparse.Namespace) -> int:
     results = Path(args.results)
     if not (results / "database.json").is_file():
         raise UsageError(f"RESULTS_DIR: {results} is not a database results directory (no database.json)")
+    # a finished production report holds summary.json
+    output_path(args.out, inputs=[results], overwrite=args.overwrite, directory=True, marker="summary.json")
     seed = SPLIT_SEED if args.seed is None else args.seed
     if seed < 0:
         raise UsageError(f"--seed: must be >= 0, got {seed}")

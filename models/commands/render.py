@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from goniometer.cli.common import UsageError
+from goniometer.cli.common import UsageError, add_overwrite, output_path, whole_number
 
 
 def register(sub) -> None:
@@ -21,13 +21,14 @@ def register(sub) -> None:
                    help="angle between the light and the view direction, degrees in [0, 90] (default 30)")
     p.add_argument("--size", default="512", metavar="PX", help="sphere diameter in pixels, in [16, 4096] (default 512)")
     p.add_argument("--json", action="store_true", help="print the exposure and each model's image RMSE as JSON")
+    add_overwrite(p)
     p.set_defaults(func=cmd_render)
 
 
 def _number(text: str, flag: str, kind: type, allowed: str):
     try:
-        return kind(text)
-    except ValueError:
+        return whole_number(text) if kind is int else kind(text)
+    except (ValueError, TypeError, argparse.ArgumentTypeError):
         raise UsageError(f"{flag}: {text!r} is not {'an integer' if kind is int else 'a number'} ({allowed})") from None
 
 
@@ -43,9 +44,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     except RenderError as e:
         flag = "--size" if str(e).startswith("size") else "--light-angle"
         raise UsageError(f"{flag}: {str(e).split(': ', 1)[1]}") from None
+    output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
     try:
         model_names(args.model)
-        store.check_writable(args.out)
         spheres = render_file(args.file, args.out, args.model, angle, size)
     except (ModelError, RenderError, store.StoreError) as e:
         msg = str(e)

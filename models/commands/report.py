@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from goniometer.cli.common import UsageError, at_least_one, incident_list, progress_bar
+from goniometer.cli.common import (UsageError, add_overwrite, at_least_one, incident_list, output_path, progress_bar,
+                                   whole_number)
 
 
 def register(sub) -> None:
@@ -14,7 +15,7 @@ def register(sub) -> None:
     p.add_argument("results", metavar="RESULTS_DIR")
     p.add_argument("--out", required=True, metavar="DIR", help="the report directory (required)")
     p.add_argument("--model", action="append", metavar="NAME", help="models to evaluate (default: all that apply)")
-    p.add_argument("--subcells", type=int, default=5,
+    p.add_argument("--subcells", type=whole_number, default=5,
                    help="sub-cells per cell side when integrating models (default: %(default)s)")
     p.add_argument("--incidents", metavar="LIST", help="incident elevations to draw figures for (default: all)")
     p.add_argument("--definition", metavar="CONFIG.toml", help="the database definition, if it has moved "
@@ -26,6 +27,7 @@ def register(sub) -> None:
     p.add_argument("--compare-to", metavar="SS_RESULTS_DIR",
                    help="results of the single-scattering twin of this multiple-scattering database: "
                         "adds multiple-scattering.md/.json (default: no comparison)")
+    add_overwrite(p)
     p.set_defaults(func=cmd_report)
 
 
@@ -33,6 +35,9 @@ def register(sub) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     from models.report import ReportError, build_report
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
+    # a finished report holds index.html (written last); an unfinished one is resumed from its cache
+    inputs = [args.results] + [x for x in (args.definition, args.compare_to) if x]
+    output_path(args.out, inputs=inputs, overwrite=args.overwrite, directory=True, marker="index.html")
     incidents = None
     if args.incidents:
         incidents, _ = incident_list(args.incidents)

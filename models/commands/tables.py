@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from goniometer.cli.common import UsageError, progress_bar
+from goniometer.cli.common import UsageError, progress_bar, whole_number
 
 
 def _bar(name: str):
@@ -57,9 +57,9 @@ def register(sub) -> None:
                    help="which Belcour tables: separable (default, what the models use), height-correlated, all")
     p.add_argument("--cache-dir", dest="cache_dir", metavar="DIR",
                    help="table directory (default $GONIOMETER_CACHE or ~/.cache/goniometer)")
-    p.add_argument("--check", type=int, default=0, metavar="N",
+    p.add_argument("--check", type=whole_number, default=0, metavar="N",
                    help="compare N random off-grid lookups per table with direct quadrature (exit 1 above bound) "
                         "(default: %(default)s, no check)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the --check points (default 1)")
+    p.add_argument("--seed", type=whole_number, default=1, help="seed of the --check points (default 1)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_tables)

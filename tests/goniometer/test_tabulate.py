@@ -250,3 +250,56 @@ def test_cli_tabulate_export_and_refusals(tmp_path, capsys):
     assert main(["export", str(tmp_path / "s.h5"), "--format", "merl", "--out", str(tmp_path / "s.binary")]) == 2
     assert "gonio tabulate" in capsys.readouterr().err
     assert main(["tabulate", str(EXAMPLES / "plastic.toml"), "--out", str(out), "--rays", "0"]) == 2
+
+
+# ------------------------------------------------------------------ Ctrl-C anywhere in tabulate
+
+@pytest.fixture
+def sigint_default():
+    import signal
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def _interrupting(real):
+    import os
+    import signal
+
+    def wrapper(*a, **k):
+        if len(a) > 1 and getattr(a[1], "rays", None) == 8:  # the warm-up's 8 rays: not the run
+            return real(*a, **k)
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(10_000):  # the handler runs at one of these bytecodes
+            pass
+        return real(*a, **k)
+    return wrapper
+
+
+@pytest.mark.parametrize("where", ["goniometer.tabulation.from_sums", "goniometer.tabulated.write_tabulated",
+                                   "h5py.File"])
+def test_ctrl_c_at_the_end_of_tabulate_is_one_line_130_and_resumable(where, tmp_path, capsys, monkeypatch,
+                                                                       sigint_default):
+    """Interrupted after the last chunk (while the sums become values, while the file is written, or
+    inside h5py where a finalizer may swallow the KeyboardInterrupt): exit 130, one line, no file;
+    the rerun finds every ray in the checkpoint and writes the file an uninterrupted run writes."""
+    import importlib
+    cfg = EXAMPLES / "plastic.toml"
+    ref = tmp_path / "ref.h5"
+    argv = ["--rays", "20000", "--seed", "5", "--threads", "1"]
+    assert main(["tabulate", str(cfg), "--out", str(ref), *argv]) == 0
+    out = tmp_path / "p.h5"
+    module, name = where.rsplit(".", 1)
+    monkeypatch.setattr(importlib.import_module(module), name, _interrupting(getattr(importlib.import_module(module),
+                                                                                       name)))
+    capsys.readouterr()
+    assert main(["tabulate", str(cfg), "--out", str(out), *argv]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"gonio: interrupted; nothing written to {out}"
+    assert not any("Traceback" in line or "Exception ignored" in line for line in err)
+    assert not out.exists() and (tmp_path / ".p.h5.partial" / "state.npz").exists()
+    monkeypatch.undo()
+    assert main(["tabulate", str(cfg), "--out", str(out), *argv]) == 0
+    assert "resuming: 20,000 of 20,000 rays" in capsys.readouterr().err
+    a, b = g.read_tabulated(out), g.read_tabulated(ref)
+    assert np.array_equal(a.hits, b.hits) and np.array_equal(a.value, b.value) and np.array_equal(a.stderr, b.stderr)
