@@ -9,7 +9,9 @@ Stacks in, HDF5 BRDF/BTDF slices out. The public face, for notebooks and scripts
     ds = g.open_dataset("material.h5", side="brdf")   # xarray (extra "xarray"), masked cells NaN
 
 Whole isotropic BRDFs on the MERL grid: ``g.tabulate(stack, g.TabulationSettings(...))``,
-``g.read_tabulated(path).eval(l, v)`` (``docs/tabulated-format.md``).
+``g.read_tabulated(path).eval(l, v)`` (``docs/tabulated-format.md``). Into Mitsuba 3 and pbrt-v4:
+``g.SimulationSettings.on_rgl_grid(grid)``, ``g.export_rgl(result, "m.bsdf")``, ``g.read_tensor(path)``
+(``docs/rgl-format.md``).
 
 Contracts: ``docs/material-format.md``, ``docs/slices-format.md``, ``docs/database-format.md``,
 ``docs/xarray.md``, ``docs/architecture.md``. Names are loaded on first use, so ``import goniometer`` stays light.
@@ -45,6 +47,9 @@ _EXPORTS = {
     "TabulationSettings": "goniometer.settings", "tabulate": "goniometer.tabulation",
     "TabulatedBRDF": "goniometer.tabulated", "read_tabulated": "goniometer.tabulated",
     "write_tabulated": "goniometer.tabulated", "write_merl": "goniometer.merl",
+    # the RGL tensor format (Mitsuba 3's and pbrt-v4's measured materials; docs/rgl-format.md)
+    "read_tensor": "goniometer.rgl.tensor", "write_tensor": "goniometer.rgl.tensor",
+    "TensorError": "goniometer.rgl.tensor", "RGLGrid": "goniometer.rgl.grid", "export_rgl": "goniometer.rgl.export",
     # xarray views (optional extra "xarray")
     "open_dataset": "goniometer.dataset", "open_datatree": "goniometer.dataset",
     # databases

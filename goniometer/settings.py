@@ -162,8 +162,12 @@ class SimulationSettings:
         return cls(**kw)
 
     @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], source: str = "simulation") -> "SimulationSettings":
-        """Settings from a material file's ``[simulation]`` table (``docs/material-format.md``)."""
+    def from_mapping(cls, table: Mapping[str, Any], source: str = "simulation", stack: Any = None) -> "SimulationSettings":
+        """Settings from a material file's ``[simulation]`` table (``docs/material-format.md``).
+        ``parametrization = "rgl"`` (with ``rgl_grid = [N_THETA_I, N_PHI_I, N]``, optional) needs the
+        ``stack``: the grid's warp follows its top interface (:func:`goniometer.rgl.grid_for`)."""
+        if table.get("parametrization") == "rgl" or "rgl_grid" in table:
+            return cls._rgl_from_mapping(table, source, stack)
         kw: dict[str, Any] = {}
         for key, value in table.items():
             if key == "incident_deg":
@@ -184,6 +188,36 @@ class SimulationSettings:
             return cls(**kw)
         except SettingsError as e:
             raise SettingsError(f"{source}.{e}") from None
+
+    @classmethod
+    def _rgl_from_mapping(cls, table: Mapping[str, Any], source: str, stack: Any) -> "SimulationSettings":
+        from goniometer.rgl.grid import RGLGridError, grid_for
+        if table.get("parametrization") != "rgl":
+            raise SettingsError(f"{source}.rgl_grid: goes with parametrization = \"rgl\"")
+        for key in ("incident_deg", "resolution"):
+            if key in table:
+                raise SettingsError(f"{source}.{key}: the RGL grid sets it (its theta_i, phi_i and n); "
+                                    f"use rgl_grid = [N_THETA_I, N_PHI_I, N]")
+        if stack is None:
+            raise SettingsError(f"{source}.parametrization: rgl needs the stack (the warp follows its top interface)")
+        spec = table.get("rgl_grid", [None, None, None])
+        if not isinstance(spec, list) or len(spec) != 3 or not all(x is None or _is_int(x) for x in spec):
+            raise SettingsError(f"{source}.rgl_grid: must be [N_THETA_I, N_PHI_I, N] (integers, e.g. [8, 1, 32])")
+        rest = {k: v for k, v in table.items() if k not in ("parametrization", "rgl_grid")}
+        plain = cls.from_mapping(rest, source)
+        try:
+            grid = grid_for(stack, *spec)
+        except RGLGridError as e:
+            raise SettingsError(f"{source}.rgl_grid: {str(e).split(': ', 1)[-1]}") from None
+        fields = {k: getattr(plain, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order")}
+        try:
+            return cls.on_rgl_grid(grid, **fields)
+        except SettingsError as e:
+            raise SettingsError(f"{source}.{e}") from None
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
 
 
 def _is_num(x: Any) -> bool:

@@ -285,7 +285,7 @@ _LAYER_KEYS = {
 }
 _TOP_KEYS = {"name", "category", "layers", "simulation"}
 SIMULATION_KEYS = {"incident_deg", "rays", "parametrization", "resolution", "seed", "masking",
-                   "max_order", "threads", "first_order"}
+                   "max_order", "threads", "first_order", "rgl_grid"}
 
 
 def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:
@@ -325,7 +325,9 @@ def validate_category(stack: Stack, source: str = "stack") -> None:
 
 def stack_from_dict(data: dict[str, Any], source: str = "stack", check_category: bool = True) -> Stack:
     """Build and validate a :class:`Stack` from the TOML/JSON structure (``check_category``:
-    also refuse a category that contradicts the stack, see :func:`validate_category`)."""
+    also refuse a category that contradicts the stack, see :func:`validate_category`, and a ``g``
+    given to a medium that does not scatter, which would be recorded and do nothing; both are
+    checks of what a user writes: a stack's canonical JSON, read back, skips them)."""
     if not isinstance(data, dict):
         raise StackError(f"{source}: the material must be a table")
     unknown = sorted(set(data) - _TOP_KEYS)
@@ -345,6 +347,11 @@ def stack_from_dict(data: dict[str, Any], source: str = "stack", check_category:
     stack = Stack(name=name, layers=layers, category=category)
     if check_category:
         validate_category(stack, source)
+        for i, (d, x) in enumerate(zip(raw_layers, layers)):
+            if isinstance(x, Medium) and x.g != 0.0 and max(x.scattering_albedo) == 0.0:
+                raise StackError(f"{source}: layers[{i}].g: only a scattering medium takes g; add "
+                                 f"scattering_albedo in (0, 1] (or remove g: a medium without scattering_albedo "
+                                 f"only absorbs)")
     return stack
 
 
@@ -478,9 +485,6 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
                 if not 0.0 <= a <= 1.0:
                     raise StackError(f"{where}.scattering_albedo: {a!r} is outside [0, 1]")
             _check_g(x.g, f"{where}.g")
-            if x.g != 0.0 and max(x.scattering_albedo) == 0.0:
-                raise StackError(f"{where}.g: only a scattering medium takes g; add scattering_albedo in (0, 1] "
-                                 f"(or remove g: a medium without scattering_albedo only absorbs)")
             if prev is None:
                 raise StackError(f"{where}.type: a medium cannot be the top layer (it must lie below an interface)")
             if isinstance(prev, Medium):

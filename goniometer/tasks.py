@@ -44,10 +44,14 @@ def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = No
     if stack is None:
         stack = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
     s = settings if settings is not None else SimulationSettings()
+    # the RGL grid runs the classic grid's compiled code (the grid is a value, not a variant); its
+    # own numba functions are those of its tables
     tiny = SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4), chunk_rays=8, threads=1,
-                              parametrization=s.parametrization, masking=s.masking, max_order=s.max_order,
-                              first_order=s.first_order, event_cap=s.event_cap)
+                              parametrization=s.parametrization if s.rgl is None else "classic", masking=s.masking,
+                              max_order=s.max_order, first_order=s.first_order, event_cap=s.event_cap)
     assemble(stack, tiny, [trace_incident(stack, tiny, 0)])
+    if s.rgl is not None:
+        s.rgl.tables()
     return time.perf_counter() - t0
 
 

@@ -144,3 +144,12 @@ def coated_base(stack: Stack) -> CoatedBase | None:
         return CoatedBase(top.roughness, top.ior[0], tau, kind, alpha1=b.roughness,
                           eta1=np.asarray(b.ior, dtype=float), kappa1=np.asarray(b.extinction, dtype=float))
     return None
+
+
+def require_slices(reference) -> None:
+    """Raise :class:`ModelError` unless ``reference`` holds classic or half slices: a file recorded
+    on the RGL grid (``docs/rgl-format.md``) is for ``gonio export --format rgl``, its cells are the
+    format's sample space, not directions a model can be integrated over."""
+    if reference.settings.parametrization == "rgl":
+        raise ModelError("the file is recorded on the RGL grid (for gonio export --format rgl); models are judged "
+                         "on classic or half slices (simulate with --parametrization classic or half)")

@@ -19,7 +19,7 @@ from goniometer.results import SimulationResult
 from goniometer.stack import Interface, Stack
 from models import registry
 from models.compare import errors
-from models.base import ModelError
+from models.base import ModelError, require_slices
 from models.compare.integrate import ModelSlices, integrate
 
 MODEL_SLICES_FORMAT = "goniometer.model-slices"
@@ -84,6 +84,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     an anisotropic stack through :func:`isotropized` (recorded in ``approximations``); by default
     they skip it. ``progress(name)`` is called before each model.
     """
+    require_slices(reference)
     stack = reference.stack
     side = comparison_side(stack)
     if (side == "brdf" and reference.brdf is None) or (side == "btdf" and reference.btdf is None):

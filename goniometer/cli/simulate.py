@@ -33,8 +33,13 @@ def register(sub) -> None:
     p.add_argument("--incident", metavar="LIST",
                    help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth) "
                         f"(default: {FROM_FILE}{d['incident_deg']})")
-    p.add_argument("--parametrization", choices=("classic", "half"),
-                   help=f"cell grid (default: {FROM_FILE}{d['parametrization']})")
+    p.add_argument("--parametrization", choices=("classic", "half", "rgl"),
+                   help="cell grid: theta/phi of v, of the half vector, or the RGL format's sample space (for "
+                        f"gonio export --format rgl; docs/rgl-format.md) (default: {FROM_FILE}{d['parametrization']})")
+    p.add_argument("--rgl-grid", dest="rgl_grid", metavar="N_THETA_IxN_PHI_IxN",
+                   help="the RGL grid of --parametrization rgl: incident elevations (uniform in cos, the last at "
+                        "89 deg), azimuths over [-180, 180] (1: isotropic) and sample-space nodes per side "
+                        "(default: the file's [simulation] rgl_grid, else 8x1x32, 8x9x32 for an anisotropic stack)")
     p.add_argument("--resolution", metavar="N_THETAxN_PHI",
                    help=f"cells per slice, e.g. 90x360 (default: {FROM_FILE}{d['resolution']})")
     p.add_argument("--seed", type=whole_number, help=f"random seed (default: {FROM_FILE}{d['seed']})")
@@ -55,8 +60,8 @@ def register(sub) -> None:
     add_overwrite(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("info", help="describe a simulated file (slices or tabulated)")
-    p.add_argument("file", metavar="FILE.h5")
+    p = sub.add_parser("info", help="describe a simulated file (slices or tabulated) or an RGL tensor file (.bsdf)")
+    p.add_argument("file", metavar="FILE")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_info)
 
@@ -71,12 +76,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer.run import run_incidents
     from goniometer.stack import StackError, load_toml
     from goniometer.tasks import warm_up
+    from goniometer.rgl.grid import RGLGridError
 
     with usage_errors(StackError, SettingsError):
         stack, table = load_toml(args.config)
-        base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
-    if args.multiple_scattering:
-        stack = stack.with_multiple_scattering()
+        if args.multiple_scattering:
+            stack = stack.with_multiple_scattering()
+        base = SimulationSettings.from_mapping(_without_rgl(table) if args.parametrization in ("classic", "half")
+                                               else table, source=f"{args.config}: simulation", stack=stack)
     over: dict[str, Any] = {}
     if args.incident is not None:
         thetas, phis = incident_list(args.incident)
@@ -88,8 +95,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         value = getattr(args, key)
         if value is not None:
             over[key] = value
-    with usage_errors(SettingsError):
-        settings = base.with_overrides(**over)
+    with usage_errors(SettingsError, RGLGridError):
+        if over.get("parametrization", base.parametrization) == "rgl":
+            settings = _on_rgl_grid(args, stack, base, over)
+        else:
+            if args.rgl_grid is not None:
+                raise UsageError("--rgl-grid: goes with --parametrization rgl")
+            settings = base.with_overrides(**over)
         if settings.first_order == "integrated":
             check_supported(stack)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
@@ -131,6 +143,33 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     print(f"wrote {out}")
     _print_summary(result)
     return 0
+
+
+def _without_rgl(table: dict) -> dict:
+    """A ``[simulation]`` table without its RGL keys (a classic or half run asked on the command line)."""
+    return {k: v for k, v in table.items() if k not in ("parametrization", "rgl_grid")
+            and not (k in ("incident_deg", "resolution") and table.get("parametrization") == "rgl")}
+
+
+def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
+    """The settings of a run on the RGL grid: the grid from --rgl-grid, else the file's, else the
+    default for the stack; the other settings from the file and the command line."""
+    from goniometer.rgl.grid import grid_for, parse_grid
+    from goniometer.settings import SimulationSettings
+    for option, key in (("--incident", "incident_deg"), ("--resolution", "resolution")):
+        if key in over:
+            raise UsageError(f"{option}: the RGL grid sets it (its theta_i, phi_i nodes and n x n); "
+                             f"use --rgl-grid N_THETA_IxN_PHI_IxN")
+    grid = base.rgl
+    if args.rgl_grid is not None or grid is None:
+        grid = grid_for(stack, *(parse_grid(args.rgl_grid) if args.rgl_grid is not None else (None, None, None)))
+    fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order")}
+    fields.update({k: v for k, v in over.items() if k != "parametrization"})
+    if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):
+        print(f"warning: {stack.name} is anisotropic but the RGL grid has one incident azimuth: the readers take "
+              f"such a file as isotropic, and gonio export refuses it (use --rgl-grid with N_PHI_I >= 3)",
+              file=sys.stderr)
+    return SimulationSettings.on_rgl_grid(grid, **fields)
 
 
 def _print_summary(r) -> None:
@@ -187,6 +226,8 @@ def info_dict(path: Path) -> dict[str, Any]:
 def cmd_info(args: argparse.Namespace) -> int:
     from goniometer.results import ENERGY_TERMS
     from goniometer import store
+    if _is_tensor(Path(args.file)):
+        return _info_tensor(args)
     if _is_tabulated(Path(args.file)):
         return _info_tabulated(args)
     try:
@@ -216,6 +257,64 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+
+
+def _is_tensor(path: Path) -> bool:
+    from goniometer.outputs import TENSOR_MAGIC
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(TENSOR_MAGIC)) == TENSOR_MAGIC
+    except OSError:
+        return False
+
+
+def tensor_info(path: Path) -> dict[str, Any]:
+    """The JSON summary ``gonio info FILE.bsdf --json`` prints: fields, grids, which readers take it."""
+    from goniometer.rgl.export import check_readers
+    from goniometer.rgl.tensor import read_tensor
+    t = read_tensor(path)
+    f = t.fields
+    d: dict[str, Any] = {"file": str(path), "format": "rgl-tensor", "version": list(t.version),
+                         "fields": {k: {"dtype": v.dtype.name, "shape": list(v.shape)} for k, v in f.items()}}
+    if "description" in f:
+        d["description"] = t.text("description")
+    if "theta_i" in f:
+        d["theta_i_deg"] = [round(float(x), 4) for x in np.degrees(f["theta_i"])]
+    if "phi_i" in f:
+        d["phi_i_deg"] = [round(float(x), 4) for x in np.degrees(f["phi_i"])]
+        d["isotropic"] = int(f["phi_i"].shape[0]) <= 2
+    if "wavelengths" in f:
+        d["wavelengths_nm"] = [float(f["wavelengths"][0]), float(f["wavelengths"][-1]), int(f["wavelengths"].size)]
+    if "jacobian" in f:
+        d["jacobian"] = bool(f["jacobian"].reshape(-1)[0])
+    d["readers"] = {k: {"takes_it": not v, "why_not": v} for k, v in check_readers(t).items()}
+    return d
+
+
+def _info_tensor(args: argparse.Namespace) -> int:
+    """``gonio info`` of an RGL tensor file (``docs/rgl-format.md``)."""
+    from goniometer.rgl.tensor import TensorError
+    with usage_errors(TensorError):
+        d = tensor_info(Path(args.file))
+    if args.json:
+        print(json.dumps(d, indent=2))
+        return 0
+    print(f"{d['file']}: RGL tensor file, version {d['version'][0]}.{d['version'][1]}")
+    if "description" in d:
+        print(f"  description: {d['description'][:300]}")
+    for name, fd in d["fields"].items():
+        print(f"  {name:12s} {fd['dtype']:8s} {'x'.join(str(n) for n in fd['shape']) or 'scalar'}")
+    if "theta_i_deg" in d:
+        print(f"  theta_i (deg): {', '.join(f'{x:g}' for x in d['theta_i_deg'])}")
+    if "phi_i_deg" in d:
+        print(f"  phi_i (deg): {', '.join(f'{x:g}' for x in d['phi_i_deg'])} "
+              f"({'isotropic' if d['isotropic'] else 'anisotropic'})")
+    if "wavelengths_nm" in d:
+        lo, hi, n = d["wavelengths_nm"]
+        print(f"  wavelengths: {n} from {lo:g} to {hi:g} nm")
+    for reader, r in d["readers"].items():
+        print(f"  {reader:17s} " + ("takes it" if r["takes_it"] else "refuses it: " + "; ".join(r["why_not"])))
+    return 0
 
 
 def _is_tabulated(path: Path) -> bool:

@@ -27,10 +27,17 @@ def register(sub) -> None:
     add_overwrite(p)
     p.set_defaults(func=cmd_tabulate)
 
-    p = sub.add_parser("export", help="export a tabulated file to another format (MERL .binary)")
-    p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate")
-    p.add_argument("--format", required=True, choices=("merl",), help="output format: merl (MERL .binary)")
-    p.add_argument("--out", required=True, metavar="FILE.binary", help="the file to write (required)")
+    p = sub.add_parser("export", help="export a simulated file to another tool's format: MERL .binary (from a "
+                                      "tabulated file) or the RGL tensor file of Mitsuba 3's and pbrt-v4's measured "
+                                      "material (from a file simulated with --parametrization rgl)")
+    p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate (merl) or by gonio simulate "
+                                                   "--parametrization rgl (rgl)")
+    p.add_argument("--format", required=True, choices=("merl", "rgl"),
+                   help="output format: merl (MERL .binary) or rgl (RGL tensor file, docs/rgl-format.md)")
+    p.add_argument("--out", required=True, metavar="FILE", help="the file to write (required)")
+    p.add_argument("--spectral", action="store_true",
+                   help="rgl: write the spectral file (spectra + wavelengths: pbrt-v4, Mitsuba's spectral variants) "
+                        "instead of the RGB file (Mitsuba's RGB variants) (default: RGB)")
     add_overwrite(p)
     p.set_defaults(func=cmd_export)
 
@@ -100,6 +107,10 @@ def _print_summary(t) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    if args.format == "rgl":
+        return _export_rgl(args)
+    if args.spectral:
+        raise UsageError("--spectral: goes with --format rgl (a MERL file is RGB)")
     from goniometer.merl import write_merl
     from goniometer.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
@@ -109,3 +120,46 @@ def cmd_export(args: argparse.Namespace) -> int:
     n = int(np.count_nonzero(tab.hits))
     print(f"wrote {out} (MERL .binary, 90x90x180; {n:,} cells with data, {tab.hits.size - n:,} marked negative)")
     return 0
+
+
+def _export_rgl(args: argparse.Namespace) -> int:
+    """``gonio export F.h5 --format rgl --out NAME.bsdf [--spectral]`` (``docs/rgl-format.md``)."""
+    import time
+
+    from goniometer import store
+    from goniometer.rgl.export import ExportError, bsdf_fields, check_readers
+    from goniometer.rgl.tensor import write_tensor
+    from goniometer.tabulated import FORMAT as TAB_FORMAT
+    if _format_of(args.file) == TAB_FORMAT:
+        raise UsageError(f"{args.file}: a tabulated file (MERL grid) exports as --format merl; for rgl simulate the "
+                         f"material with --parametrization rgl")
+    with usage_errors(store.StoreError):
+        result = store.read(args.file)
+    out = output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
+    t0 = time.perf_counter()
+    with usage_errors(ExportError, prefix=str(args.file)):
+        fields = bsdf_fields(result, spectral=args.spectral)
+    readers = check_readers(fields)
+    wanted = ("mitsuba-spectral", "pbrt-v4") if args.spectral else ("mitsuba-rgb",)
+    problems = [f"{r}: {'; '.join(readers[r])}" for r in wanted if readers[r]]
+    if problems:
+        raise UsageError(f"{args.file}: the exported file would be refused ({' | '.join(problems)}); nothing written")
+    write_tensor(out, fields)
+    g = result.settings.rgl
+    kind = "spectral (spectra + wavelengths: pbrt-v4, Mitsuba's spectral variants)" if args.spectral \
+        else "RGB (Mitsuba's RGB variants)"
+    print(f"wrote {out} (RGL tensor file, {kind}; {len(g.theta_i_deg)} theta_i x {len(g.phi_i_deg)} phi_i, "
+          f"{g.n}x{g.n} nodes; {time.perf_counter() - t0:.1f} s)")
+    print(f"  Mitsuba 3: {{'type': 'measured', 'filename': '{out}'}}   pbrt-v4: Material \"measured\" "
+          f"\"string filename\" \"{out}\"")
+    return 0
+
+
+def _format_of(path: str) -> str | None:
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format")
+            return fmt.decode() if isinstance(fmt, bytes) else fmt
+    except OSError:
+        return None

@@ -7,8 +7,10 @@ evaluate ``f cos theta_o = S(u) D(h) / (4 sigma(l))`` with ``D`` and ``sigma`` t
 while the warp they build from ``vndf`` (also bilinear) has its own density ``p(w_o)``; near the
 normal (``x -> 0``) the two differ most. So the stored value is the estimate divided by the dual
 cell's mean of ``D / (4 sigma p)`` (sub-points above the horizon): then the readers' product gives
-``f cos theta_o`` back wherever ``S`` is smooth over a cell. Nodes whose dual cell lies wholly below
-the horizon get the mean of their filled neighbours (the readers interpolate into them).
+``f cos theta_o`` back wherever ``S`` is smooth over a cell. The rows ``u_y = 0`` and ``u_y = 1`` are
+the two halves of the cell at the seam ``phi = +-pi`` (the readers wrap one to the other): both get
+their area-weighted mean. Nodes whose dual cell lies wholly below the horizon get the mean of their
+filled neighbours (the readers interpolate into them).
 
 Colour: the RGB file holds the run's channels. Until the project traces spectra (the spectral
 issue), the spectral file's ``spectra`` are the RGB values upsampled piecewise linearly through
@@ -29,7 +31,8 @@ import goniometer
 from goniometer.rgl.grid import VALID_SUB, RGLGrid
 from goniometer.rgl.tensor import TensorFile, read_tensor, write_tensor
 
-__all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "rgb_to_spectrum"]
+__all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "fields_from_values",
+           "rgb_to_spectrum", "stored_values"]
 
 #: the spectral file's wavelengths (the visible range pbrt-v4 samples, 360-830 nm)
 WAVELENGTHS_NM = np.arange(360.0, 831.0, 10.0)
@@ -130,20 +133,28 @@ def _fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
     return v
 
 
-def stored_values(result) -> np.ndarray:
-    """The stored values ``S`` (N_phi_i, N_theta_i, 3, n, n) of a run on the RGL grid: the
-    estimates corrected to the readers' density and filled below the horizon (module docstring);
-    for an anisotropic grid the slice at phi_i = 180 deg repeats the one at -180 deg."""
-    grid: RGLGrid = result.settings.rgl
+def stored_values(grid: RGLGrid, value: np.ndarray) -> np.ndarray:
+    """The stored values ``S`` (N_phi_i, N_theta_i, 3, n, n) of estimates ``value`` (M, 3, n, n) on
+    ``grid`` (a run's ``/brdf/value``): corrected to the readers' density and filled below the
+    horizon (module docstring); for an anisotropic grid the slice at phi_i = 180 deg repeats the one
+    at -180 deg."""
     n_t = len(grid.theta_i_deg)
     n_sim = len(grid.simulated_phi_deg())
-    value = result.brdf.value                           # (M, 3, n, n)
     out = np.empty((len(grid.phi_i_deg), n_t, 3, grid.n, grid.n))
     for m in range(value.shape[0]):
         area, _ = grid.cell_geometry(m)
         inv = _inverse_correction(grid, m)
         known = (area > 0) & (inv > 0)
         s = np.where(known, value[m] / np.where(known, inv, 1.0), 0.0)
+        # rows u_y = 0 and 1 are the two halves of the cell at the seam phi = +-pi (one set of
+        # directions; the readers wrap u_y = 1 to 0): both hold their area-weighted mean
+        w0, w1 = area[0] * known[0], area[-1] * known[-1]
+        both = w0 + w1 > 0
+        seam = np.where(both, (s[:, 0] * w0 + s[:, -1] * w1) / np.where(both, w0 + w1, 1.0), 0.0)
+        s[:, 0] = np.where(both, seam, s[:, 0])
+        s[:, -1] = np.where(both, seam, s[:, -1])
+        known[0] |= both
+        known[-1] |= both
         a, b = divmod(m, n_t)
         out[a, b] = _fill(np.maximum(s, 0.0), known)
     if not grid.isotropic:
@@ -163,13 +174,6 @@ def bsdf_fields(result, spectral: bool = False, description: str | None = None) 
         raise ExportError(f"{result.stack.name}: the stack is anisotropic but the file records one incident "
                           f"azimuth, which the readers take as an isotropic material; simulate with "
                           f"--rgl-grid N_THETA_IxN_PHI_IxN, N_PHI_I >= 3 (azimuths over [-180, 180])")
-    tab = grid.tables()
-    S = stored_values(result).astype(np.float32)        # (Nphi, Ntheta, 3, n, n)
-    lum = np.tensordot(S.astype(np.float64), LUMINANCE, axes=([2], [0]))
-    for idx in np.ndindex(lum.shape[:2]):
-        sl = lum[idx]
-        top = float(sl.max())
-        lum[idx] = np.maximum(sl, 1e-4 * top) if top > 0 else 1.0
     if description is None:
         s = result.settings
         description = (f"{result.stack.name}: simulated by goniometer {goniometer.__version__} "
@@ -177,6 +181,19 @@ def bsdf_fields(result, spectral: bool = False, description: str | None = None) 
                        f"stack {result.stack.to_json()}; warp NDF {json.dumps(grid.to_dict())}; "
                        + ("spectra upsampled from RGB (B 465, G 550, R 610 nm, piecewise linear)" if spectral
                           else "linear RGB"))
+    return fields_from_values(grid, result.brdf.value, description, spectral)
+
+
+def fields_from_values(grid: RGLGrid, value: np.ndarray, description: str, spectral: bool = False) -> dict[str, np.ndarray]:
+    """The tensor file's fields from estimates ``value`` (M, 3, n, n) on ``grid`` (see
+    :func:`stored_values`)."""
+    tab = grid.tables()
+    S = stored_values(grid, value).astype(np.float32)  # (Nphi, Ntheta, 3, n, n)
+    lum = np.tensordot(S.astype(np.float64), LUMINANCE, axes=([2], [0]))
+    for idx in np.ndindex(lum.shape[:2]):
+        sl = lum[idx]
+        top = float(sl.max())
+        lum[idx] = np.maximum(sl, 1e-4 * top) if top > 0 else 1.0
     fields: dict[str, np.ndarray] = {
         "description": np.frombuffer(description.encode("utf-8"), dtype=np.uint8),
         "jacobian": np.array([1], dtype=np.uint8),

@@ -24,7 +24,7 @@ import numpy as np
 from goniometer import optics
 from goniometer.rgl.warp import Warp2D, pack_kernel_tables
 
-__all__ = ["ALPHA_FLOOR", "BROAD", "DEFAULT_GRID", "RGLGrid", "RGLGridError", "grid_for", "parse_grid",
+__all__ = ["ALPHA_FLOOR", "BROAD", "DEFAULT_GRID", "RGLGrid", "RGLGridError", "check_spec", "grid_for", "parse_grid",
            "theta_nodes_deg"]
 
 #: the sharpest lobe the warp's NDF tabulates (a smooth top's peak is narrower than any table)
@@ -259,7 +259,7 @@ def _sigma(w, ax, ay, c, s, broad):
 
 
 def parse_grid(text: str) -> tuple[int, int, int]:
-    """``N_THETA_IxN_PHI_IxN`` (e.g. ``8x1x32``) as three integers."""
+    """``N_THETA_IxN_PHI_IxN`` (e.g. ``8x1x32``) as three integers, checked (:func:`check_spec`)."""
     parts = text.lower().split("x")
     try:
         if len(parts) != 3:
@@ -267,19 +267,25 @@ def parse_grid(text: str) -> tuple[int, int, int]:
         a, b, c = (int(p) for p in parts)
     except ValueError:
         raise RGLGridError(f"--rgl-grid: {text!r} is not of the form N_THETA_IxN_PHI_IxN (e.g. 8x1x32)") from None
-    if a < 2 or a > 90:
-        raise RGLGridError(f"--rgl-grid: N_THETA_I = {a} is outside [2, 90]")
-    if b != 1 and not 3 <= b <= 361:
-        raise RGLGridError(f"--rgl-grid: N_PHI_I = {b} is not allowed; 1 (isotropic) or 3 to 361 azimuths over "
-                           f"[-180, 180]")
-    if not 4 <= c <= 512:
-        raise RGLGridError(f"--rgl-grid: N = {c} is outside [4, 512]")
+    check_spec(a, b, c, "--rgl-grid")
     return a, b, c
+
+
+def check_spec(n_theta_i: int | None, n_phi_i: int | None, n: int | None, where: str = "rgl grid") -> None:
+    """Raise :class:`RGLGridError` unless the counts are allowed (None: the default)."""
+    if n_theta_i is not None and not 2 <= n_theta_i <= 90:
+        raise RGLGridError(f"{where}: N_THETA_I = {n_theta_i} is outside [2, 90]")
+    if n_phi_i is not None and n_phi_i != 1 and not 3 <= n_phi_i <= 361:
+        raise RGLGridError(f"{where}: N_PHI_I = {n_phi_i} is not allowed; 1 (isotropic) or 3 to 361 azimuths over "
+                           f"[-180, 180]")
+    if n is not None and not 4 <= n <= 512:
+        raise RGLGridError(f"{where}: N = {n} is outside [4, 512]")
 
 
 def grid_for(stack, n_theta_i: int | None = None, n_phi_i: int | None = None, n: int | None = None) -> RGLGrid:
     """The RGL grid of ``stack`` (its top interface's GGX sets the warp's sharp lobe): ``n_phi_i``
     defaults to 1 for an isotropic stack and :data:`DEFAULT_PHI_ANISO` for an anisotropic one."""
+    check_spec(n_theta_i, n_phi_i, n)
     top = stack.layers[0]
     aniso = any(x.is_anisotropic for x in stack.interfaces)
     nt = DEFAULT_GRID[0] if n_theta_i is None else n_theta_i

@@ -12,7 +12,7 @@ import numpy as np
 
 from goniometer.results import SimulationResult, SliceData
 from goniometer.slices import light_direction
-from models.base import ModelError
+from models.base import ModelError, require_slices
 from models.fitted.samples import Samples
 
 #: the paper's grazing cut-off (sec. 5.8): theta_i, theta_o >= 1.4 rad are left out of the fit
@@ -72,6 +72,7 @@ def fit_data(reference: SimulationResult, subcells: int | None = None, weighting
     """
     if weighting not in ("paper", "eq4"):
         raise ModelError(f"fit: weighting {weighting!r} is not one of paper, eq4")
+    require_slices(reference)
     sd = reference.brdf
     s = auto_subcells(sd) if subcells is None else int(subcells)
     sp = auto_peak_subcells(sd, s) if peak_subcells is None else int(peak_subcells)

@@ -143,6 +143,9 @@ class SlicesBSDF:
 def slices_reference(result: SimulationResult, where: str | None = None) -> Reference:
     """The reference of a simulated result: its BRDF, or its BTDF for a stack that transmits."""
     where = where or result.stack.name
+    if result.settings.parametrization == "rgl":
+        raise RenderError(f"{where}: recorded on the RGL grid (for gonio export --format rgl); a sphere is drawn "
+                          f"from classic or half slices or a tabulated file")
     _check_isotropic(result.stack, where)
     side = comparison_side(result.stack)
     f = SlicesBSDF(result, side)

@@ -287,3 +287,34 @@ def test_ctrl_c_while_the_assembly_kernels_run_waits_for_them(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert reached and not out.exists()  # every interrupted call ran to its end (warm-up and the real grid)
     assert "interrupt received" in err and err.strip().splitlines()[-1].startswith("gonio: interrupted")
+
+
+# ----------------------------------------------------------------------------- smaller items of the edges issue
+
+def test_g_without_scattering_albedo_names_the_other_key(tmp_path, capsys):
+    cfg = tmp_path / "g.toml"
+    cfg.write_text(PLASTIC.replace('type = "lambertian"', 'type = "medium"\noptical_depth = 0.5\ng = 0.3\n'
+                                   '[[layers]]\ntype = "lambertian"', 1))
+    err = _one_line_error(capsys, ["simulate", str(cfg), "--out", str(tmp_path / "g.h5")], "layers[1].g")
+    assert "scattering_albedo" in err and not (tmp_path / "g.h5").exists()
+
+
+def test_duplicate_incident_directions_and_whole_number_counts(tmp_path, capsys):
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    out = tmp_path / "p.h5"
+    err = _one_line_error(capsys, ["simulate", str(cfg), "--out", str(out), "--incident", "30,30"], "incident_deg")
+    assert "given twice" in err and not out.exists()
+    assert main(["simulate", str(cfg), "--out", str(out), "--incident", "30,30:90", "--rays", "2e3",
+                 "--threads", "1"]) == 0  # another azimuth is another direction; 2e3 is a whole number
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", str(cfg), "--out", str(tmp_path / "q.h5"), "--rays", "2.5"])
+    assert e.value.code == 2 and "is not a whole number" in capsys.readouterr().err
+
+
+def test_models_table_has_a_header_and_the_anisotropy_column(capsys):
+    assert main(["models"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:6] == ["model", "sides", "kind", "aniso", "scatter", "description"]
+    assert any(" yes " in line for line in lines[1:]) and any("belcour-aniso" in line for line in lines)
