@@ -9,7 +9,8 @@ normal (``x -> 0``) the two differ most. So the stored value is the estimate div
 cell's mean of ``D / (4 sigma p)`` (sub-points above the horizon): then the readers' product gives
 ``f cos theta_o`` back wherever ``S`` is smooth over a cell. The rows ``u_y = 0`` and ``u_y = 1`` are
 the two halves of the cell at the seam ``phi = +-pi`` (the readers wrap one to the other): both get
-their area-weighted mean. Nodes whose dual cell lies wholly below the horizon get the mean of their
+their area-weighted mean. At normal incidence an isotropic material's rows (u_y) are one azimuth-free
+set: each holds their mean. Nodes whose dual cell lies wholly below the horizon get the mean of their
 filled neighbours (the readers interpolate into them).
 
 Colour: the RGB file holds the run's channels. Until the project traces spectra (the spectral
@@ -156,6 +157,15 @@ def stored_values(grid: RGLGrid, value: np.ndarray) -> np.ndarray:
         known[0] |= both
         known[-1] |= both
         a, b = divmod(m, n_t)
+        if grid.isotropic and grid.theta_i_deg[b] == 0.0:
+            # an isotropic BRDF at normal incidence does not depend on the azimuth, nor S on u_y (the
+            # slice's warp is uniform in y): every row holds the rows' area-weighted mean (noise / n,
+            # and the readers' pole, whose azimuth is undefined, reads the same whatever it takes)
+            w = area * known
+            tot = w.sum(axis=0)
+            col = np.where(tot > 0, (s * w).sum(axis=1) / np.where(tot > 0, tot, 1.0), 0.0)   # (3, n)
+            s = np.broadcast_to(col[:, None, :], s.shape).copy()
+            known = np.broadcast_to(tot > 0, known.shape).copy()
         out[a, b] = _fill(np.maximum(s, 0.0), known)
     if not grid.isotropic:
         out[n_sim] = out[0]
