@@ -18,7 +18,9 @@ from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, mat
 
 def error_records(results: list[MaterialResult]) -> list[dict]:
     """One record per (material, evaluated model): material, category, paper_name, parameters,
-    model, side, internal, total (the error objects of ``gonio evaluate --json``)."""
+    model, side, internal, total (the error objects of ``gonio evaluate --json``) and ``not_drawn``,
+    the material's figures that could not be drawn (``[{"material", "figure", "reason"}]``, empty
+    when all were: the errors never depend on the figures)."""
     out = []
     for r in results:
         m = r.material
@@ -30,7 +32,7 @@ def error_records(results: list[MaterialResult]) -> list[dict]:
                     if f"{k}_name" in m.params:
                         rec[f"{k}_name"] = m.params[f"{k}_name"]
             rec.update({"model": model, "side": r.evaluation["side"], "internal": errs["internal"],
-                        "total": errs["total"]})
+                        "total": errs["total"], "not_drawn": [dict(x) for x in r.not_drawn]})
             out.append(rec)
     return out
 
