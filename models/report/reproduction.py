@@ -35,7 +35,10 @@ class _Row:
     errors: dict   # model -> {"internal": E, "total": E}
 
 
-def _verdict(passed: int, n: int) -> str:
+def verdict(passed: int, n: int) -> str:
+    """The verdict of ``passed`` agreeing comparisons out of ``n``: ``holds`` (>= :data:`HOLDS_AT`),
+    ``partly`` (>= :data:`PARTLY_AT`), ``does not hold``, or ``not testable`` when ``n = 0`` (the
+    reproduction checks' and appendix E's rule, ``docs/report.md``)."""
     if n == 0:
         return "not testable"
     f = passed / n
@@ -58,7 +61,7 @@ def _check(cid: str, source: str, paper: str, test: str, models: Sequence[str], 
     elif missing:
         note = f"not evaluated on every material: {', '.join(missing)}"
     return {"id": cid, "source": source, "paper": paper, "test": test, "models": list(models), "n": n,
-            "agree": passed, "fraction": (passed / n if n else None), "verdict": _verdict(passed, n),
+            "agree": passed, "fraction": (passed / n if n else None), "verdict": verdict(passed, n),
             "noise_limited": sum(1 for o in outcomes if o[1]),
             "noise_limited_disagreeing": sum(1 for o in outcomes if o[1] and not o[0]), "note": note,
             "details": [o[2] for o in outcomes]}

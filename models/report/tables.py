@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from models import registry
+from models.report.numbers import number
 from models.report.panels import DPI
 from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, material_sort_key,
                                    param_text)
@@ -64,7 +65,7 @@ def category_csv(results: list[MaterialResult]) -> str:
 
 
 def _g(x: float) -> str:
-    return f"{x:.6g}"
+    return number(x, ".6g")
 
 
 def category_markdown(category: str, results: list[MaterialResult]) -> str:
