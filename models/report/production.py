@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from goniometer import atomic, store
-from models.production.fitting_formulas import SPLIT_SEED
-from models.production.measure import BELCOUR, measure_results, result_files
+from models.production.study.fitting_formulas import SPLIT_SEED
+from models.production.study.measure import BELCOUR, measure_results, result_files
 from models.production.openpbr_coat import openpbr_parameters
-from models.production.study import QUANTITIES, REFERENCE_SCATTERING, QuantityResult, run_study, summary_document
+from models.production.study.analysis import QUANTITIES, REFERENCE_SCATTERING, QuantityResult, run_study, summary_document
 from models.report.files import write_json, write_text
 from models.report.numbers import number
 from models.report.panels import figure_png
