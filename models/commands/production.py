@@ -28,8 +28,8 @@ def register(sub) -> None:
 def cmd_production(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from models.production.effective import ProductionError
-    from models.production.fitting_formulas import SPLIT_SEED
+    from models.production.study.effective import ProductionError
+    from models.production.study.fitting_formulas import SPLIT_SEED
     from models.report.production import write_production_report
     results = Path(args.results)
     if not (results / "database.json").is_file():

@@ -1,6 +1,8 @@
 """Production coat models in the harness (issue 13): the coats renderers ship, judged on our stacks.
 
 Formulas, sources and how our stacks map onto each model's inputs: ``docs/production-models.md``.
+The study of what their coat formulas should be (``gonio production``, ``docs/production.md``) is
+the subpackage :mod:`models.production.study`.
 """
 
 # --- OpenPBR and Autodesk Standard Surface coats (openpbr, fresnel, layering, openpbr_coat, standard_surface)

@@ -12,11 +12,11 @@ import numpy as np
 
 from models import registry
 from models.base import ModelError
-from models.render.figure import fill, figure, split, write_png
+from models.render.figure import fill, figure, ring, split, write_png
 from models.render.modelbsdf import ModelBSDF, node_step_deg
 from models.render.reference import Reference, open_reference
-from models.render.sphere import BTDF, SphereView, shade_views
-from models.render.tonemap import EXPOSURE_RULE, display, exposure
+from models.render.sphere import BTDF, RenderError, SphereView, shade_views
+from models.render.tonemap import EXPOSURE_RULE, display, exposure, pixel_exposure
 
 REFERENCE = "reference"
 
@@ -31,9 +31,33 @@ class SphereSet:
     skipped: dict[str, str] = field(default_factory=dict)
 
     @cached_property
+    def _tone(self) -> tuple[float, str | None]:
+        """``(exposure, reference_note)``: the reference's exposure and None, or, when the reference
+        is black or has no value on the sphere, the models' exposure (the same rule on their pixels;
+        1 without any) and why the reference cannot be shown."""
+        inside = self.view.inside
+        try:
+            return exposure(self.images[REFERENCE], inside), None
+        except RenderError as e:
+            ref = self.images[REFERENCE][inside]
+            black = bool(np.isfinite(ref).all(axis=-1).any())
+            note = f"the reference is black on this sphere: {dark_reason(self.view)}" if black else str(e)
+        try:
+            k = pixel_exposure(np.concatenate([self.images[n][inside] for n in self.models]))
+        except (RenderError, ValueError):
+            k = 1.0
+        return k, note
+
+    @property
     def exposure(self) -> float:
-        """The one exposure of every panel (:func:`models.render.tonemap.exposure` on the reference)."""
-        return exposure(self.images[REFERENCE], self.view.inside)
+        """The one exposure of every panel (:func:`models.render.tonemap.exposure` on the reference;
+        on the models when the reference cannot set it, :attr:`reference_note`)."""
+        return self._tone[0]
+
+    @property
+    def reference_note(self) -> str | None:
+        """Why the reference cannot be shown on this sphere (black, or no value anywhere), or None."""
+        return self._tone[1]
 
     def display(self, name: str) -> np.ndarray:
         """Display values of panel ``name`` (sRGB-encoded, NaN where it has no value)."""
@@ -41,7 +65,10 @@ class SphereSet:
 
     def rmse(self, name: str) -> float:
         """RMSE of ``name`` against the reference over the sphere pixels where both have a value,
-        in display units before clipping and the OETF (exposure applied; 1 = white)."""
+        in display units before clipping and the OETF (exposure applied; 1 = white); NaN when the
+        reference cannot set the exposure (:attr:`reference_note`)."""
+        if self.reference_note is not None:
+            return float("nan")
         a, b = self.images[name][self.view.inside], self.images[REFERENCE][self.view.inside]
         ok = np.all(np.isfinite(a), axis=-1) & np.all(np.isfinite(b), axis=-1)
         if not ok.any():
@@ -63,7 +90,8 @@ class SphereSet:
             return float(x) if np.isfinite(x) else None
         return {"light_angle_deg": self.view.light_angle_deg, "size": self.view.size, "side": self.view.side,
                 "material": self.reference.stack.name, "reference": self.reference.description,
-                "exposure": self.exposure, "no_value_fraction": self.no_value(REFERENCE),
+                "exposure": self.exposure, "reference_note": self.reference_note,
+                "no_value_fraction": self.no_value(REFERENCE),
                 "models": {n: {"rmse": num(self.rmse(n)), "no_value_fraction": self.no_value(n)} for n in self.models},
                 "skipped": dict(self.skipped)}
 
@@ -110,6 +138,20 @@ def render_views(reference: Reference, models: Sequence[str] | None, views: Sequ
             for k, view in enumerate(views)]
 
 
+def dark_reason(view: SphereView) -> str:
+    """Why a reference with values can be black on ``view``: where the peak of a smooth material is
+    (``docs/render.md`` 6)."""
+    a = view.light_angle_deg
+    if view.side == BTDF:
+        if a > 0:
+            return (f"a slab transmits around the straight-through direction v = -l, which this camera sees only "
+                    f"with the light straight behind the sphere (0°); at {a:g}° a transmitted peak narrower than "
+                    f"the slice grid (smooth interfaces) reaches no pixel")
+        return "no recorded light reaches the camera"
+    return ("a reflected peak narrower than the slice grid (smooth interfaces) is a point highlight at the "
+            "mirror point (normal halfway between light and view), marked with a ring")
+
+
 def view_text(view: SphereView) -> str:
     """The view in words, for titles."""
     if view.side == BTDF:
@@ -123,21 +165,27 @@ def comparison_figure(spheres: SphereSet, *, splits: bool = True, caption: bool 
     right half model). ``caption``: the reference's description, the exposure rule and the hatching."""
     inside = spheres.view.inside
     panels = {n: fill(spheres.display(n), inside) for n in spheres.images}
-    top = [(REFERENCE, panels[REFERENCE])]
-    top += [(f"{n}\nRMSE {spheres.rmse(n):.3g}", panels[n]) for n in spheres.models]
+    note = spheres.reference_note
+    if note is not None and spheres.view.mirror_point is not None:
+        panels[REFERENCE] = ring(panels[REFERENCE], *spheres.view.mirror_point)
+    top = [(REFERENCE if note is None else f"{REFERENCE}\n(cannot be shown)", panels[REFERENCE])]
+    top += [(f"{n}\n" + (f"RMSE {spheres.rmse(n):.3g}" if np.isfinite(spheres.rmse(n)) else "no RMSE"), panels[n])
+            for n in spheres.models]
     rows = [top]
     if splits and spheres.models:
         rows.append([("", None)] + [(f"◧ reference | {n}", split(panels[REFERENCE], panels[n]))
                                      for n in spheres.models])
     title = title or f"{spheres.reference.stack.name}: {view_text(spheres.view)}"
-    text = None
+    lines = [] if note is None else [
+        f"The reference cannot be shown: {note}." + (" The models are exposed on their own pixels by the same "
+                                                     "rule, without an image RMSE." if spheres.models else "")]
     if caption:
-        lines = [f"Reference: {spheres.reference.description}.",
-                 f"{EXPOSURE_RULE}; image RMSE in those linear display units (white = 1). "
-                 f"Hatched: no value (light outside the recorded incident range, or only masked cells)."]
+        lines += [f"Reference: {spheres.reference.description}.",
+                  f"{EXPOSURE_RULE}; image RMSE in those linear display units (white = 1). "
+                  f"Hatched: no value (light outside the recorded incident range, or only masked cells)."]
         if spheres.skipped:
             lines.append("Not rendered: " + "; ".join(f"{n} ({r})" for n, r in spheres.skipped.items()) + ".")
-        text = "\n".join(lines)
+    text = "\n".join(lines) or None
     return figure(rows, title, text)
 
 

@@ -41,6 +41,27 @@ def split(ref: np.ndarray, model: np.ndarray) -> np.ndarray:
     return out
 
 
+def ring(img: np.ndarray, x: float, y: float) -> np.ndarray:
+    """A copy of the (S, S, 3) image with a hollow yellow ring (dark outline) centred on the image
+    point ``(x, y)`` ([-1, 1]², +y up): marks where a peak too narrow to show lies."""
+    s = img.shape[0]
+    cx, cy = (x + 1.0) / 2.0 * s - 0.5, (1.0 - y) / 2.0 * s - 0.5
+    rr, cc = np.mgrid[0:s, 0:s]
+    r = np.hypot(cc - cx, rr - cy)
+    rad = max(4.0, s / 16.0)
+    out = img.copy()
+    out[(r >= rad - 2.2) & (r <= rad + 1.2)] = (0.1, 0.1, 0.1)
+    out[(r >= rad - 1.2) & (r <= rad + 0.2)] = (1.0, 0.85, 0.0)
+    return out
+
+
+def _wrap(text: str, chars: int) -> list[str]:
+    lines: list[str] = []
+    for part in text.split("\n"):
+        lines += textwrap.wrap(part, max(chars, 12)) or [""]
+    return lines
+
+
 def figure(rows: list[list[tuple[str, np.ndarray | None]]], title: str, caption: str | None = None):
     """A matplotlib Figure of panels: ``rows`` of ``(label, RGB image or None)``; every image has
     the same size, one pixel of the image per pixel of the figure."""
@@ -49,13 +70,17 @@ def figure(rows: list[list[tuple[str, np.ndarray | None]]], title: str, caption:
     ncol = max(len(r) for r in rows)
     fs = float(np.clip(s / 38.0, 7.0, 13.0))
     gap, label_h = int(0.06 * s) + 4, int(2.9 * fs * DPI / 72.0) + 4
-    title_h = int(1.7 * fs * DPI / 72.0 * max(1, title.count("\n") + 1)) + 10
-    width = ncol * s + (ncol + 1) * gap
-    cap_lines = []
-    if caption:
-        chars = max(40, int(width / (0.55 * fs * DPI / 72.0)))
-        for part in caption.split("\n"):
-            cap_lines += textwrap.wrap(part, chars) or [""]
+    # text widths in pixels per character (generous: the layout must not clip what it places)
+    title_char, cap_char = 0.62 * 1.05 * fs * DPI / 72.0, 0.58 * 0.85 * fs * DPI / 72.0
+    panels_w = ncol * s + (ncol + 1) * gap
+    # a narrow figure (one or two spheres) widens for its title, up to four spheres' width, then wraps
+    title_w = (max(len(part) for part in title.split("\n")) + 1) * title_char + 2 * gap
+    width = int(max(panels_w, min(title_w, 4 * s + 5 * gap)))
+    x0 = (width - panels_w) // 2
+    title_lines = _wrap(title, int((width - 2 * gap) / title_char))
+    title = "\n".join(title_lines)
+    title_h = int(1.7 * 1.05 * fs * DPI / 72.0 * len(title_lines)) + 10
+    cap_lines = _wrap(caption, int((width - 2 * gap) / cap_char)) if caption else []
     cap_h = int(len(cap_lines) * 1.35 * 0.85 * fs * DPI / 72.0) + (gap if cap_lines else 0)
     height = title_h + len(rows) * (label_h + s) + (len(rows) - 1) * gap // 2 + cap_h + gap // 2
     fig = Figure(figsize=(width / DPI, height / DPI), dpi=DPI, facecolor="white")
@@ -63,7 +88,7 @@ def figure(rows: list[list[tuple[str, np.ndarray | None]]], title: str, caption:
     y = height - title_h
     for row in rows:
         for c, (label, img) in enumerate(row):
-            x = gap + c * (s + gap)
+            x = x0 + gap + c * (s + gap)
             if label:
                 fig.text((x + s / 2) / width, (y - 2) / height, label, ha="center", va="top", fontsize=fs,
                          linespacing=1.15)

@@ -17,10 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 
-#: the coordinates at which neighbouring nodes are read
-COORDINATES = ("view", "half")
-
-
 def align(l: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(theta_l, v_rot)``: the light elevation (N,) and ``v`` (N, 3) rotated about z by ``-phi_l``
     (so that ``l`` lies in the x-z plane with ``l_x >= 0``). A light at the pole keeps ``v``."""
@@ -56,12 +52,6 @@ def view_from_half(l: np.ndarray, h: np.ndarray, transmission: bool) -> tuple[np
     if transmission:
         v = v * np.array([1.0, 1.0, -1.0])
     return v, valid
-
-
-def rotate_z(d: np.ndarray, phi: float) -> np.ndarray:
-    """Directions (N, 3) rotated about z by ``phi`` (radians)."""
-    c, s = np.cos(phi), np.sin(phi)
-    return np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=-1)
 
 
 def bracket(theta: np.ndarray, nodes: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -86,6 +86,16 @@ class SphereView:
         a = np.radians(self.light_angle_deg)
         return np.array([0.0, np.sin(a), np.cos(a) if self.side == BRDF else -np.cos(a)])
 
+    @property
+    def mirror_point(self) -> tuple[float, float] | None:
+        """Image coordinates ``(x, y)`` (in [-1, 1], +y up) of the sphere point whose normal is halfway
+        between the light and the view, ``normalize(L + V) = (0, sin(a/2), cos(a/2))``: where a
+        reflected peak narrower than any grid is a point highlight. None for a :data:`BTDF` view (its
+        straight-through peak ``v = -l`` reaches the camera only at ``a = 0``, and then everywhere)."""
+        if self.side == BTDF:
+            return None
+        return 0.0, float(np.sin(0.5 * np.radians(self.light_angle_deg)))
+
     @cached_property
     def normals(self) -> np.ndarray:
         """(P, 3) outward normals of the pixels inside the disk (row-major order)."""

@@ -26,8 +26,13 @@ def exposure(reference: np.ndarray, inside: np.ndarray) -> float:
     """The factor ``k`` that maps the reference's radiance (size, size, 3) to display values: its
     :data:`EXPOSURE_PERCENTILE` percentile (of the per-pixel maximum channel over the sphere pixels
     with a value, unlit ones included) maps to :data:`EXPOSURE_WHITE`; if that percentile is 0
-    (a tiny highlight on black), its maximum does. RenderError if the reference is black."""
-    px = reference[inside]
+    (a tiny highlight on black), its maximum does. RenderError if the reference is black or has no
+    value on the sphere."""
+    return pixel_exposure(reference[inside])
+
+
+def pixel_exposure(px: np.ndarray) -> float:
+    """:func:`exposure` of sphere pixels ``px`` (P, 3) (NaN: no value)."""
     m = np.max(px, axis=-1)
     m = m[np.isfinite(m)]
     if not m.size:

@@ -25,6 +25,8 @@ from collections import defaultdict
 import h5py
 import numpy as np
 
+from models.report.numbers import number
+from models.report.reproduction import verdict
 from models.report.results import MaterialResult, ReportMaterial
 
 MODEL = "belcour-fwd"
@@ -102,21 +104,14 @@ def appendix_e_section(results: list[MaterialResult]) -> dict:
             "claim_best_g": {"paper": "at each d, belcour-fwd's error is lowest for g >= 0.7 "
                                       "(Bati 2019 appendix E: 'only valid for g > 0.7 ... best results for high g')",
                              "per_depth": claim1, "n": len(n1), "agree": sum(bool(c["holds"]) for c in n1),
-                             "verdict": _verdict(len(n1), sum(bool(c["holds"]) for c in n1))},
+                             "verdict": verdict(sum(bool(c["holds"]) for c in n1), len(n1))},
             "claim_turn_around": {"paper": "bundles cannot turn around in the medium: the blueish light reflected "
                                            "without reaching the red base is missing, more so toward grazing angles",
                                   "rows": claim2, "unrecorded": unrecorded}}
 
 
-def _verdict(n: int, agree: int) -> str:
-    if n == 0:
-        return "not testable"
-    f = agree / n
-    return "holds" if f >= 0.9 else "partly" if f >= 0.5 else "does not hold"
-
-
 def _f(x: float, fmt: str = ".3e") -> str:
-    return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+    return number(x, fmt)
 
 
 def appendix_e_markdown(sec: dict) -> str:

@@ -6,6 +6,11 @@ Every finished material is evaluated with the models of :mod:`models.registry` (
 :func:`models.evaluation.evaluate` applies to it); evaluations and figures are cached in the
 report directory, so a rerun only redoes what changed. What the directory holds, its keys and the
 caching rules: ``docs/report.md``.
+
+A figure never stops a report: a figure that cannot be drawn (or whose reference cannot be shown)
+is listed with its reason in ``errors.json`` (``not_drawn`` of the material's records), in the
+summary's ``not_drawn`` and warnings, and the errors, tables and reproduction checks are written
+whatever the figures do.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from models.report.html import html_data, render_html
 from models.report.panels import save_figure
 from models.report.reproduction import reproduction_checks, reproduction_markdown
 from models.report.results import MaterialResult, ReportError, open_results
-from models.report.spheres import figure1, material_spheres
+from models.report.spheres import FIGURE1_FILE, figure1, is_figure1, material_spheres
 from models.report.tables import category_csv, category_markdown, error_records, errors_figure
 
 #: ``progress(done, total, message)``, called once per material
@@ -56,7 +61,25 @@ class ReportSummary:
     multiple_scattering: dict | None = None
     #: Bati 2019 figure 1 (:func:`models.report.spheres.figure1`) when the results hold its material
     figure1: dict | None = None
+    #: figures not drawn, or drawn without their reference: ``[{"material", "figure", "reason"}]``
+    #: (``material`` None for the figure-4 plots of a category or of all)
+    not_drawn: list[dict] = field(default_factory=list)
     elapsed_s: float = 0.0
+
+
+def _figure_step(res: MaterialResult | None, figure: str, summary: ReportSummary, draw: Callable[[], object],
+                 default: object) -> object:
+    """``draw()``, or ``default`` when it raises: the failure is recorded as a figure not drawn (for
+    the material ``res``, or for the report when None) and never stops the report."""
+    try:
+        return draw()
+    except Exception as e:   # noqa: BLE001 -- any figure failure: the report goes on without that figure
+        reason = f"{type(e).__name__}: {e}"
+        if res is not None:
+            res.missing_figure(figure, reason)
+        else:
+            summary.not_drawn.append({"material": None, "figure": figure, "reason": reason})
+        return default
 
 
 def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequence[str] | None = None,
@@ -104,28 +127,44 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         t1 = time.perf_counter()
         res, ref = evaluate_material(mat, out, models, subcells, code, isotropize)
         t2 = time.perf_counter()
-        drawn = material_figures(res, ref, out, styles, incidents_for_figures, report_key)
-        res.figures = {**res.figures, **material_spheres(res, ref, out, report_key)}
+        drawn = _figure_step(res, "figures", summary,
+                             lambda: material_figures(res, ref, out, styles, incidents_for_figures, report_key), None)
+        if drawn is None:
+            res.figures = {}
+        spheres = _figure_step(res, "spheres", summary, lambda: material_spheres(res, ref, out, report_key),
+                               {"spheres": [], "spheres_note": "no spheres: they could not be drawn"})
+        for x in spheres.pop("not_drawn", []):
+            res.missing_figure(x["figure"], x["reason"])
+        res.figures = {**res.figures, **spheres}
         t3 = time.perf_counter()
         res.slices = None   # free memory: the figures are on disk
         results.append(res)
         summary.materials.append(mat.name)
         (summary.reused if res.from_cache else summary.evaluated).append(mat.name)
-        (summary.figures_drawn if drawn else summary.figures_reused).append(mat.name)
+        if drawn is not None:
+            (summary.figures_drawn if drawn else summary.figures_reused).append(mat.name)
         if res.evaluation.get("failed"):
             summary.failed[mat.name] = dict(res.evaluation["failed"])
             summary.warnings.extend(f"{mat.name}: {n} failed: {msg}" for n, msg in res.evaluation["failed"].items())
         if progress is not None:
             n_models = len(res.evaluation["models"])
             ev = "from cache" if res.from_cache else f"evaluated in {t2 - t1:.1f} s"
-            fg = f"drawn in {t3 - t2:.1f} s" if drawn else "up to date"
+            fg = (f"drawn in {t3 - t2:.1f} s" if drawn else "up to date" if drawn is not None else "not drawn")
+            if res.not_drawn:
+                fg += f" ({len(res.not_drawn)} not drawn or without their reference)"
             progress(k + 1, len(materials), f"{mat.name}: {n_models} model(s) {ev}; figures {fg}")
     if incidents_for_figures is not None:
         drawn_at = {i["theta"] for r in results for i in r.figures.get("incidents", [])}
         unknown_angles = [w for w in incidents_for_figures if not any(abs(w - t) < 1e-6 for t in drawn_at)]
         if unknown_angles:
             summary.warnings.append(f"no material has the incident direction(s) {unknown_angles} asked for figures")
-    summary.figure1 = figure1(results, out, report_key)
+    fig1_res = next((r for r in results if is_figure1(r.material)), None)
+    summary.figure1 = _figure_step(fig1_res, FIGURE1_FILE, summary, lambda: figure1(results, out, report_key), None)
+    if summary.figure1 is not None:
+        for x in summary.figure1.pop("not_drawn", []):
+            fig1_res.missing_figure(x["figure"], x["reason"])
+    for r in results:
+        summary.not_drawn.extend(r.not_drawn)
     _write_outputs(results, manifest, out, styles, summary, rd, subcells, code)
     if is_appendix_e([r.material for r in results]):
         sec = appendix_e_section(results)
@@ -148,36 +187,47 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
 
 def _write_outputs(results: list[MaterialResult], manifest: dict, out: Path, styles: dict, summary: ReportSummary,
                    rd: Path, subcells: int, code: str) -> None:
+    # the errors, tables and checks first: they never depend on a figure
     records = error_records(results)
     write_json(out / "errors.json", records)
     summary.records = len(records)
     by_cat: dict[str, list[MaterialResult]] = {}
     for r in results:
         by_cat.setdefault(r.material.category, []).append(r)
-    used = {n for r in results for n in r.evaluation["models"]}
-    styles = {n: s for n, s in styles.items() if n in used}
-    tables, overview = {}, {}
+    tables = {}
     for cat, res in by_cat.items():
         safe = safe_part(cat)
         write_text(out / "tables" / f"{safe}.csv", category_csv(res))
         write_text(out / "tables" / f"{safe}.md", category_markdown(cat, res))
         tables[cat] = {"csv": f"tables/{safe}.csv", "md": f"tables/{safe}.md"}
-        if any(r.evaluation["models"] for r in res):
-            save_figure(errors_figure({cat: res}, styles), out / "figures" / f"errors_{safe}.png")
-            overview[cat] = f"figures/errors_{safe}.png"
-    plotted = {c: r for c, r in by_cat.items() if c in overview}
-    if plotted:
-        save_figure(errors_figure(plotted, styles), out / "figures" / "errors_overview.png")
-        overview["_all"] = "figures/errors_overview.png"
-    checks = reproduction_checks(results)
+    run = {"database": manifest.get("database", rd.name), "quality": manifest.get("quality"),
+           "rays_per_slice": manifest.get("rays_per_slice")}
+    checks = reproduction_checks(results, run)
     summary.reproduction = checks
     write_json(out / "reproduction.json", checks)
     write_text(out / "reproduction.md", reproduction_markdown(checks))
-    meta = {"database": manifest.get("database", rd.name), "quality": manifest.get("quality"),
-            "rays_per_slice": manifest.get("rays_per_slice"), "results_dir": os.path.relpath(rd, out),
+    used = {n for r in results for n in r.evaluation["models"]}
+    styles = {n: s for n, s in styles.items() if n in used}
+    overview = {}
+
+    def plot(groups: dict[str, list[MaterialResult]], src: str) -> bool:
+        """The figure-4 plot of ``groups`` into ``out / src``; False (recorded) if it cannot be drawn."""
+        return _figure_step(None, src, summary, lambda: _save_errors_figure(groups, styles, out / src), False)
+
+    for cat, res in by_cat.items():
+        src = f"figures/errors_{safe_part(cat)}.png"
+        if any(r.evaluation["models"] for r in res) and plot({cat: res}, src):
+            overview[cat] = src
+    plotted = {c: r for c, r in by_cat.items() if c in overview}
+    if plotted and plot(plotted, "figures/errors_overview.png"):
+        overview["_all"] = "figures/errors_overview.png"
+    summary.warnings.extend(f"{x['material'] or 'report'}: {x['figure']} not drawn or drawn without its reference: "
+                            f"{x['reason']}" for x in summary.not_drawn)
+    meta = {**run, "results_dir": os.path.relpath(rd, out),
             "subcells": subcells, "model_code": code,
             "generated": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
-            "materials": len(results), "missing": summary.missing, "warnings": summary.warnings}
+            "materials": len(results), "missing": summary.missing, "warnings": summary.warnings,
+            "not_drawn": summary.not_drawn}
     data = html_data(results, styles, overview, meta)
     lines = [f"database {meta['database']}, quality {meta['quality']} ({meta['rays_per_slice']:,} rays per slice)"
              if isinstance(meta["rays_per_slice"], int) else f"database {meta['database']}",
@@ -189,3 +239,9 @@ def _write_outputs(results: list[MaterialResult], manifest: dict, out: Path, sty
                      + ", ".join(summary.missing[:8]) + (" …" if len(summary.missing) > 8 else ""))
     lines += [f"warning: {w}" for w in summary.warnings]
     write_text(out / "index.html", render_html(data, checks, tables, lines, summary.figure1))
+
+
+def _save_errors_figure(groups: dict[str, list[MaterialResult]], styles: dict, path: Path) -> bool:
+    """Draw :func:`models.report.tables.errors_figure` of ``groups`` into ``path``; True."""
+    save_figure(errors_figure(groups, styles), path)
+    return True

@@ -121,8 +121,11 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
         labels = (ref.stack.name, side) if standalone else None
         tops, diff_scale, lum_scale, rgb_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
         orders = f"orders_{tag}.png"
-        orders_img, orders_legend = _orders_image(inc, sd.grid)
-        write_png(fig_dir / orders, orders_img)
+        top, bottom, orders_legend = _orders_panels(inc, sd.grid)
+        if standalone:
+            save_figure(_labelled_orders(top, bottom, orders_legend, inc, ref.stack.name, side), fig_dir / orders)
+        else:
+            write_png(fig_dir / orders, compose([top, bottom], gap=PANEL_GAP_PX))
         entries.append({"index": inc.m, "theta": inc.theta, "phi": inc.phi, "plane": f"{rel}/{plane}",
                         "orders": f"{rel}/{orders}", "top": {k: f"{rel}/{v}" for k, v in tops.items()},
                         "diff_scale": diff_scale, "scale": lum_scale,
@@ -333,10 +336,10 @@ def _labelled_top(panels: tuple[np.ndarray, np.ndarray, np.ndarray], name: str, 
     return fig
 
 
-def _orders_image(inc: _Incident, grid: SliceGrid) -> tuple[np.ndarray, list[dict]]:
+def _orders_panels(inc: _Incident, grid: SliceGrid) -> tuple[list[np.ndarray], list[np.ndarray], list[dict]]:
     """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled) over isovalues (each
-    order exposed on its own range, see :func:`exposure`); with each column's colour-bar numbers
-    (:func:`_legend`)."""
+    order exposed on its own range, see :func:`exposure`): the top and bottom rows of disks, and
+    each column's colour-bar numbers (:func:`_legend`)."""
     pm = pixel_map(grid, inc.light, inc.mask, ORDER_DISK_PX)
     scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
     top, bottom, legends = [], [], []
@@ -348,7 +351,47 @@ def _orders_image(inc: _Incident, grid: SliceGrid) -> tuple[np.ndarray, list[dic
         lum_scale = exposure(remap(lum), inc.omega, inc.mask)
         bottom.append(mark_light(iso_panel(lum, lum_scale, pm), inc.light))
         legends.append({"order": k + 1, "factor": factor, **_legend(scale, lum_scale, factor)})
-    return compose([top, bottom], gap=PANEL_GAP_PX), legends
+    return top, bottom, legends
+
+
+def _labelled_orders(top: list[np.ndarray], bottom: list[np.ndarray], legends: list[dict], inc: _Incident,
+                     material: str, side: str):
+    """The bounce-order disks as a matplotlib figure (``gonio plot``): a title, one column per order
+    (its RGB white point in 1/sr), the orientation of the views, and under each column the colour
+    bar of its luminance bands in 1/sr (band edges evenly spaced in g(L) = log(1 + sqrt L))."""
+    from matplotlib import colors
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+    k = len(top)
+    fig = Figure(figsize=(1.75 * k + 1.2, 5.0), dpi=DPI, layout="constrained")
+    axes = fig.subplots(2, k, squeeze=False)
+    cmap = colormap("viridis").resampled(ISO_LEVELS)
+    for c in range(k):
+        lg = legends[c]
+        last = "+" if c == k - 1 and k > 1 else ""
+        doubled = " (RGB ×2)" if lg["factor"] != 1.0 else ""
+        axes[0, c].set_title(f"order {lg['order']}{last}{doubled}\nRGB white at f = {lg['rgb_white']:.3g} sr⁻¹",
+                             fontsize=7.5)
+        for r, img in ((0, top[c]), (1, bottom[c])):
+            ax = axes[r, c]
+            ax.imshow(img, interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+        axes[1, c].set_xlabel("+x (φ = 0°) →", fontsize=7)
+        edges = np.asarray(lg["band_edges"], dtype=float)
+        if np.all(np.diff(edges) > 0):
+            bar = fig.colorbar(ScalarMappable(norm=colors.BoundaryNorm(edges, ISO_LEVELS), cmap=cmap), ax=axes[1, c],
+                               orientation="horizontal", fraction=0.08, pad=0.06, spacing="uniform",
+                               ticks=[edges[0], edges[len(edges) // 2], edges[-1]], format="%.3g")
+            bar.ax.tick_params(labelsize=6)
+            bar.set_label("luminance L (sr⁻¹)", fontsize=6.5)
+    axes[0, 0].set_ylabel("RGB, g(f) = log(1 + √f)\n+y (φ = 90°) →", fontsize=7)
+    axes[1, 0].set_ylabel("luminance bands\n+y (φ = 90°) →", fontsize=7)
+    what = "BRDF seen from above" if side == "brdf" else "BTDF, lower hemisphere seen from above"
+    fig.suptitle(f"{material}: bounce orders of the reference, {what}, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°\n"
+                 f"each order on its own band scale; yellow ring: the light direction l; grey: cells outside the "
+                 f"comparison mask; white in the bands: above the scale", fontsize=8, wrap=True)
+    return fig
 
 
 def order_energy(sd: SliceData) -> np.ndarray:
@@ -371,6 +414,9 @@ def _energy_figure(ref: SimulationResult, sd: SliceData, side: str):
         label = f"order {k + 1}" + ("+" if k == K - 1 else "")
         ax.bar(xs, e[:, k], bottom=bottom, color=colours[k], label=label, width=0.7)
         bottom += e[:, k]
+    top = float(np.max(bottom)) if bottom.size else 0.0
+    if np.isfinite(top) and top > 0:
+        ax.set_ylim(0.0, 1.08 * top)   # the tallest stacked bar stays inside the axes
     ax.set_xticks(xs, [f"{t:g}°" for t in ref.theta_deg])
     ax.set_xlabel("θ_l", fontsize=8)
     ax.set_ylabel(("reflected" if side == "brdf" else "transmitted") + " energy (luminance)", fontsize=8)

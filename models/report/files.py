@@ -16,9 +16,10 @@ def write_text(path: Path, text: str) -> None:
     atomic.write_bytes(path, text.encode("utf-8"))
 
 
-def write_json(path: Path, obj: Any) -> None:
-    """Write ``obj`` as JSON (indent 1, no NaN) to ``path`` atomically."""
-    write_text(path, json.dumps(obj, indent=1, allow_nan=False) + "\n")
+def write_json(path: Path, obj: Any, *, indent: int = 1) -> None:
+    """Write ``obj`` as JSON (``indent``, no NaN) to ``path`` atomically: every JSON file of
+    ``models.report`` is written here."""
+    write_text(Path(path), json.dumps(obj, indent=indent, allow_nan=False) + "\n")
 
 
 def read_json(path: Path) -> dict | None:

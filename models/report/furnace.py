@@ -24,7 +24,7 @@ def furnace_figure(result: FurnaceResult):
     import matplotlib.pyplot as plt
     from models.report.figures import model_style
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), sharey=True, constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8), sharey=True, layout="constrained")
     t = np.asarray(result.incident_deg)
     styles = model_style(result.models.albedo)
     for c, (ax, (label, colour)) in enumerate(zip(axes, CHANNELS)):
@@ -39,7 +39,8 @@ def furnace_figure(result: FurnaceResult):
         ax.set_xlim(0.0, 90.0)
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("directional albedo E (fraction of incident flux)")
-    axes[-1].legend(loc="best", fontsize=8)
+    handles, labels = axes[-1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right center", fontsize=8)   # beside the panels: hides no curve
     fig.suptitle(f"{result.material}: directional albedo (reflected + transmitted), {result.rays:,} rays per angle")
     return fig
 

@@ -71,7 +71,8 @@ def html_data(results: list[MaterialResult], styles: dict, overview: dict, meta:
                      "resolution": list(m.resolution), "rays": m.rays,
                      "errors": r.evaluation["models"], "skipped": r.evaluation.get("skipped", {}),
                      "approximations": r.evaluation.get("approximations", {}),
-                     "failed": r.evaluation.get("failed", {}), **r.figures})
+                     "failed": r.evaluation.get("failed", {}), **r.figures,
+                     "not_drawn": [{"figure": x["figure"], "reason": x["reason"]} for x in r.not_drawn]})
     return {"format": REPORT_FORMAT, "version": REPORT_VERSION, "meta": meta, "categories": cats,
             "selectors": sel, "materials": mats, "overview": overview,
             "views": {"top": {"disk_px": DISK_PX, "gap_px": PANEL_GAP_PX, "panels": 3},

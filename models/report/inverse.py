@@ -11,7 +11,6 @@ and the validation: ``docs/inverse.md``.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -25,6 +24,9 @@ from models.belcour import variance_to_roughness
 from models.inverse import (FORWARD_RTOL, SIGMA_RES, CaseResult, Inversion, LobeCheck, OneLayerDielectricClass,
                             TwoLayerClass, conductor_point, fgd_for, jsonable, lobe_albedo, lobe_ring_fractions,
                             validation_json)
+from models.report import files
+from models.report.numbers import number
+from models.report.panels import save_figure
 
 
 # ============================================================================ material file (gonio invert --out)
@@ -62,26 +64,22 @@ def value_text(v: Any) -> str:
 # ============================================================================ validation report
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:
-    """Write JSON atomically."""
-    atomic.write_bytes(Path(path), (json.dumps(jsonable(obj), indent=2) + "\n").encode())
+    """``obj`` made of JSON values (:func:`models.inverse.jsonable`) written by the report's JSON
+    writer (:func:`models.report.files.write_json`, indent 2), atomically."""
+    files.write_json(Path(path), jsonable(obj), indent=2)
 
 
 def _save_figure(fig, path: Path) -> None:
-    import io
+    """The pyplot figure ``fig`` as a PNG (:func:`models.report.panels.save_figure`), then closed."""
     import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
+    try:
+        save_figure(fig, path, tight=True)
+    finally:
+        plt.close(fig)
 
 
 def _f(x: Any, fmt: str = ".4g") -> str:
-    if x is None:
-        return "-"
-    a = np.atleast_1d(np.asarray(x, dtype=float))
-    if a.size == 3 and np.ptp(a) == 0:
-        return format(float(a[0]), fmt)
-    return " ".join(format(float(v), fmt) for v in a)
+    return number(x, fmt, missing="-")
 
 
 def _pct(x: Any) -> str:

@@ -9,10 +9,13 @@ from pathlib import Path
 import numpy as np
 
 from goniometer import atomic
+from models.render.figure import DPI as RENDER_DPI
 from models.report.geometry import PixelMap, remap
 
 ISO_LEVELS = 10        # luminance isovalue bands
-DPI = 100
+#: the one resolution of every matplotlib figure of the report: the lit spheres' (one image pixel per
+#: figure pixel, models.render.figure)
+DPI = RENDER_DPI
 PNG_COMPRESSION = 3    # zlib level: as small as 9 on these images, and 5-10x faster
 
 
@@ -109,8 +112,16 @@ def write_png(path: Path, img: np.ndarray) -> None:
     atomic.write_bytes(path, buf.getvalue())
 
 
-def save_figure(fig, path: Path) -> None:
-    """The matplotlib figure ``fig`` as a PNG at :data:`DPI`, written atomically."""
+def figure_png(fig, tight: bool = False) -> bytes:
+    """The matplotlib figure ``fig`` as PNG bytes at :data:`DPI` (``tight``: cropped to its drawn
+    extent, for figures laid out without a layout engine)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
-    atomic.write_bytes(path, buf.getvalue())
+    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESSION},
+                **({"bbox_inches": "tight"} if tight else {}))
+    return buf.getvalue()
+
+
+def save_figure(fig, path: Path, tight: bool = False) -> None:
+    """The matplotlib figure ``fig`` as a PNG at :data:`DPI` (:func:`figure_png`), written atomically:
+    every matplotlib PNG of ``models.report`` is written here."""
+    atomic.write_bytes(Path(path), figure_png(fig, tight))

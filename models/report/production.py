@@ -8,7 +8,6 @@ writes them down and draws them.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 from collections.abc import Callable
@@ -17,11 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from goniometer import atomic, store
-from models.production.fitting_formulas import SPLIT_SEED
-from models.production.measure import BELCOUR, measure_results, result_files
+from models.production.study.fitting_formulas import SPLIT_SEED
+from models.production.study.measure import BELCOUR, measure_results, result_files
 from models.production.openpbr_coat import openpbr_parameters
-from models.production.study import QUANTITIES, REFERENCE_SCATTERING, QuantityResult, run_study, summary_document
+from models.production.study.analysis import QUANTITIES, REFERENCE_SCATTERING, QuantityResult, run_study, summary_document
 from models.report.files import write_json, write_text
+from models.report.numbers import number
+from models.report.panels import figure_png
 
 FIGURES = {"darkening": "darkening.png", "roughening": "roughening.png", "roughening_ior": "roughening-vs-ior.png"}
 UNITS = {"darkening": "darkening factor D (dimensionless)", "roughening": "effective base roughness (GGX alpha)"}
@@ -63,12 +64,6 @@ def _provenance(results_dir: Path) -> dict:
             "quality": manifest.get("quality"), "rays_per_slice": manifest.get("rays_per_slice")}
 
 
-def _png(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    return buf.getvalue()
-
-
 def scatter_figure(r: QuantityResult) -> bytes:
     """Effective (measured) against predicted, held-out reference configurations: spec, fitted, belcour-fwd."""
     from matplotlib.figure import Figure
@@ -95,7 +90,7 @@ def scatter_figure(r: QuantityResult) -> bytes:
     ax.set_title(f"{r.quantity}: held-out coat indices, predicted vs effective")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
-    return _png(fig)
+    return figure_png(fig, tight=True)
 
 
 def roughening_ior_figure(r: QuantityResult) -> bytes:
@@ -132,11 +127,11 @@ def roughening_ior_figure(r: QuantityResult) -> bytes:
     ax.set_title("roughening vs coat index: reference (dots), fitted (solid), OpenPBR 1.1 (dotted)")
     ax.legend(fontsize=6, ncol=2, loc="upper left")
     ax.grid(alpha=0.3)
-    return _png(fig)
+    return figure_png(fig, tight=True)
 
 
 def _fmt(x, d=3) -> str:
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{d}f}"
+    return number(x, f".{d}f", missing="-")
 
 
 def _table_rows(r: QuantityResult, limit: int | None = None) -> list[str]:

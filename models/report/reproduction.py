@@ -35,7 +35,10 @@ class _Row:
     errors: dict   # model -> {"internal": E, "total": E}
 
 
-def _verdict(passed: int, n: int) -> str:
+def verdict(passed: int, n: int) -> str:
+    """The verdict of ``passed`` agreeing comparisons out of ``n``: ``holds`` (>= :data:`HOLDS_AT`),
+    ``partly`` (>= :data:`PARTLY_AT`), ``does not hold``, or ``not testable`` when ``n = 0`` (the
+    reproduction checks' and appendix E's rule, ``docs/report.md``)."""
     if n == 0:
         return "not testable"
     f = passed / n
@@ -58,7 +61,7 @@ def _check(cid: str, source: str, paper: str, test: str, models: Sequence[str], 
     elif missing:
         note = f"not evaluated on every material: {', '.join(missing)}"
     return {"id": cid, "source": source, "paper": paper, "test": test, "models": list(models), "n": n,
-            "agree": passed, "fraction": (passed / n if n else None), "verdict": _verdict(passed, n),
+            "agree": passed, "fraction": (passed / n if n else None), "verdict": verdict(passed, n),
             "noise_limited": sum(1 for o in outcomes if o[1]),
             "noise_limited_disagreeing": sum(1 for o in outcomes if o[1] and not o[0]), "note": note,
             "details": [o[2] for o in outcomes]}
@@ -204,9 +207,12 @@ def _blue_vs_luminance_check(cid, source, paper, rows: list[_Row], model: str) -
                                       f"luminance, per material", [model], outcomes, _missing(sel, [model]), len(sel))
 
 
-def reproduction_checks(results: list[MaterialResult]) -> list[dict]:
+def reproduction_checks(results: list[MaterialResult], run: dict | None = None) -> list[dict]:
     """Each finding of Bati 2019 section 4.2 / figure 4 (and the error statements of 5.1-5.2)
-    computed from our errors, with a verdict by :data:`HOLDS_AT` / :data:`PARTLY_AT`."""
+    computed from our errors, with a verdict by :data:`HOLDS_AT` / :data:`PARTLY_AT`. ``run``: the
+    results' ``database``, ``quality`` and ``rays_per_slice`` (the manifest's), which the cause
+    texts name as this run's (:func:`models.report.causes.attach_causes`)."""
+    run = {**(run or {}), "materials": len(results)}
     rows = [_Row(r.material.name, r.material.category, r.material.params, r.evaluation["models"]) for r in results]
     plastics = [r for r in rows if r.category == "plastic"]
     metals = [r for r in rows if r.category == "metal"]
@@ -275,7 +281,7 @@ def reproduction_checks(results: list[MaterialResult]) -> list[dict]:
         _blue_vs_luminance_check("slab-blue-vs-luminance", "Sec. 4.2 Slabs",
                                  "Slabs with a yellow-tinted τ (S1, S3): errors of the blue channel are smaller "
                                  "than those of the luminance.", slabs, B_BTDF),
-    ])
+    ], run)
 
 
 def _close(a: Any, b: float) -> bool:

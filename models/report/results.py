@@ -45,7 +45,9 @@ class ReportMaterial:
 @dataclass
 class MaterialResult:
     """Evaluation of one material: ``evaluation`` is the ``gonio evaluate --json`` object (plus a
-    ``failed`` mapping for models that raised); ``slices`` maps a model to (top, internal)."""
+    ``failed`` mapping for models that raised); ``slices`` maps a model to (top, internal);
+    ``not_drawn``: ``[{"material", "figure", "reason"}]``, the figures of this material that could
+    not be drawn or whose reference cannot be shown (``errors.json``, ``docs/report.md``)."""
 
     material: ReportMaterial
     evaluation: dict
@@ -53,6 +55,12 @@ class MaterialResult:
     slices: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     from_cache: bool = False
     figures: dict = field(default_factory=dict)
+    not_drawn: list[dict] = field(default_factory=list)
+
+    def missing_figure(self, figure: str, reason: str) -> None:
+        """Record that ``figure`` (a file name or a figure's name) of this material was not drawn, or
+        is drawn without its reference, and why."""
+        self.not_drawn.append({"material": self.material.name, "figure": figure, "reason": reason})
 
 
 def format_value(v: Any) -> str:

@@ -134,11 +134,18 @@ def sphere_sets(res: MaterialResult, lazy: _Lazy, out: Path, specs: Sequence[tup
     return sets, True
 
 
+def _sphere_file(angle: float) -> str:
+    return f"sphere_{angle:g}.png"
+
+
 def material_spheres(res: MaterialResult, ref: SimulationResult | None, out: Path, report_key: str) -> dict:
     """The spheres of one material at :data:`SPHERE_ANGLES_DEG`: one PNG per angle (reference and
     the rendered models beside it, one exposure), cached. Returns the HTML entries
     ``{"spheres": [{"angle", "src", "rmse"}], "spheres_note": str}`` (a note says why there are none,
-    or which models are not rendered)."""
+    or which models are not rendered) and ``"not_drawn"``: ``[{"figure", "reason"}]`` for every
+    sphere whose reference cannot be shown (black or without a value there: its PNG says why and
+    marks where a peak too narrow for the grid lies, ``docs/render.md`` 6) or that could not be
+    rendered at all."""
     names = _rendered_models(res)
     notes = [f"{n}: fitted models are not rendered" for n in res.evaluation["models"] if n not in names]
     lazy = _Lazy(res.material, ref)
@@ -148,26 +155,29 @@ def material_spheres(res: MaterialResult, ref: SimulationResult | None, out: Pat
     try:
         sets, _ = sphere_sets(res, lazy, out, [(f"a{a:g}", a, SPHERE_PX) for a in SPHERE_ANGLES_DEG], names)
     except (RenderError, ModelError, store.StoreError) as e:
-        return {"spheres": [], "spheres_note": f"no spheres: {e}"}
+        return {"spheres": [], "spheres_note": f"no spheres: {e}",
+                "not_drawn": [{"figure": _sphere_file(a), "reason": f"no spheres: {e}"} for a in SPHERE_ANGLES_DEG]}
     drawn_sets = dict(zip(SPHERE_ANGLES_DEG, sets))
     stamp_path = out / rel / "spheres.json"
     fkey = hashlib.sha256(json.dumps([keys, report_key]).encode()).hexdigest()[:20]
     stamp = read_json(stamp_path)
+    not_drawn = [{"figure": _sphere_file(angle), "reason": spheres.reference_note}
+                 for angle, spheres in drawn_sets.items() if spheres.reference_note is not None]
     for angle, spheres in drawn_sets.items():
-        src = f"{rel.as_posix()}/sphere_{angle:g}.png"
+        src = f"{rel.as_posix()}/{_sphere_file(angle)}"
         entries.append({"angle": angle, "src": src, "rmse": {n: spheres.rmse(n) for n in spheres.models},
                         "reference": spheres.reference.description})
     if not (stamp and stamp.get("key") == fkey and all((out / e["src"]).is_file() for e in entries)):
         for angle, spheres in drawn_sets.items():
             fig = comparison_figure(spheres, splits=False, caption=False,
                                     title=f"{view_text(spheres.view)}")
-            write_png(out / rel / f"sphere_{angle:g}.png", fig)
+            write_png(out / rel / _sphere_file(angle), fig)
         write_json(stamp_path, {"key": fkey})
     skipped = drawn_sets[SPHERE_ANGLES_DEG[0]].skipped if drawn_sets else {}
     notes += [f"{n}: {r}" for n, r in skipped.items()]
     for e in entries:
         e["rmse"] = {n: (v if np.isfinite(v) else None) for n, v in e["rmse"].items()}
-    return {"spheres": entries, "spheres_note": "; ".join(notes)}
+    return {"spheres": entries, "spheres_note": "; ".join(notes), "not_drawn": not_drawn}
 
 
 def is_figure1(mat: ReportMaterial) -> bool:
@@ -185,7 +195,8 @@ def figure1(results: Sequence[MaterialResult], out: Path, report_key: str) -> di
     """Bati 2019 figure 1 from the first material :func:`is_figure1` accepts: the reference, then
     WW09, Elek, Belcour forward and symmetric beside it and split with it (left half reference),
     light at :data:`FIGURE1_ANGLE_DEG`. Returns ``{"src", "material", "models", "missing",
-    "rmse", "caption"}`` or None if the results hold no such material."""
+    "rmse", "caption", "not_drawn"}`` (``not_drawn``: ``[{"figure", "reason"}]``, empty when the
+    reference is shown) or None if the results hold no such material."""
     res = next((r for r in results if is_figure1(r.material)), None)
     if res is None:
         return None
@@ -197,7 +208,8 @@ def figure1(results: Sequence[MaterialResult], out: Path, report_key: str) -> di
                                            [("figure1", FIGURE1_ANGLE_DEG, FIGURE1_PX)], names)
     except (RenderError, ModelError, store.StoreError) as e:
         return {"src": None, "material": res.material.name, "models": names, "missing": missing,
-                "rmse": {}, "caption": f"figure 1 could not be rendered: {e}"}
+                "rmse": {}, "caption": f"figure 1 could not be rendered: {e}",
+                "not_drawn": [{"figure": FIGURE1_FILE, "reason": f"figure 1 could not be rendered: {e}"}]}
     fkey = hashlib.sha256(json.dumps([_key(res.key, FIGURE1_ANGLE_DEG, FIGURE1_PX, names), report_key])
                           .encode()).hexdigest()[:20]
     stamp = read_json(out / "figures" / "figure1.json")
@@ -209,4 +221,6 @@ def figure1(results: Sequence[MaterialResult], out: Path, report_key: str) -> di
     rmse = {n: spheres.rmse(n) for n in spheres.models}
     return {"src": FIGURE1_FILE, "material": res.material.name, "models": names, "missing": missing,
             "rmse": {n: (v if np.isfinite(v) else None) for n, v in rmse.items()},
-            "caption": spheres.reference.description}
+            "caption": spheres.reference.description,
+            "not_drawn": [] if spheres.reference_note is None else
+            [{"figure": FIGURE1_FILE, "reason": spheres.reference_note}]}

@@ -7,10 +7,12 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 
 import numpy as np
 
 from models import registry
+from models.report.numbers import number
 from models.report.panels import DPI
 from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, material_sort_key,
                                    param_text)
@@ -18,7 +20,9 @@ from models.report.results import (PARAM_KEYS, PARAM_LABELS, MaterialResult, mat
 
 def error_records(results: list[MaterialResult]) -> list[dict]:
     """One record per (material, evaluated model): material, category, paper_name, parameters,
-    model, side, internal, total (the error objects of ``gonio evaluate --json``)."""
+    model, side, internal, total (the error objects of ``gonio evaluate --json``) and ``not_drawn``,
+    the material's figures that could not be drawn (``[{"material", "figure", "reason"}]``, empty
+    when all were: the errors never depend on the figures)."""
     out = []
     for r in results:
         m = r.material
@@ -30,7 +34,7 @@ def error_records(results: list[MaterialResult]) -> list[dict]:
                     if f"{k}_name" in m.params:
                         rec[f"{k}_name"] = m.params[f"{k}_name"]
             rec.update({"model": model, "side": r.evaluation["side"], "internal": errs["internal"],
-                        "total": errs["total"]})
+                        "total": errs["total"], "not_drawn": [dict(x) for x in r.not_drawn]})
             out.append(rec)
     return out
 
@@ -61,7 +65,7 @@ def category_csv(results: list[MaterialResult]) -> str:
 
 
 def _g(x: float) -> str:
-    return f"{x:.6g}"
+    return number(x, ".6g")
 
 
 def category_markdown(category: str, results: list[MaterialResult]) -> str:
@@ -144,8 +148,7 @@ def _plot_category(ax, category: str, results: list[MaterialResult], styles: dic
             ax.text((s + e - 1) / 2, 1.01, f"α0 = {groups[s]:g}", transform=ax.get_xaxis_transform(),
                     ha="center", va="bottom", fontsize=8)
     ax.set_yscale("log")
-    from matplotlib.ticker import NullFormatter
-    ax.yaxis.set_minor_formatter(NullFormatter())
+    log_ticks(ax)
     ax.set_xticks(xs, labels, fontsize=7)
     ax.set_xlim(-0.6, len(results) - 0.4)
     side = results[0].evaluation["side"] if results else "brdf"
@@ -154,6 +157,48 @@ def _plot_category(ax, category: str, results: list[MaterialResult], styles: dic
     ax.set_title(category, fontsize=10, pad=14)
     ax.tick_params(axis="y", labelsize=8)
     ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.0, 0.5))
+
+
+#: the fewest labelled ticks of a log axis of the figure-4 plots
+MIN_TICKS = 3
+
+
+def _ticks_between(lo: float, hi: float, subs: tuple[int, ...]) -> list[float]:
+    return [m * 10.0 ** k for k in range(math.floor(math.log10(lo)) - 1, math.ceil(math.log10(hi)) + 1)
+            for m in subs if lo <= m * 10.0 ** k <= hi]
+
+
+def _power_of_ten_text(v: float, _pos=None) -> str:
+    """``m x 10^k`` in mathtext (``10^k`` when m = 1)."""
+    if not v > 0:
+        return ""
+    k = math.floor(math.log10(v) + 1e-9)
+    m = round(v / 10.0 ** k, 6)
+    return f"$10^{{{k}}}$" if m == 1 else f"${m:g}\\times10^{{{k}}}$"
+
+
+def log_ticks(ax, minimum: int = MIN_TICKS) -> None:
+    """At least ``minimum`` labelled ticks on the log y axis of ``ax`` (its data already drawn): the
+    decades when they are enough, else 1-2-5 per decade, else every integer multiple of a power of
+    ten, widening the axis about its geometric middle when even those are too few."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter, NullLocator
+    lo, hi = ax.get_ylim()
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo < hi):
+        return
+    for subs in ((1,), (1, 2, 5), tuple(range(1, 10))):
+        ticks = _ticks_between(lo, hi, subs)
+        if len(ticks) >= minimum:
+            break
+    while len(ticks) < minimum:
+        mid, half = math.sqrt(lo * hi), math.sqrt(hi / lo) * 1.5
+        lo, hi = mid / half, mid * half
+        ticks = _ticks_between(lo, hi, subs)
+    ax.set_ylim(lo, hi)
+    ax.yaxis.set_major_locator(FixedLocator(ticks))
+    ax.yaxis.set_major_formatter(FuncFormatter(_power_of_ten_text))
+    if subs != (1,):
+        ax.yaxis.set_minor_locator(NullLocator())
+    ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def errors_figure(groups: dict[str, list[MaterialResult]], styles: dict):

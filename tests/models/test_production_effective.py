@@ -1,4 +1,4 @@
-"""The effective darkening and effective base roughness (models.production.effective, docs/production.md
+"""The effective darkening and effective base roughness (models.production.study.effective, docs/production.md
 sections 2-3), against cases whose answer is known in closed form:
 
 * an index-matched coat (ior = 1.0, any roughness) is optically absent (docs/material-format.md 5):
@@ -17,7 +17,7 @@ import pytest
 import goniometer as g
 from goniometer.slices import SliceGrid
 from goniometer.stack import Interface, Lambertian, Stack
-from models.production.effective import (ALPHA_MAX, ALPHA_MIN, ProductionError, bare_key, coat_albedo_rows,
+from models.production.study.effective import (ALPHA_MAX, ALPHA_MIN, ProductionError, bare_key, coat_albedo_rows,
                                          coated_base, darkening_from, effective_darkening, effective_roughness,
                                          median_angle, model_ring_energy, roughness_from)
 from tests.conftest import Z_TOL

@@ -274,3 +274,29 @@ def test_a_model_is_exact_at_its_light_nodes(metal_half):
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         l = np.broadcast_to(rot @ light_direction(theta), v.shape)
         np.testing.assert_allclose(f(l, v @ rot.T), direct, rtol=1e-9, atol=1e-12)
+
+
+def test_a_black_reference_is_explained_not_an_error(lambert_classic, tmp_path):
+    """A reference that is black on the sphere (a peak narrower than the grid) cannot set the exposure:
+    the set says why, exposes the models by the same rule on their own pixels, gives no RMSE, and the
+    figure is drawn; a BRDF's mirror point (normal halfway between light and view) is where such a
+    peak would be a highlight."""
+    from models.render import comparison_figure, write_png
+    ref = slices_reference(lambert_classic)
+    view = SphereView(32, 65.0)
+    bright = view.shade(ref.bsdf)
+    black = np.where(np.isfinite(bright), 0.0, np.nan)
+    s = SphereSet(view, ref, {REFERENCE: black, "model": bright})
+    assert "black" in s.reference_note and "mirror point" in s.reference_note
+    assert math.isnan(s.rmse("model")) and s.to_json()["models"]["model"]["rmse"] is None
+    assert s.exposure == pytest.approx(_percentile_exposure(bright, view.inside), rel=1e-12)
+    write_png(tmp_path / "black.png", comparison_figure(s))
+    assert (tmp_path / "black.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    x, y = view.mirror_point
+    a = math.radians(65.0)
+    h = np.array([0.0, math.sin(a), math.cos(a)]) + np.array([0.0, 0.0, 1.0])
+    np.testing.assert_allclose([x, y, math.sqrt(1 - x * x - y * y)], h / np.linalg.norm(h), atol=1e-12)
+    # a shown reference sets the exposure itself and has no note
+    assert SphereSet(view, ref, {REFERENCE: bright}).reference_note is None
+    # a backlit slab view has no mirror point: its straight-through peak is seen only at 0 degrees
+    assert SphereView(32, 65.0, BTDF).mirror_point is None

@@ -134,6 +134,9 @@
         el("figcaption", { text: "Light at " + s.angle + "° from the view. Reference: " + s.reference + "." })]));
     });
     if (m.spheres_note) { box.appendChild(el("p", { "class": "hint", text: m.spheres_note })); }
+    (m.not_drawn || []).forEach(function (x) {
+      box.appendChild(el("p", { "class": "hint not-drawn", text: x.figure + ": " + x.reason }));
+    });
   }
 
   function renderFigures(m, inc) {

@@ -1,6 +1,6 @@
 """Measure every coated material of a production results directory (``docs/production.md`` 2-4).
 
-For each coated material (:func:`models.production.effective.coated_base`) with a bare twin in
+For each coated material (:func:`models.production.study.effective.coated_base`) with a bare twin in
 the same directory: the effective darkening (per channel) and, for conductor bases, the effective
 base roughness; and the same two estimators applied to ``belcour-fwd``'s internal lobes integrated
 onto the reference's cells (:func:`models.compare.integrate`), so the model is read with the very
@@ -21,7 +21,7 @@ from goniometer import store
 from goniometer.results import SimulationResult
 from goniometer.stack import Stack
 from models.compare import integrate
-from models.production.effective import (CoatedBase, Darkening, ProductionError, Roughness, bare_key,
+from models.production.study.effective import (CoatedBase, Darkening, ProductionError, Roughness, bare_key,
                                          coat_albedo_rows, coated_base, darkening_from, effective_darkening,
                                          effective_roughness, layered_prediction,
                                          normal_incidence_index, roughness_from)

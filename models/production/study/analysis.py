@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.production.fitting_formulas import (DARKENING, ROUGHENING, SPLIT_SEED, Fit, Formula, fit_formula,
+from models.production.study.fitting_formulas import (DARKENING, ROUGHENING, SPLIT_SEED, Fit, Formula, fit_formula,
                                                 heldout_iors, is_heldout, rmse)
-from models.production.effective import ProductionError
-from models.production.measure import Measurement
+from models.production.study.effective import ProductionError
+from models.production.study.measure import Measurement
 from models.production.openpbr import alpha_from_roughness, coat_darkening, coat_roughening
 from models.production.openpbr_coat import OpenPBRParameters
 
