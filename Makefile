@@ -43,10 +43,15 @@ demo: $(STAMP)
 	@for m in plastic metal slab; do $(GONIO) info $(DEMO)/$$m.h5 || exit $$?; echo; done
 	$(GONIO) evaluate $(DEMO)/metal.h5
 	@echo
+	$(GONIO) simulate configs/examples/metal.toml --out $(DEMO)/metal-rgl.h5 --parametrization rgl --rays $(DEMO_RAYS) --overwrite
+	$(GONIO) export $(DEMO)/metal-rgl.h5 --format rgl --out $(DEMO)/metal_rgb.bsdf --overwrite
+	$(GONIO) export $(DEMO)/metal-rgl.h5 --format rgl --out $(DEMO)/metal_spec.bsdf --spectral --overwrite
+	@echo
 	$(GONIO) database simulate $(DATABASE) --out $(DEMO)/bati2019 --quality demo --only '*2-a0_0.2*'
 	$(GONIO) report $(DEMO)/bati2019 --out $(DEMO)/bati2019-report --overwrite
 	@echo
 	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5 and $(DEMO)/bati2019/"
+	@echo "the metal for Mitsuba 3 and pbrt-v4 (docs/rgl-format.md): $(abspath $(DEMO))/metal_rgb.bsdf (Mitsuba RGB), $(abspath $(DEMO))/metal_spec.bsdf (pbrt-v4, Mitsuba spectral)"
 	@echo "HTML report: $(abspath $(DEMO))/bati2019-report/index.html"
 
 database: $(STAMP)

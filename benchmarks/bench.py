@@ -12,9 +12,11 @@ as a ratio to it (1-thread rows), and the noise floor per second of the whole si
 ``1 / (noise floor^2 x CPU-s)`` (noise floor as in ``bench_accuracy.py``), of the side models are
 judged on (internal BRDF, or BTDF) and of the whole BRDF; and, where it applies, the same whole
 simulate with bounce order 1 integrated (``first_order = "integrated"``, docs/first-order.md).
-Writes ``benchmarks/results/<date>-<host>.json`` and prints a table.
+Rows of ``kind = "rgl"``: recording on the RGL grid (``--parametrization rgl``) against a classic run
+of the same rays, and the export's time. Writes ``benchmarks/results/<date>-<host>.json`` and prints
+a table.
 
-Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE]
+Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE] [--only-rgl]
 """
 
 from __future__ import annotations
@@ -187,6 +189,45 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     return rows
 
 
+def bench_rgl(rays_per_incident: int, repeats: int = 3) -> list[dict]:
+    """Recording on the RGL grid against a classic 90 x 360 run of the same rays and incident
+    directions (the grid's 8 elevations), one thread, whole simulate, alternated ``repeats`` times
+    (median ratio), and the export of the default-size file (docs/rgl-format.md)."""
+    from goniometer.rgl.export import bsdf_fields
+    from goniometer.rgl.grid import grid_for
+    rows = []
+    for name in ("metal/M2-a0_0.05-a1_0.2", "plastic/P1-a0_0.05"):
+        stack = MATERIALS[name]
+        grid = grid_for(stack)
+        s_rgl = SimulationSettings.on_rgl_grid(grid, rays=rays_per_incident, threads=1, seed=1)
+        s_cl = SimulationSettings(incident_deg=grid.incidents()[0], rays=rays_per_incident, threads=1, seed=1)
+        warm_up(stack, s_rgl)
+        warm_up(stack, s_cl)
+        simulate(stack, SimulationSettings.on_rgl_grid(grid, rays=1000, threads=1))   # the grid's tables
+        cpu = {"rgl": [], "classic": []}
+        for _ in range(repeats):
+            for kind, st in (("rgl", s_rgl), ("classic", s_cl)):
+                cell_geometry.cache_clear()
+                c0 = time.process_time()
+                r = simulate(stack, st)
+                cpu[kind].append(time.process_time() - c0)
+                if kind == "rgl":
+                    result = r
+        ratios = sorted(a / b for a, b in zip(cpu["rgl"], cpu["classic"]))
+        c0 = time.perf_counter()
+        bsdf_fields(result)
+        export_s = time.perf_counter() - c0
+        n = rays_per_incident * len(grid.theta_i_deg)
+        row = {"material": name, "kind": "rgl", "threads": 1, "rays": n, "grid": [len(grid.theta_i_deg), 1, grid.n],
+               "rgl_rays_per_cpu_s": n / min(cpu["rgl"]), "classic_rays_per_cpu_s": n / min(cpu["classic"]),
+               "rgl_vs_classic_cpu": ratios[len(ratios) // 2], "rgl_vs_classic_cpu_all": ratios, "export_s": export_s}
+        rows.append(row)
+        print(f"{name:28s} rgl grid 8x1x32: whole simulate {row['rgl_rays_per_cpu_s'] / 1e6:5.2f} M rays/CPU-s, "
+              f"{row['rgl_vs_classic_cpu']:.3f}x the CPU time of classic 90x360 (median of {repeats} alternated "
+              f"pairs); export {export_s:.1f} s", flush=True)
+    return rows
+
+
 def _integrable(stack) -> bool:
     """True when ``first_order = "integrated"`` applies (a single-scattering interface on top)."""
     from goniometer.first_order import check_supported
@@ -234,15 +275,17 @@ def main() -> int:
     ap.add_argument("--out", type=Path)
     ap.add_argument("--no-compile-time", action="store_true")
     ap.add_argument("--no-models", action="store_true", help="skip the model-integration timings")
+    ap.add_argument("--only-rgl", action="store_true", help="only the RGL-grid rows")
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
     threads = [t for t in threads if t <= numba.config.NUMBA_NUM_THREADS]
     print(f"machine: {cpu_model()}, {os.cpu_count()} logical CPUs; numba {numba.__version__}")
-    ct = {} if args.no_compile_time else compile_times()
+    ct = {} if args.no_compile_time or args.only_rgl else compile_times()
     if ct:
         print(f"kernel compile {ct['compile_s']:.1f} s, load from cache {ct['cache_load_s']:.2f} s")
-    rows = run(args.rays_per_incident, threads)
-    model_rows = [] if args.no_models else bench_models()
+    rows = [] if args.only_rgl else run(args.rays_per_incident, threads)
+    rows += bench_rgl(args.rays_per_incident)
+    model_rows = [] if args.no_models or args.only_rgl else bench_models()
     host = socket.gethostname()
     out = args.out or HERE / "results" / f"{dt.date.today().isoformat()}-{host}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -146,16 +146,11 @@ def invert_point(lx, ly, lz, vx, vy, vz, n, head, data, cum):
     ``(k, c)`` spans ``u`` within half a node spacing of ``(c, k) / (n - 1)``."""
     if vz <= 0.0:
         return -1, -1
+    # the half vector l + v, unnormalised: both its angles are ratios (atan2 keeps the pole exact)
     hx = lx + vx
     hy = ly + vy
     hz = lz + vz
-    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    hx *= inv
-    hy *= inv
-    hz *= inv
-    # theta of h without acos' loss near the pole: 2 asin(|h - z| / 2)
-    dz = hz - 1.0
-    theta = 2.0 * math.asin(min(1.0, 0.5 * math.sqrt(hx * hx + hy * hy + dz * dz)))
+    theta = math.atan2(math.sqrt(hx * hx + hy * hy), hz)
     phi = math.atan2(hy + 0.0, hx + 0.0)
     H = int(head[0])
     W = int(head[1])

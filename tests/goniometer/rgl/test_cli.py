@@ -1,0 +1,114 @@
+"""``gonio simulate --parametrization rgl``, ``gonio export --format rgl`` and ``gonio info FILE.bsdf``:
+what they write, and their refusals (one line, exit 2, nothing written)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import goniometer as g
+from goniometer.cli import main
+
+EXAMPLES = Path(__file__).resolve().parents[3] / "configs" / "examples"
+GOLD = """name = "gold"
+category = "metal"
+[[layers]]
+type = "interface"
+roughness = 0.3
+ior = [0.2, 0.35, 1.4]
+extinction = [3.5, 2.6, 1.9]
+[simulation]
+rays = 20000
+parametrization = "rgl"
+rgl_grid = [3, 1, 8]
+"""
+
+
+def one_line(capsys, argv, *needles) -> str:
+    capsys.readouterr()
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gonio: error: "), err
+    for n in needles:
+        assert n in err[0], (n, err[0])
+    return err[0]
+
+
+@pytest.fixture(scope="module")
+def gold(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rgl")
+    cfg = d / "gold.toml"
+    cfg.write_text(GOLD)
+    out = d / "gold.h5"
+    assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1"]) == 0
+    return cfg, out
+
+
+def test_the_file_table_sets_the_grid_and_the_file_records_it(gold, capsys):
+    cfg, out = gold
+    r = g.read(out)
+    grid = r.settings.rgl
+    assert r.settings.parametrization == "rgl" and len(grid.theta_i_deg) == 3 and grid.n == 8
+    assert r.brdf.value.shape == (3, 3, 8, 8) and r.btdf is None
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["parametrization"] == "rgl"
+
+
+def test_export_both_files_and_info_says_who_reads_them(gold, tmp_path, capsys):
+    cfg, out = gold
+    rgb, spec = tmp_path / "gold_rgb.bsdf", tmp_path / "gold_spec.bsdf"
+    assert main(["export", str(out), "--format", "rgl", "--out", str(rgb)]) == 0
+    assert main(["export", str(out), "--format", "rgl", "--out", str(spec), "--spectral"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(spec), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["readers"]["pbrt-v4"]["takes_it"] and d["readers"]["mitsuba-spectral"]["takes_it"]
+    assert not d["readers"]["mitsuba-rgb"]["takes_it"] and d["isotropic"] and d["jacobian"]
+    assert main(["info", str(rgb)]) == 0
+    text = capsys.readouterr().out
+    assert "mitsuba-rgb       takes it" in text and "pbrt-v4           refuses it" in text
+    # the policy: never onto the input, never over a finished export without --overwrite
+    kept = rgb.read_bytes()
+    one_line(capsys, ["export", out, "--format", "rgl", "--out", rgb], "exists", "RGL tensor file")
+    assert rgb.read_bytes() == kept
+    one_line(capsys, ["export", out, "--format", "rgl", "--out", out], "input")
+
+
+def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
+    cfg, out = gold
+    classic = tmp_path / "c.h5"
+    assert main(["simulate", str(EXAMPLES / "metal.toml"), "--out", str(classic), "--rays", "2000", "--incident",
+                 "30", "--resolution", "9x18", "--threads", "1"]) == 0
+    one_line(capsys, ["export", classic, "--format", "rgl", "--out", tmp_path / "c.bsdf"], "not recorded on the RGL grid",
+             "--parametrization rgl")
+    assert not (tmp_path / "c.bsdf").exists()
+    aniso = tmp_path / "a.h5"
+    capsys.readouterr()
+    assert main(["simulate", str(EXAMPLES / "aniso-metal.toml"), "--out", str(aniso), "--parametrization", "rgl",
+                 "--rgl-grid", "3x1x8", "--rays", "2000", "--threads", "1"]) == 0
+    assert "anisotropic but the RGL grid has one incident azimuth" in capsys.readouterr().err
+    one_line(capsys, ["export", aniso, "--format", "rgl", "--out", tmp_path / "a.bsdf"], "anisotropic", "N_PHI_I >= 3")
+    assert not (tmp_path / "a.bsdf").exists()
+    one_line(capsys, ["export", out, "--format", "merl", "--out", tmp_path / "x.binary", "--spectral"], "--spectral")
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--rgl-grid", "8x2x32"], "N_PHI_I = 2"),
+    (["--rgl-grid", "8x1"], "N_THETA_IxN_PHI_IxN"),
+    (["--rgl-grid", "8x1x2"], "N = 2 is outside [4, 512]"),
+    (["--incident", "30"], "--incident: the RGL grid sets it"),
+    (["--resolution", "9x18"], "--resolution: the RGL grid sets it"),
+    (["--first-order", "integrated"], "first_order"),
+])
+def test_bad_rgl_options(gold, tmp_path, capsys, argv, needle):
+    cfg, _ = gold
+    one_line(capsys, ["simulate", cfg, "--out", tmp_path / "x.h5", *argv], needle)
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_rgl_grid_without_the_parametrization(tmp_path, capsys):
+    one_line(capsys, ["simulate", EXAMPLES / "metal.toml", "--out", tmp_path / "x.h5", "--rgl-grid", "8x1x32"],
+             "--rgl-grid: goes with --parametrization rgl")
