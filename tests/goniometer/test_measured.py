@@ -91,3 +91,27 @@ def test_not_a_measured_file(tmp_path):
     p.write_bytes(b"\0" * 100)
     with pytest.raises(MeasuredError, match="neither a MERL"):
         read_measured(p)
+
+
+def test_gonio_evaluate_and_fit_a_measured_file(exported, tmp_path, capsys):
+    """A simulated material exported, then judged as a measurement: models' errors against it sit
+    within the resampling error of their errors against the simulation's own slices; noise floors
+    are unknown, not invented."""
+    import json
+    from goniometer.cli import main
+    stack, rgb, _ = exported
+    cfg = tmp_path / "gold.toml"
+    cfg.write_text(stack.to_toml())
+    capsys.readouterr()
+    assert main(["evaluate", str(rgb), "--stack", str(cfg), "--resolution", "18x36", "--incident", "31,55",
+                 "--model", "openpbr-coat", "--json"]) == 2      # a bare conductor: the coat model refuses it
+    capsys.readouterr()
+    assert main(["fit", str(rgb), "--stack", str(cfg), "--resolution", "18x36", "--incident", "31,55",
+                 "--model", "ggx1", "--json", "--starts", "1"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["errors"]["total"]["noise_floor_mean"] is None and d["errors"]["total"]["rmse_mean"] > 0
+    # the fitted GGX of a GGX conductor finds its roughness (alpha 0.3) within the resampling error
+    assert abs(d["params"]["alpha"] - 0.3) < 0.03, d["params"]
+    err = capsys.readouterr()
+    assert main(["evaluate", str(rgb), "--resolution", "18x36"]) == 2
+    assert "--stack" in capsys.readouterr().err
