@@ -29,7 +29,7 @@ import numpy as np
 
 from goniometer import halfdiff
 from goniometer.rgl.tensor import MAGIC, TensorError, read_tensor
-from goniometer.rgl.warp import Warp2D
+from goniometer.rgl.warp import Warp2D, bilinear
 
 __all__ = ["MERL_SCALE", "MeasuredBRDF", "MeasuredError", "measured_reference", "read_measured"]
 
@@ -104,25 +104,14 @@ class MeasuredBRDF:
         x = np.sqrt(theta_m / (0.5 * math.pi))
         y = np.mod((phi_m + math.pi) / (2.0 * math.pi), 1.0)
         ux, uy = warp.invert(x, y)
-        s = np.stack([_bilinear(values[c], ux, uy) for c in range(3)], axis=-1)
-        D = _bilinear(d["ndf"], x, y)
-        sig = float(_bilinear(d["sigma"], np.array(math.sqrt(theta_l / (0.5 * math.pi))),
+        s = np.stack([bilinear(values[c], ux, uy) for c in range(3)], axis=-1)
+        D = bilinear(d["ndf"], x, y)
+        sig = float(bilinear(d["sigma"], np.array(math.sqrt(theta_l / (0.5 * math.pi))),
                               np.array((phi_l + math.pi) / (2.0 * math.pi))))
         vz = v[..., 2]
         ok = (vz > 0) & (l[2] > 0)
         f = s * (D / (4.0 * sig))[..., None] / np.where(ok, vz, 1.0)[..., None]
         return np.where(ok[..., None], np.maximum(f, 0.0), 0.0)
-
-
-def _bilinear(table: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    H, W = table.shape
-    gx = np.clip(x, 0.0, 1.0) * (W - 1)
-    gy = np.clip(y, 0.0, 1.0) * (H - 1)
-    j = np.minimum(np.floor(gx).astype(np.int64), W - 2)
-    k = np.minimum(np.floor(gy).astype(np.int64), H - 2)
-    s, t = gx - j, gy - k
-    return ((1 - t) * ((1 - s) * table[k, j] + s * table[k, j + 1])
-            + t * ((1 - s) * table[k + 1, j] + s * table[k + 1, j + 1]))
 
 
 def read_measured(path: str | os.PathLike) -> MeasuredBRDF:

@@ -68,3 +68,30 @@ def metal() -> Stack:
 def slab() -> Stack:
     return Stack("slab", (Interface(0.05, (1.5,) * 3), Medium((0.05, 0.1, 0.4)), Interface(0.2, (1.0,) * 3)),
                  "slab")
+
+
+#: a plastic material file for command tests (one dielectric interface over a Lambertian base); its
+#: ``[simulation]`` table is appended by each test
+PLASTIC_TOML = """name = "p"
+category = "plastic"
+[[layers]]
+type = "interface"
+roughness = 0.2
+ior = 1.5
+[[layers]]
+type = "lambertian"
+albedo = 0.5
+"""
+
+
+def refused(capsys, argv, *needles) -> str:
+    """Run ``gonio argv``: exit status 2 and exactly one line ``gonio: error: ...`` holding every
+    needle; returns that line."""
+    from goniometer.cli import main
+    capsys.readouterr()
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gonio: error: "), err
+    for n in needles:
+        assert str(n) in err[0], (n, err[0])
+    return err[0]

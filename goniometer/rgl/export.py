@@ -31,6 +31,7 @@ import numpy as np
 import goniometer
 from goniometer.rgl.grid import VALID_SUB, RGLGrid
 from goniometer.rgl.tensor import TensorFile, read_tensor, write_tensor
+from goniometer.rgl.warp import bilinear
 
 __all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "fields_from_values",
            "rgb_to_spectrum", "stored_values"]
@@ -62,7 +63,6 @@ def _inverse_correction(grid: RGLGrid, m: int) -> np.ndarray:
     """Per node of incident ``m``: the mean over its dual cell's sub-points above the horizon of
     ``D_tab(h) / (4 sigma_tab(l) p(w_o))``, the readers' density proxy over the warp's true one
     (0 where no sub-point is above the horizon)."""
-    from goniometer.rgl.warp import Warp2D
     n, s = grid.n, VALID_SUB
     tab = grid.tables()
     edges = np.clip((np.arange(n + 1) - 0.5) / (n - 1), 0.0, 1.0)
@@ -80,28 +80,14 @@ def _inverse_correction(grid: RGLGrid, m: int) -> np.ndarray:
     p = warp.pdf(x, y) / np.maximum(jac * 4.0 * cos_lh, 1e-300)
     # the readers' D at the half vector's absolute azimuth, sigma at the light's
     phi_abs = np.arctan2(h[..., 1], h[..., 0])
-    d = Warp2D.from_density(tab["ndf"].astype(np.float64))
-    sig = Warp2D.from_density(tab["sigma"].astype(np.float64))
-    D = _bilinear(d.data, np.sqrt(theta_m / (0.5 * math.pi)), (phi_abs + math.pi) / (2.0 * math.pi))
+    D = bilinear(tab["ndf"].astype(np.float64), np.sqrt(theta_m / (0.5 * math.pi)), (phi_abs + math.pi) / (2.0 * math.pi))
     th_l = math.acos(min(1.0, l[2]))
     ph_l = math.atan2(l[1], l[0])
-    S = float(_bilinear(sig.data, np.array(math.sqrt(th_l / (0.5 * math.pi))), np.array((ph_l + math.pi) / (2.0 * math.pi))))
+    S = float(bilinear(tab["sigma"].astype(np.float64), np.array(math.sqrt(th_l / (0.5 * math.pi))), np.array((ph_l + math.pi) / (2.0 * math.pi))))
     ratio = np.where(p > 0, D / (4.0 * S * np.where(p > 0, p, 1.0)), 0.0)
     ok = v[..., 2] > 0.0
     count = ok.sum(axis=(2, 3))
     return np.where(count > 0, np.sum(np.where(ok, ratio, 0.0), axis=(2, 3)) / np.maximum(count, 1), 0.0)
-
-
-def _bilinear(table: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The readers' bilinear interpolant of a node table (H, W) at square points (x, y)."""
-    H, W = table.shape
-    gx = np.clip(x, 0.0, 1.0) * (W - 1)
-    gy = np.clip(y, 0.0, 1.0) * (H - 1)
-    j = np.minimum(np.floor(gx).astype(np.int64), W - 2)
-    k = np.minimum(np.floor(gy).astype(np.int64), H - 2)
-    s, t = gx - j, gy - k
-    return ((1 - t) * ((1 - s) * table[k, j] + s * table[k, j + 1])
-            + t * ((1 - s) * table[k + 1, j] + s * table[k + 1, j + 1]))
 
 
 def _fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["Warp2D", "invert_point", "pack_kernel_tables"]
+__all__ = ["Warp2D", "bilinear", "invert_point", "pack_kernel_tables"]
 
 #: header entries of the packed kernel tables before the marginal CDF (H, W, phi_i, isotropic)
 HEAD = 4
@@ -106,6 +106,16 @@ class Warp2D:
         base = np.take_along_axis(rows, j[..., None], axis=-1)[..., 0]
         s = _linear_root(p0, p1, (target_x - base) / dx)
         return (j + s) * dx, y
+
+
+def bilinear(table: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The readers' bilinear interpolant of a node table (H, W) at square points (x, y) (clipped
+    to the square); how they evaluate ``ndf``, ``sigma`` and the stored values."""
+    H, W = table.shape
+    j, s = _cell(np.asarray(x, dtype=np.float64), W)
+    k, t = _cell(np.asarray(y, dtype=np.float64), H)
+    return ((1 - t) * ((1 - s) * table[k, j] + s * table[k, j + 1])
+            + t * ((1 - s) * table[k + 1, j] + s * table[k + 1, j + 1]))
 
 
 def _cell(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -14,18 +14,10 @@ import numpy as np
 import pytest
 
 from goniometer.cli import main
+from tests.conftest import PLASTIC_TOML
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
-GOOD = """name = "p"
-category = "plastic"
-[[layers]]
-type = "interface"
-roughness = 0.2
-ior = 1.5
-[[layers]]
-type = "lambertian"
-albedo = 0.5
-[simulation]
+GOOD = PLASTIC_TOML + """[simulation]
 incident_deg = [0, 45]
 rays = 2000
 resolution = [9, 18]

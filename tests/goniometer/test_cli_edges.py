@@ -19,18 +19,10 @@ import pytest
 import goniometer
 from goniometer.cli import build_parser, main
 from goniometer.cli.common import LineProgress
+from tests.conftest import PLASTIC_TOML
 
 ROOT = Path(__file__).resolve().parents[2]
-PLASTIC = """name = "p"
-category = "plastic"
-[[layers]]
-type = "interface"
-roughness = 0.2
-ior = 1.5
-[[layers]]
-type = "lambertian"
-albedo = 0.5
-[simulation]
+PLASTIC = PLASTIC_TOML + """[simulation]
 incident_deg = [0, 45]
 rays = 3000
 resolution = [9, 18]

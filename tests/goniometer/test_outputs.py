@@ -11,17 +11,9 @@ import pytest
 
 from goniometer import outputs
 from goniometer.cli import main
+from tests.conftest import PLASTIC_TOML, refused
 
-CONFIG = """name = "p"
-category = "plastic"
-[[layers]]
-type = "interface"
-roughness = 0.2
-ior = 1.5
-[[layers]]
-type = "lambertian"
-albedo = 0.5
-[simulation]
+CONFIG = PLASTIC_TOML + """[simulation]
 incident_deg = [30]
 rays = 2000
 resolution = [9, 18]
@@ -35,15 +27,6 @@ def config(tmp_path):
     return p
 
 
-def refused(capsys, argv, *needles) -> str:
-    """Run ``gonio argv``: exit 2 and one error line holding every needle."""
-    capsys.readouterr()
-    assert main([str(a) for a in argv]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("gonio: error: "), err
-    for n in needles:
-        assert str(n) in err[0], (n, err[0])
-    return err[0]
 
 
 def test_simulate_never_writes_onto_its_material_file(config, capsys):

@@ -9,18 +9,10 @@ from pathlib import Path
 import pytest
 
 from goniometer.cli import main
+from tests.conftest import PLASTIC_TOML, refused
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIG = """name = "p"
-category = "plastic"
-[[layers]]
-type = "interface"
-roughness = 0.2
-ior = 1.5
-[[layers]]
-type = "lambertian"
-albedo = 0.5
-[simulation]
+CONFIG = PLASTIC_TOML + """[simulation]
 incident_deg = [0, 45]
 rays = 4000
 resolution = [9, 18]
@@ -37,13 +29,6 @@ def sim(tmp_path_factory):
     return cfg, out
 
 
-def refused(capsys, argv, *needles) -> None:
-    capsys.readouterr()
-    assert main([str(a) for a in argv]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("gonio: error: "), err
-    for n in needles:
-        assert str(n) in err[0], (n, err[0])
 
 
 def test_evaluate_save_slices(sim, tmp_path, capsys):

@@ -10,6 +10,7 @@ import pytest
 
 import goniometer as g
 from goniometer.cli import main
+from tests.conftest import refused
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "configs" / "examples"
 GOLD = """name = "gold"
@@ -26,14 +27,6 @@ rgl_grid = [3, 1, 8]
 """
 
 
-def one_line(capsys, argv, *needles) -> str:
-    capsys.readouterr()
-    assert main([str(a) for a in argv]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("gonio: error: "), err
-    for n in needles:
-        assert n in err[0], (n, err[0])
-    return err[0]
 
 
 @pytest.fixture(scope="module")
@@ -72,9 +65,9 @@ def test_export_both_files_and_info_says_who_reads_them(gold, tmp_path, capsys):
     assert "mitsuba-rgb       takes it" in text and "pbrt-v4           refuses it" in text
     # the policy: never onto the input, never over a finished export without --overwrite
     kept = rgb.read_bytes()
-    one_line(capsys, ["export", out, "--format", "rgl", "--out", rgb], "exists", "RGL tensor file")
+    refused(capsys, ["export", out, "--format", "rgl", "--out", rgb], "exists", "RGL tensor file")
     assert rgb.read_bytes() == kept
-    one_line(capsys, ["export", out, "--format", "rgl", "--out", out], "input")
+    refused(capsys, ["export", out, "--format", "rgl", "--out", out], "input")
 
 
 def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
@@ -82,7 +75,7 @@ def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
     classic = tmp_path / "c.h5"
     assert main(["simulate", str(EXAMPLES / "metal.toml"), "--out", str(classic), "--rays", "2000", "--incident",
                  "30", "--resolution", "9x18", "--threads", "1"]) == 0
-    one_line(capsys, ["export", classic, "--format", "rgl", "--out", tmp_path / "c.bsdf"], "not recorded on the RGL grid",
+    refused(capsys, ["export", classic, "--format", "rgl", "--out", tmp_path / "c.bsdf"], "not recorded on the RGL grid",
              "--parametrization rgl")
     assert not (tmp_path / "c.bsdf").exists()
     aniso = tmp_path / "a.h5"
@@ -90,9 +83,9 @@ def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
     assert main(["simulate", str(EXAMPLES / "aniso-metal.toml"), "--out", str(aniso), "--parametrization", "rgl",
                  "--rgl-grid", "3x1x8", "--rays", "2000", "--threads", "1"]) == 0
     assert "anisotropic but the RGL grid has one incident azimuth" in capsys.readouterr().err
-    one_line(capsys, ["export", aniso, "--format", "rgl", "--out", tmp_path / "a.bsdf"], "anisotropic", "N_PHI_I >= 3")
+    refused(capsys, ["export", aniso, "--format", "rgl", "--out", tmp_path / "a.bsdf"], "anisotropic", "N_PHI_I >= 3")
     assert not (tmp_path / "a.bsdf").exists()
-    one_line(capsys, ["export", out, "--format", "merl", "--out", tmp_path / "x.binary", "--spectral"], "--spectral")
+    refused(capsys, ["export", out, "--format", "merl", "--out", tmp_path / "x.binary", "--spectral"], "--spectral")
 
 
 @pytest.mark.parametrize("argv, needle", [
@@ -105,10 +98,10 @@ def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
 ])
 def test_bad_rgl_options(gold, tmp_path, capsys, argv, needle):
     cfg, _ = gold
-    one_line(capsys, ["simulate", cfg, "--out", tmp_path / "x.h5", *argv], needle)
+    refused(capsys, ["simulate", cfg, "--out", tmp_path / "x.h5", *argv], needle)
     assert not (tmp_path / "x.h5").exists()
 
 
 def test_rgl_grid_without_the_parametrization(tmp_path, capsys):
-    one_line(capsys, ["simulate", EXAMPLES / "metal.toml", "--out", tmp_path / "x.h5", "--rgl-grid", "8x1x32"],
+    refused(capsys, ["simulate", EXAMPLES / "metal.toml", "--out", tmp_path / "x.h5", "--rgl-grid", "8x1x32"],
              "--rgl-grid: goes with --parametrization rgl")

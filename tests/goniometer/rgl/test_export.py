@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer.rgl.export import _bilinear, bsdf_fields, check_readers, fields_from_values
+from goniometer.rgl.export import bsdf_fields, check_readers, fields_from_values
+from goniometer.rgl.warp import bilinear
 from goniometer.rgl.grid import grid_for
 from goniometer.rgl.tensor import write_tensor
 from tests.conftest import Z_TOL, assert_cells_match
@@ -142,8 +143,8 @@ def test_the_plugin_reads_the_exported_file_as_we_wrote_it(gold, rgb_variant, tm
         got = _eval(measured, np.broadcast_to(l, (ok.sum(), 3)), v[ok])
         th_m = np.arccos(np.clip(h[ok][:, 2], -1, 1))
         ph_m = np.arctan2(h[ok][:, 1], h[ok][:, 0])
-        D = _bilinear(tab["ndf"].astype(np.float64), np.sqrt(th_m / (math.pi / 2)), (ph_m + math.pi) / (2 * math.pi))
-        sig = _bilinear(tab["sigma"].astype(np.float64), np.array(math.sqrt(math.acos(l[2]) / (math.pi / 2))),
+        D = bilinear(tab["ndf"].astype(np.float64), np.sqrt(th_m / (math.pi / 2)), (ph_m + math.pi) / (2 * math.pi))
+        sig = bilinear(tab["sigma"].astype(np.float64), np.array(math.sqrt(math.acos(l[2]) / (math.pi / 2))),
                         np.array(0.5))
         want = fields["rgb"][0, m][:, ok].T * (D / (4 * sig))[:, None]
         np.testing.assert_allclose(got, want, rtol=2e-3, atol=1e-6)
