@@ -189,7 +189,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     return rows
 
 
-def bench_rgl(rays_per_incident: int, repeats: int = 3) -> list[dict]:
+def bench_rgl(rays_per_incident: int, repeats: int = 5) -> list[dict]:
     """Recording on the RGL grid against a classic 90 x 360 run of the same rays and incident
     directions (the grid's 8 elevations), one thread, whole simulate, alternated ``repeats`` times
     (median ratio), and the export of the default-size file (docs/rgl-format.md)."""
