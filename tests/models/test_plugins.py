@@ -124,22 +124,22 @@ def test_example_plugin_renders_and_has_a_directional_albedo(installer, plastic_
 def test_example_plugin_in_the_report_keyed_by_its_code(installer, tmp_path):
     root = installer.example()
     results = tmp_path / "results"
-    simulate_database(load_database(TINY), results, "quick", only="plastic/*")
+    simulate_database(load_database(TINY), results, "quick", only="plastic/P1-a0_0.2")
     out = tmp_path / "report"
     first = build_report(results, out, models=["coated-diffuse"], incidents_for_figures=[60])
     records = json.loads((out / "errors.json").read_text())
-    assert {r["model"] for r in records} == {"coated-diffuse"} and len(records) == 2
+    assert {r["model"] for r in records} == {"coated-diffuse"} and len(records) == 1
     assert all(r["internal"]["rmse_mean"] > 0 for r in records)
     assert "coated-diffuse" in (out / "index.html").read_text()
-    assert len(first.evaluated) == 2
+    assert len(first.evaluated) == 1
     again = build_report(results, out, models=["coated-diffuse"], incidents_for_figures=[60])
-    assert again.evaluated == [] and len(again.reused) == 2
+    assert again.evaluated == [] and len(again.reused) == 1
     # an updated plugin (new sources, new version) is evaluated again
     module = root / "example_plugin.py"
     module.write_text(module.read_text() + "\n# updated\n")
     plugins.clear_cache()
     updated = build_report(results, out, models=["coated-diffuse"], incidents_for_figures=[60])
-    assert len(updated.evaluated) == 2
+    assert len(updated.evaluated) == 1
 
 
 # ---------------------------------------------------------------------- clashes (b)
