@@ -19,10 +19,19 @@ EXAMPLE = ROOT / "examples" / "plugin-model"
 
 class Installer:
     """Puts hand-made distributions on ``sys.path`` for one test (monkeypatch) and clears the
-    registry's entry-point scan before and after."""
+    registry's entry-point scan before and after. The scan is the real one
+    (``importlib.metadata.entry_points``) with the entry points of distributions installed
+    elsewhere left out, so that the tests hold whether or not ``make setup`` installed
+    examples/plugin-model."""
 
     def __init__(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-        self.tmp, self.monkeypatch, self.modules = tmp_path, monkeypatch, []
+        self.tmp, self.monkeypatch, self.modules, self.roots = tmp_path, monkeypatch, [], []
+        real = plugins.entry_points
+
+        def ours(group: str):
+            return [ep for ep in real(group=group)
+                    if ep.dist is not None and Path(str(ep.dist.locate_file(""))).resolve() in self.roots]
+        monkeypatch.setattr(plugins, "entry_points", ours)
         plugins.clear_cache()
 
     def install(self, dist: str, version: str, entries: dict[str, str], modules: dict[str, str]) -> Path:
@@ -38,6 +47,7 @@ class Installer:
             (root / f"{name}.py").write_text(source)
             self.modules.append(name)
         self.monkeypatch.syspath_prepend(str(root))
+        self.roots.append(root.resolve())
         plugins.clear_cache()
         return root
 

@@ -70,7 +70,7 @@ def test_without_plugins_the_registry_is_the_built_in_one(installer):
 
 
 def test_example_plugin_is_listed_with_its_source(installer, capsys):
-    installer.example()
+    root = installer.example()
     names = list(registry.all_models())
     assert names[-1] == "coated-diffuse", "plugins come after the built-in models"
     assert registry.sources()["coated-diffuse"] == "example-plugin 0.1"
@@ -85,7 +85,8 @@ def test_example_plugin_is_listed_with_its_source(installer, capsys):
     assert row.endswith("example-plugin 0.1")
     assert next(x for x in lines if x.startswith("ww09 ")).endswith("built-in")
     # the scan is cached; clearing it forgets the plugin once it is off the path
-    installer.monkeypatch.undo()
+    sys.path.remove(str(root))
+    installer.roots.clear()
     assert "coated-diffuse" in registry.all_models()
     plugins.clear_cache()
     assert "coated-diffuse" not in registry.all_models()
@@ -206,6 +207,18 @@ def test_the_failure_is_one_line_on_the_cli_stderr(installer):
     assert run.stderr.strip().splitlines() == [run.stderr.strip()], run.stderr
     assert "model plugin 'broken' (broken-plugin 0.3" in run.stderr and "left out" in run.stderr
     assert "ww09" in json.loads(run.stdout)
+
+
+# ---------------------------------------------------------------------- the documented example
+
+def test_the_documented_example_is_the_example_package():
+    """docs/models.md section 9 shows the example's module and pyproject.toml as they are."""
+    doc = (ROOT / "docs" / "models.md").read_text()
+    section = doc[doc.index("## 9. Writing a model (plugins)"):]
+    blocks = {lang: [b.split("\n", 1)[1] for b in section.split("```")[1::2] if b.startswith(lang + "\n")]
+              for lang in ("python", "toml")}
+    assert (EXAMPLE / "example_plugin.py").read_text() in blocks["python"]
+    assert (EXAMPLE / "pyproject.toml").read_text() in blocks["toml"]
 
 
 # ---------------------------------------------------------------------- a real install (d)
