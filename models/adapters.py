@@ -53,6 +53,8 @@ PREFIXES = (PYTHON, MITSUBA)
 #: the probe a wrapped function is called on once per stack
 PROBE_L = np.array([0.0, 0.0, 1.0])
 PROBE_V = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+#: what the approximations of a model without a top/internal split say
+NO_SPLIT = "no top/internal split (top = 0): its whole value is compared with the internal paths too"
 
 __all__ = ["FunctionModel", "MitsubaFileModel", "PREFIXES", "code_identity", "is_spec", "resolve"]
 
@@ -178,6 +180,7 @@ class FunctionModel(Model):
         self.sides = sides
         doc = (getattr(function, "__doc__", None) or "").strip().splitlines()
         self.description = f"{spec}: a function f(l, v, stack) (top = 0)" + (f"; {doc[0]}" if doc else "")
+        self.approximation = f"a function f(l, v, stack); {NO_SPLIT}"
 
     def _call(self, stack: Stack, l: np.ndarray, v: np.ndarray) -> np.ndarray:
         try:
@@ -243,7 +246,7 @@ class MitsubaFileModel(Model):
         self.bsdf = bsdf
         self.description = f"{spec}: a fixed Mitsuba BSDF; it does not read the stack"
         self.approximation = (f"a fixed Mitsuba BSDF ({spec[len(MITSUBA):]}, variant {bsdf.variant}); "
-                              f"it does not read the stack")
+                              f"it does not read the stack; {NO_SPLIT}")
 
     def support_reason(self, stack: Stack) -> str | None:
         return None
