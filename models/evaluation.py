@@ -42,6 +42,8 @@ class Evaluation:
     slices: dict[str, ModelSlices] = field(default_factory=dict)
     fits: dict[str, dict] = field(default_factory=dict)
     approximations: dict[str, str] = field(default_factory=dict)
+    #: what the reference is when it is not a simulation (a measured file; docs/measured.md)
+    reference_note: str | None = None
 
     def to_json(self) -> dict:
         """The object printed by ``gonio evaluate --json`` (``fits``: parameters and convergence of
@@ -52,6 +54,8 @@ class Evaluation:
             out["fits"] = self.fits
         if self.approximations:
             out["approximations"] = self.approximations
+        if self.reference_note is not None:
+            out["reference"] = self.reference_note
         return out
 
 
@@ -99,6 +103,13 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
                              f"or python:MODULE:NAME, mitsuba:FILE.xml|.json)")
     result = Evaluation(stack.name, stack.category, side)
     sd = reference.brdf if side == "brdf" else reference.btdf
+    # a measurement has no bounce orders: "internal" then compares the whole BRDF too
+    measured = "measured" in reference.extra
+    if measured:
+        result.reference_note = (f"measured reference {reference.extra['measured']['file']} "
+                                 f"({reference.extra['measured']['resampling']}; {reference.extra['measured']['subcells']}"
+                                 f"x{reference.extra['measured']['subcells']} sub-cells per cell): no standard errors "
+                                 f"(noise floor unknown) and no bounce orders ('internal' compares the whole BRDF)")
     anisotropic = any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers)
     for name, model in available.items():
         if names and name not in names:
@@ -124,7 +135,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             progress(name)
         ms = integrate(model, reference, side, s, stack=model_stack)
         result.slices[name] = ms
-        result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf"))
+        result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf") and not measured)
     for name in fitted:
         if not names or name not in names:
             result.skipped[name] = f"fitted to the file on request only (--model {name})"

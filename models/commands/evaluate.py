@@ -10,26 +10,29 @@ from pathlib import Path
 
 from goniometer.cli.common import (UsageError, add_overwrite, at_least_one, incident_list, output_path, usage_errors,
                                    whole_number)
+from models.commands.references import add_reference_options, load_reference
 
 
 def register(sub) -> None:
     """Add ``fit``, ``models``, ``evaluate`` and ``plot`` to the ``gonio`` sub-command parser."""
-    p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file")
-    p.add_argument("file", metavar="FILE.h5")
+    p = sub.add_parser("fit", help="fit a compact model (hp15, ggx1, ggx2) to the BRDF slices of a file "
+                                   "(a simulation, or a measured file with --stack)")
+    p.add_argument("file", metavar="FILE", help="a slices file, or a measured MERL .binary / RGL .bsdf")
     p.add_argument("--model", required=True, choices=("hp15", "ggx1", "ggx2"), help="the compact model (required)")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.add_argument("--starts", type=whole_number, default=4, help="optimiser starts (default 4)")
     p.add_argument("--seed", type=whole_number, default=0, help="seed of the optimiser starts (default: %(default)s)")
     p.add_argument("--weighting", choices=("paper", "eq4"), default="paper",
                    help="the paper's eq. 29 weighting (default) or eq. 4 directly")
+    add_reference_options(p)
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("models", help="list the analytic models and what they support")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_models)
 
-    p = sub.add_parser("evaluate", help="integrate models onto a simulated file and print their errors")
-    p.add_argument("file", metavar="FILE.h5")
+    p = sub.add_parser("evaluate", help="integrate models onto a simulated (or measured) file and print their errors")
+    p.add_argument("file", metavar="FILE", help="a slices file, or a measured MERL .binary / RGL .bsdf (with --stack)")
     p.add_argument("--model", action="append", metavar="NAME",
                    help="a model to evaluate: a name of gonio models, python:MODULE:NAME or mitsuba:FILE.xml|.json "
                         "(repeatable; default: all that apply)")
@@ -41,6 +44,7 @@ def register(sub) -> None:
                    help="let isotropic models evaluate an anisotropic stack with the mean roughness (noted in the "
                         "output) (default: isotropic models skip anisotropic stacks)")
     add_overwrite(p)
+    add_reference_options(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
@@ -96,8 +100,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
     from models.fitted import fit
+    reference = load_reference(args)
     try:
-        reference = store.read(args.file)
         if reference.brdf is None:
             raise ModelError(f"{args.model}: the file has no BRDF slices to fit")
 
@@ -121,7 +125,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if result.errors:
         e = result.errors["total"]
         print(f"RMSE (eq. 4) mean {e['rmse_mean']:.4e}  (R G B) {' '.join(f'{x:.3e}' for x in e['rmse'])}  "
-              f"luminance {e['rmse_luminance']:.3e}  noise floor {e['noise_floor_mean']:.2e}")
+              f"luminance {e['rmse_luminance']:.3e}  noise floor "
+              + (f"{e['noise_floor_mean']:.2e}" if e["noise_floor_mean"] is not None else "unknown (a measurement)"))
     return 0
 
 
@@ -133,8 +138,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     if args.save_slices:
         output_path(args.save_slices, inputs=[args.file], overwrite=args.overwrite, option="--save-slices")
+    reference = load_reference(args, subcells=args.subcells)
     try:
-        reference = store.read(args.file)
         ev = evaluate(reference, args.model or None, s=args.subcells, isotropize=args.isotropize,
                       progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
     except (store.StoreError, ModelError) as e:
@@ -144,7 +149,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(ev.to_json(), indent=2))
         return 0
-    what = "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF"
+    what = ("the whole BRDF (a measurement has no bounce orders)" if ev.reference_note else
+            "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF")
     print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
           f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
     width = max([16] + [len(n) for n in ev.errors])
@@ -161,6 +167,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
               "floor; '-' for an exact model)")
     for name, note in ev.approximations.items():
         print(f"note {name}: {note}")
+    if ev.reference_note:
+        print(f"note: {ev.reference_note}")
     for name, reason in ev.skipped.items():
         print(f"skipped {name}: {reason}")
     if args.save_slices:
@@ -173,8 +181,11 @@ def table_row(name: str, internal: dict, total: dict, width: int = 16) -> str:
     floor (the total error is compared with the total floor, the internal error with the internal
     floor; ``models.compare.errors``)."""
     rgb = " ".join(f"{x:9.3e}" for x in internal["rmse"])
+
+    def floor(x) -> str:
+        return f"{x:9.2e}" if x is not None else f"{'unknown':>9s}"
     return (f"{name:{width}s} {internal['rmse_mean']:13.4e} {rgb:>30s} {internal['rmse_luminance']:10.3e} "
-            f"{internal['noise_floor_mean']:9.2e} {total['rmse_mean']:11.4e} {total['noise_floor_mean']:9.2e}")
+            f"{floor(internal['noise_floor_mean'])} {total['rmse_mean']:11.4e} {floor(total['noise_floor_mean'])}")
 
 
 def noise_cells(internal: dict, total: dict) -> str:

@@ -59,7 +59,8 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
 
     The luminance noise floor uses ``sum_c w_c stderr_c`` per cell, an upper bound on the
     standard error of the luminance (the channels of a simulation share their paths, so their
-    errors are correlated; the bound is exact when they are fully correlated).
+    errors are correlated; the bound is exact when they are fully correlated). A reference without
+    standard errors (a measurement, ``goniometer.measured``: NaN) has the noise floors None.
 
     ``model_stderr`` (a stochastic model's standard errors of ``model``) adds ``model_noise``,
     ``model_noise_mean`` and ``model_noise_luminance``: :func:`noise_floor` of the model's errors,
@@ -70,13 +71,15 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
     size = rmse(ref, np.zeros_like(ref), omega, mask)
     lum = rmse(luminance(ref), luminance(model), omega, mask)[0]
     lum_se = luminance(ref_stderr)
+    # a measured reference has no standard errors (NaN): its noise floor is unknown, not invented
+    known = bool(np.all(np.isfinite(nf)))
     out = {
         "rmse": [float(x) for x in e],
         "rmse_mean": float(np.mean(e)),
         "rmse_luminance": float(lum),
-        "noise_floor": [float(x) for x in nf],
-        "noise_floor_mean": float(np.mean(nf)),
-        "noise_floor_luminance": float(noise_floor(lum_se, omega, mask)[0]),
+        "noise_floor": [float(x) for x in nf] if known else None,
+        "noise_floor_mean": float(np.mean(nf)) if known else None,
+        "noise_floor_luminance": float(noise_floor(lum_se, omega, mask)[0]) if known else None,
         "reference_norm": [float(x) for x in size],
     }
     if model_stderr is not None:

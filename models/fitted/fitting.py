@@ -295,9 +295,11 @@ def _finite_slices(sd: SliceData) -> SliceData:
     """``sd`` with cells holding non-finite reference values masked out (and zeroed) for the errors.
 
     Simulated files never hold such values; this keeps a hand-made reference from turning the
-    reported errors into NaN. Returns ``sd`` itself when everything is finite.
+    reported errors into NaN. A measured reference's standard errors are NaN everywhere (unknown:
+    its noise floor is reported as unknown, ``models.compare.errors``); they do not mask a cell.
+    Returns ``sd`` itself when every value is finite.
     """
-    bad = ~np.all(np.isfinite(sd.value), axis=1) | ~np.all(np.isfinite(sd.stderr), axis=1)
+    bad = ~np.all(np.isfinite(sd.value), axis=1)
     if not bad.any():
         return sd
     keep = ~bad[:, None]
