@@ -20,10 +20,11 @@ APPE_OUT ?= results/appendix-e-$(APPE_QUALITY)
 # multiple-scattering twins of the 2019 database (configs/bati2019-ms.toml), compared with $(DB_OUT)
 MS_OUT ?= results/bati2019-ms
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml examples/plugin-model/pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e examples/plugin-model
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -42,6 +43,10 @@ demo: $(STAMP)
 	@echo
 	@for m in plastic metal slab; do $(GONIO) info $(DEMO)/$$m.h5 || exit $$?; echo; done
 	$(GONIO) evaluate $(DEMO)/metal.h5
+	@echo
+	@# your own models (docs/models.md section 9): a plugin (examples/plugin-model, installed by the set-up) and
+	@# a Mitsuba 3 BSDF from a file, beside a built-in model
+	$(GONIO) evaluate $(DEMO)/plastic.h5 --model ww-bati19 --model coated-diffuse --model mitsuba:configs/mitsuba/plastic-p1.xml
 	@echo
 	$(GONIO) simulate configs/examples/metal.toml --out $(DEMO)/metal-rgl.h5 --parametrization rgl --rays $(DEMO_RAYS) --overwrite
 	$(GONIO) export $(DEMO)/metal-rgl.h5 --format rgl --out $(DEMO)/metal_rgb.bsdf --overwrite

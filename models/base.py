@@ -11,6 +11,13 @@ Conventions (same as :mod:`goniometer.optics` and ``docs/slices-format.md``):
 * A BRDF is split into ``top`` -- the lobe of light reflected directly off the top interface
   (bounce order 1 in the simulator) -- and ``internal`` -- everything else. For a BTDF ``top``
   is zero and ``internal`` holds the whole BTDF.
+* A stochastic model (one that estimates f, e.g. by Monte Carlo) may return its own estimator's
+  standard errors beside its values (``ModelValue.stderr_top``, ``stderr_internal``); the
+  comparison then reports the model's noise beside the reference's noise floor
+  (``docs/models.md`` §3).
+
+Writing a model, in a plugin package or behind ``--model python:MODULE:NAME``: ``docs/models.md``,
+"Writing a model (plugins)".
 """
 
 from __future__ import annotations
@@ -31,14 +38,30 @@ class ModelError(ValueError):
 
 @dataclass
 class ModelValue:
-    """Model output for one light direction: ``top`` and ``internal``, each (..., 3), 1/sr."""
+    """Model output for one light direction: ``top`` and ``internal``, each (..., 3), 1/sr.
+
+    ``stderr_top`` and ``stderr_internal`` (same shapes, 1/sr, or None for an exact part) are a
+    stochastic model's own estimator standard errors of ``top`` and ``internal``, each direction's
+    estimate independent of the others'. Deterministic models leave them None."""
 
     top: np.ndarray
     internal: np.ndarray
+    stderr_top: np.ndarray | None = None
+    stderr_internal: np.ndarray | None = None
 
     @property
     def total(self) -> np.ndarray:
         return self.top + self.internal
+
+    @property
+    def stderr(self) -> np.ndarray | None:
+        """Standard error of ``total`` (the two parts' added in quadrature, as independent
+        estimates), or None when the model is exact."""
+        if self.stderr_top is None and self.stderr_internal is None:
+            return None
+        top = 0.0 if self.stderr_top is None else np.asarray(self.stderr_top)
+        internal = 0.0 if self.stderr_internal is None else np.asarray(self.stderr_internal)
+        return np.sqrt(np.square(top) + np.square(internal)) * np.ones_like(self.top)
 
 
 class Model(ABC):
@@ -55,6 +78,9 @@ class Model(ABC):
     anisotropic: bool = False
     #: whether the model handles scattering media (``scattering_albedo > 0``)
     scattering: bool = False
+    #: a sentence every evaluation records under ``approximations`` (e.g. an adapter that does not
+    #: read the stack); None for none
+    approximation: str | None = None
 
     @abstractmethod
     def support_reason(self, stack: Stack) -> str | None:

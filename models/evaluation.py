@@ -80,8 +80,9 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
              progress=None, isotropize: str | None = None) -> Evaluation:
     """Integrate models onto ``reference`` and compute their errors.
 
-    ``names=None`` evaluates every model that supports the stack and side and lists the others as
-    skipped with their reason; explicitly named models that cannot represent the stack raise
+    ``names=None`` evaluates every registered model (built-in and plugins, :mod:`models.registry`)
+    that supports the stack and side and lists the others as skipped with their reason; ``names``
+    may hold adapter specs (``python:MODULE:NAME``, ``mitsuba:FILE``, :mod:`models.adapters`); explicitly named models that cannot represent the stack raise
     :class:`ModelError` (a user asked for something impossible). Fitted models (``hp15-fit``,
     ``ggx1-fit``, ``ggx2-fit``) are fitted to this file's BRDF when named (they take seconds to
     minutes) and listed as skipped otherwise. ``isotropize="mean"`` lets isotropic models evaluate
@@ -93,12 +94,13 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     side = comparison_side(stack)
     if (side == "brdf" and reference.brdf is None) or (side == "btdf" and reference.btdf is None):
         raise ModelError(f"the file has no {side.upper()} slices, which a {stack.base}-base stack is judged on")
-    available = registry.all_models()
+    available = registry.models_for(names)
     fitted = registry.fitted_models()
     if names:
         unknown = [n for n in names if n not in available and n not in fitted]
         if unknown:
-            raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join([*available, *fitted])})")
+            raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join([*available, *fitted])}; "
+                             f"or python:MODULE:NAME, mitsuba:FILE.xml|.json)")
     result = Evaluation(stack.name, stack.category, side)
     sd = reference.brdf if side == "brdf" else reference.btdf
     # a measurement has no bounce orders: "internal" then compares the whole BRDF too
@@ -127,6 +129,8 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
                 raise ModelError(f"{name}: {reason}")
             result.skipped[name] = reason
             continue
+        if model.approximation:
+            result.approximations[name] = model.approximation
         if progress is not None:
             progress(name)
         ms = integrate(model, reference, side, s, stack=model_stack)
@@ -156,7 +160,9 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
     Format ``goniometer.model-slices`` version 1: ``/material``, ``/incident`` as in the
     reference; per model a group ``/<model>/<side>`` with ``value`` (= top + internal), ``top``,
     ``internal`` (M, 3, n_theta, n_phi; 1/sr) and the reference's ``mask`` and
-    ``proj_solid_angle``; attribute ``subcells``.
+    ``proj_solid_angle``; attribute ``subcells``; for a stochastic model also ``top_stderr`` and
+    ``internal_stderr``. The group of a model is named by :func:`group_name` (an adapter spec's
+    ``/`` escaped).
     """
     p = store.check_writable(path)
     sd = reference.brdf if evaluation.side == "brdf" else reference.btdf
@@ -165,7 +171,7 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
             store.write_header(f, MODEL_SLICES_FORMAT, reference.stack, reference.theta_deg, reference.phi_deg)
             f.attrs["reference_side"] = evaluation.side
             for name, ms in evaluation.slices.items():
-                g = f.create_group(name)
+                g = f.create_group(group_name(name))
                 w = store.SliceGroupWriter(g, evaluation.side, ms.grid, reference.theta_deg,
                                            phi_deg=reference.phi_deg)
                 w.group.attrs["subcells"] = ms.subcells
@@ -178,7 +184,19 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
                 w.put("mask", sd.mask, store.MAPS, "1", long_name="cell valid for comparisons",
                       description=store.MASK_DESCRIPTION)
                 w.put("proj_solid_angle", sd.proj_solid_angle, store.MAPS, "sr")
+                for part in ("top", "internal"):
+                    if ms.stochastic:
+                        w.put(f"{part}_stderr", ms.stderr(part), store.CELLS, "1/sr",
+                              long_name=f"{name} {part} standard error",
+                              description="the stochastic model's own standard error of the cell mean")
     return p
+
+
+def group_name(model: str) -> str:
+    """The HDF5 group name of ``model`` in the files that store per-model data: the name itself,
+    with ``%`` and ``/`` written ``%25`` and ``%2F`` (adapter specs hold paths; registered model
+    names hold neither character, so their groups keep their names)."""
+    return model.replace("%", "%25").replace("/", "%2F")
 
 
 def read_slices(path: str | Path, model: str, side: str) -> dict[str, np.ndarray]:
@@ -186,5 +204,5 @@ def read_slices(path: str | Path, model: str, side: str) -> dict[str, np.ndarray
     with h5py.File(path, "r") as f:
         if f.attrs.get("format") != MODEL_SLICES_FORMAT:
             raise store.StoreError(f"{path}: not a {MODEL_SLICES_FORMAT} file")
-        g = f[f"{model}/{side}"]
+        g = f[f"{group_name(model)}/{side}"]
         return {k: np.asarray(g[k][()]) for k in ("value", "top", "internal", "mask", "proj_solid_angle")}

@@ -33,7 +33,9 @@ def register(sub) -> None:
 
     p = sub.add_parser("evaluate", help="integrate models onto a simulated (or measured) file and print their errors")
     p.add_argument("file", metavar="FILE", help="a slices file, or a measured MERL .binary / RGL .bsdf (with --stack)")
-    p.add_argument("--model", action="append", metavar="NAME", help="a model to evaluate (repeatable; default: all that apply)")
+    p.add_argument("--model", action="append", metavar="NAME",
+                   help="a model to evaluate: a name of gonio models, python:MODULE:NAME or mitsuba:FILE.xml|.json "
+                        "(repeatable; default: all that apply)")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.add_argument("--save-slices", dest="save_slices", metavar="OUT.h5",
                    help="write the integrated model slices (default: not written)")
@@ -66,21 +68,27 @@ def register(sub) -> None:
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    from models.registry import FITTED, catalogue
+    from models.registry import FITTED, catalogue, sources
     models = catalogue()
+    source = sources()
     if args.json:
         print(json.dumps({n: {"description": m.description, "sides": list(m.sides), "fitted": n in FITTED,
-                              "anisotropic": bool(m.anisotropic), "scattering": bool(m.scattering)}
+                              "anisotropic": bool(m.anisotropic), "scattering": bool(m.scattering),
+                              "source": source[n]}
                           for n, m in models.items()}, indent=2))
         return 0
     width = max(len(n) for n in models)
-    print(f"{'model':<{width}}  {'sides':9s} {'kind':8s}  {'aniso':5s}  {'scatter':7s}  description")
+    described = max(len("description"), *(len(m.description) for m in models.values()))
+    print(f"{'model':<{width}}  {'sides':9s} {'kind':8s}  {'aniso':5s}  {'scatter':7s}  {'description':<{described}}  "
+          f"source")
     for name, m in models.items():
         kind = "fitted" if name in FITTED else "analytic"
         scat = "scatter" if m.scattering else "-"
         aniso = "yes" if m.anisotropic else "-"
         print(f"{name:<{width}}  {'/'.join(x.upper() for x in m.sides):9s} {kind:8s}  {aniso:5s}  {scat:7s}  "
-              f"{m.description}")
+              f"{m.description:<{described}}  {source[name]}")
+    print("(source: built-in, or the distribution (and version) whose plugin registers the model, entry-point group "
+          "goniometer.models; --model also takes python:MODULE:NAME and mitsuba:FILE.xml|.json, docs/models.md)")
     print("(aniso: evaluates anisotropic stacks; the others skip them unless --isotropize mean)")
     print("(scatter: accepts scattering media (scattering_albedo > 0); the belcour-* models need g >= 0.1)")
     print("(fitted models are fitted to a file on request: gonio fit FILE.h5 --model hp15|ggx1|ggx2, "
@@ -146,12 +154,17 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
           f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
     width = max([16] + [len(n) for n in ev.errors])
+    noisy = any("model_noise_mean" in e["total"] for e in ev.errors.values())
     print(f"{'model':{width}s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
-          f"{'total mean':>11s} {'its floor':>9s}")
+          f"{'total mean':>11s} {'its floor':>9s}" + (f" {'model noise':>11s} {'(total)':>9s}" if noisy else ""))
     for name, e in ev.errors.items():
-        print(table_row(name, e["internal"], e["total"], width))
+        print(table_row(name, e["internal"], e["total"], width) + (noise_cells(e["internal"], e["total"]) if noisy
+                                                                    else ""))
     print(f"('internal' = {what}; each floor = the error a perfect model would show against this reference "
           f"on the part beside it, channel mean)")
+    if noisy:
+        print("(model noise = a stochastic model's own noise on the internal part and on the total, computed as the "
+              "floor; '-' for an exact model)")
     for name, note in ev.approximations.items():
         print(f"note {name}: {note}")
     if ev.reference_note:
@@ -173,6 +186,13 @@ def table_row(name: str, internal: dict, total: dict, width: int = 16) -> str:
         return f"{x:9.2e}" if x is not None else f"{'unknown':>9s}"
     return (f"{name:{width}s} {internal['rmse_mean']:13.4e} {rgb:>30s} {internal['rmse_luminance']:10.3e} "
             f"{floor(internal['noise_floor_mean'])} {total['rmse_mean']:11.4e} {floor(total['noise_floor_mean'])}")
+
+
+def noise_cells(internal: dict, total: dict) -> str:
+    """The two columns that ``gonio evaluate``'s table adds when a stochastic model reports its own
+    noise (``model_noise_mean`` of each part, ``models.compare.errors``), ``-`` for an exact model."""
+    cells = [f"{e['model_noise_mean']:.2e}" if "model_noise_mean" in e else "-" for e in (internal, total)]
+    return f" {cells[0]:>11s} {cells[1]:>9s}"
 
 
 def cmd_plot(args: argparse.Namespace) -> int:

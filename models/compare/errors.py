@@ -10,6 +10,10 @@ is the same formula with ``(f_ref - f_model)^2`` replaced by the reference's squ
 error: the error a perfect model would show, on average, because the reference is noisy
 (``E[(f_ref - f_true)^2] = stderr^2``).
 
+A stochastic model that reports its own standard errors (:class:`models.compare.integrate.ModelSlices`)
+gets its **model noise** beside the floor: the same formula with the model's squared standard error,
+the error an exact reference would show against this noisy model (``docs/models.md`` §3).
+
 "internal" compares the internal paths only (bounce order 1 dropped from the reference and the
 top lobe from the model: plastics, metals); "total" compares everything. For a BTDF both are the
 whole BTDF.
@@ -48,7 +52,7 @@ def luminance(rgb: np.ndarray, axis: int = 1, keepdims: bool = True) -> np.ndarr
 
 
 def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, omega: np.ndarray,
-                 mask: np.ndarray) -> dict:
+                 mask: np.ndarray, model_stderr: np.ndarray | None = None) -> dict:
     """The JSON error object ``E`` of ``gonio evaluate --json``. ``reference_norm`` is eq. 4 of the
     reference against zero (per channel): the error of a model that predicts no light, the scale
     against which an error is small or large.
@@ -57,6 +61,10 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
     standard error of the luminance (the channels of a simulation share their paths, so their
     errors are correlated; the bound is exact when they are fully correlated). A reference without
     standard errors (a measurement, ``goniometer.measured``: NaN) has the noise floors None.
+
+    ``model_stderr`` (a stochastic model's standard errors of ``model``) adds ``model_noise``,
+    ``model_noise_mean`` and ``model_noise_luminance``: :func:`noise_floor` of the model's errors,
+    computed as the reference's. Without it the object has exactly the keys it always had.
     """
     e = rmse(ref, model, omega, mask)
     nf = noise_floor(ref_stderr, omega, mask)
@@ -65,7 +73,7 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
     lum_se = luminance(ref_stderr)
     # a measured reference has no standard errors (NaN): its noise floor is unknown, not invented
     known = bool(np.all(np.isfinite(nf)))
-    return {
+    out = {
         "rmse": [float(x) for x in e],
         "rmse_mean": float(np.mean(e)),
         "rmse_luminance": float(lum),
@@ -74,6 +82,12 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
         "noise_floor_luminance": float(noise_floor(lum_se, omega, mask)[0]) if known else None,
         "reference_norm": [float(x) for x in size],
     }
+    if model_stderr is not None:
+        mn = noise_floor(model_stderr, omega, mask)
+        out["model_noise"] = [float(x) for x in mn]
+        out["model_noise_mean"] = float(np.mean(mn))
+        out["model_noise_luminance"] = float(noise_floor(luminance(model_stderr), omega, mask)[0])
+    return out
 
 
 def reference_parts(sd: SliceData, internal: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -97,9 +111,9 @@ def compare(sd: SliceData, ms: ModelSlices, drop_first_order: bool) -> dict:
     ``drop_first_order``: plastics and metals (BRDF) compare internal paths for "internal";
     for a BTDF "internal" and "total" are the same comparison.
     """
-    total = error_object(sd.value, sd.stderr, ms.total, sd.proj_solid_angle, sd.mask)
+    total = error_object(sd.value, sd.stderr, ms.total, sd.proj_solid_angle, sd.mask, ms.stderr("total"))
     if not drop_first_order:
         return {"internal": total, "total": total}
     ref, se = reference_parts(sd, internal=True)
-    internal = error_object(ref, se, ms.internal, sd.proj_solid_angle, sd.mask)
+    internal = error_object(ref, se, ms.internal, sd.proj_solid_angle, sd.mask, ms.stderr("internal"))
     return {"internal": internal, "total": total}

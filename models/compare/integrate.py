@@ -24,7 +24,10 @@ SIDE_OF_GRID = {"reflection": "brdf", "transmission": "btdf"}
 
 @dataclass
 class ModelSlices:
-    """A model integrated onto the cells of one side of a reference: (M, 3, n_theta, n_phi) each."""
+    """A model integrated onto the cells of one side of a reference: (M, 3, n_theta, n_phi) each.
+
+    ``top_stderr`` and ``internal_stderr``: a stochastic model's own standard errors of the cell
+    values (None for an exact model or part; :class:`models.base.ModelValue`)."""
 
     model: str
     side: str                 # "brdf" | "btdf"
@@ -32,14 +35,39 @@ class ModelSlices:
     top: np.ndarray
     internal: np.ndarray
     subcells: int
+    top_stderr: np.ndarray | None = None
+    internal_stderr: np.ndarray | None = None
 
     @property
     def total(self) -> np.ndarray:
         return self.top + self.internal
 
+    @property
+    def stochastic(self) -> bool:
+        """Whether the model reported its own noise."""
+        return self.top_stderr is not None or self.internal_stderr is not None
+
+    def stderr(self, part: str) -> np.ndarray | None:
+        """The model's standard error of ``part`` ("top", "internal" or "total": the two added in
+        quadrature), None for an exact model."""
+        if not self.stochastic:
+            return None
+        top = np.zeros_like(self.top) if self.top_stderr is None else self.top_stderr
+        internal = np.zeros_like(self.internal) if self.internal_stderr is None else self.internal_stderr
+        return {"top": top, "internal": internal, "total": np.sqrt(top**2 + internal**2)}[part]
+
 
 def integrate_slice(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray, s: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """(top, internal) cell values of ``model`` for one light direction, each (3, n_theta, n_phi)."""
+    top, internal, _, _ = integrate_slice_parts(model, stack, grid, light, s)
+    return top, internal
+
+
+def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray, s: int = 5
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(top, internal, top_stderr, internal_stderr) of ``model`` for one light direction, each
+    (3, n_theta, n_phi) or None (an exact part). The standard error of a cell mean of independent
+    sub-cell estimates is ``sqrt(sum_k se_k^2 w_k^2) / sum_k w_k``."""
     side = SIDE_OF_GRID[grid.side]
     v, w = grid.subcells(light, s)
     value = model.evaluate(stack, light, v.reshape(-1, 3), side)
@@ -52,7 +80,16 @@ def integrate_slice(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarr
             raise ModelError(f"{model.name}: produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
         cells = np.einsum("ijabc,ijab->cij", f, w, optimize=True) * inv
         out.append(cells)
-    return out[0], out[1]
+    for se in (value.stderr_top, value.stderr_internal):
+        if se is None:
+            out.append(None)
+            continue
+        e = np.broadcast_to(np.asarray(se, dtype=np.float64), value.top.shape).reshape(w.shape + (3,))
+        if not np.all(np.isfinite(e)):
+            raise ModelError(f"{model.name}: produced non-finite standard errors for {side} at "
+                             f"l = {np.round(light, 6).tolist()}")
+        out.append(np.sqrt(np.einsum("ijabc,ijab->cij", e**2, w**2, optimize=True)) * inv)
+    return out[0], out[1], out[2], out[3]
 
 
 def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None
@@ -66,6 +103,11 @@ def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, 
     nt, nph = sd.grid.shape
     top = np.zeros((M, 3, nt, nph))
     internal = np.zeros((M, 3, nt, nph))
+    errors: dict[str, np.ndarray] = {}
     for m, (t, p) in enumerate(zip(reference.theta_deg, reference.phi_deg)):
-        top[m], internal[m] = integrate_slice(model, stack or reference.stack, sd.grid, light_direction(t, p), s)
-    return ModelSlices(model.name, side, sd.grid, top, internal, s)
+        top[m], internal[m], se_top, se_internal = integrate_slice_parts(
+            model, stack or reference.stack, sd.grid, light_direction(t, p), s)
+        for key, se in (("top", se_top), ("internal", se_internal)):
+            if se is not None:
+                errors.setdefault(key, np.zeros((M, 3, nt, nph)))[m] = se
+    return ModelSlices(model.name, side, sd.grid, top, internal, s, errors.get("top"), errors.get("internal"))

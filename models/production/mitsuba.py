@@ -26,12 +26,14 @@ specular component, principled's clearcoat), ``internal`` the rest.
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
@@ -98,9 +100,10 @@ def mitsuba_variant() -> str | None:
 
 
 class MitsubaBSDF:
-    """One Mitsuba BSDF loaded from a plugin dictionary in ``variant``, evaluated without cosine."""
+    """One Mitsuba BSDF loaded from a plugin dictionary in ``variant`` (or from a file,
+    :meth:`from_file`), evaluated without cosine."""
 
-    def __init__(self, spec: dict, variant: str) -> None:
+    def __init__(self, spec: dict, variant: str, *, _load: Callable[[Any], Any] | None = None) -> None:
         mi = mitsuba_module()
         if mi is None:
             raise ImportError(NOT_INSTALLED)
@@ -109,21 +112,40 @@ class MitsubaBSDF:
         previous = mi.variant()
         mi.set_variant(variant)
         try:
-            self.bsdf = mi.load_dict(spec)
+            self.bsdf = mi.load_dict(spec) if _load is None else _load(mi)
+            if not isinstance(self.bsdf, getattr(mi, variant).BSDF):
+                raise ValueError(f"the file holds a {type(self.bsdf).__name__}, not a BSDF")
         finally:
             if previous is not None:
                 mi.set_variant(previous)
         self._types = getattr(mi, variant)
 
-    def eval(self, l: np.ndarray, v: np.ndarray, component: int | None = None) -> np.ndarray:
+    @classmethod
+    def from_file(cls, path: str | Path, variant: str) -> "MitsubaBSDF":
+        """The BSDF of a Mitsuba 3 file: XML through ``mi.load_file``, JSON (a plugin dictionary)
+        through ``mi.load_dict(json.load(...))``. Mitsuba's own errors are RuntimeError; a file
+        that holds something else than a BSDF, or JSON that is not an object, is a ValueError."""
+        path = Path(path)
+        if path.suffix.lower() == ".json":
+            try:
+                spec = json.loads(path.read_text(encoding="utf-8"))
+            except json.JSONDecodeError as e:
+                raise ValueError(f"{path} is not JSON: {e}") from None
+            if not isinstance(spec, dict):
+                raise ValueError(f"{path} holds a JSON {type(spec).__name__}, not a plugin dictionary")
+            return cls(spec, variant)
+        return cls({"file": str(path)}, variant, _load=lambda mi: mi.load_file(str(path)))
+
+    def eval(self, l: np.ndarray, v: np.ndarray, component: int | None = None, side: str = "brdf") -> np.ndarray:
         """``f(l, v)`` without cosine, shape ``v.shape[:-1] + (3,)``: Mitsuba's ``eval`` in importance
         mode with ``si.wi = l``, ``wo = v`` (all components, or only ``component``), divided by
-        ``v_z``; 0 where ``v_z <= 0`` or ``l_z <= 0``."""
+        ``|v_z|``; 0 where ``l_z <= 0`` and for ``v`` outside the side's hemisphere (``v_z > 0`` for
+        ``side="brdf"``, ``v_z < 0`` for ``"btdf"``, whose values are then flux based: importance mode)."""
         mi = mitsuba_module()
         shape = v.shape[:-1]
         vv = np.asarray(v, dtype=np.float64).reshape(-1, 3)
         out = np.zeros((vv.shape[0], 3))
-        up = np.flatnonzero(vv[:, 2] > 0.0)
+        up = np.flatnonzero(vv[:, 2] > 0.0) if side == "brdf" else np.flatnonzero(vv[:, 2] < 0.0)
         if l[2] <= 0.0 or up.size == 0:
             return out.reshape(shape + (3,))
         if component is None:
@@ -145,7 +167,7 @@ class MitsubaBSDF:
             vals = np.empty((w.shape[0], 3))
             for k in range(w.shape[0]):
                 vals[k] = self.bsdf.eval(ctx, si, t.Vector3f(w[k, 0], w[k, 1], w[k, 2]))
-        out[up] = vals / w[:, 2:3]
+        out[up] = vals / np.abs(w[:, 2:3])
         return out.reshape(shape + (3,))
 
 

@@ -98,15 +98,19 @@ class SphereSet:
 
 def model_names(names: Sequence[str] | None) -> list[str] | None:
     """``names`` checked against the registry (``["all"]``: every analytic model, None: none);
-    ModelError naming the known ones for an unknown name."""
+    adapter specs (``python:MODULE:NAME``, ``mitsuba:FILE``) are resolved to check them. ModelError
+    naming the known ones for an unknown name, or the spec and its reason for a bad spec."""
     if not names:
         return []
     if list(names) == ["all"]:
         return None
     known = registry.all_models()
     for n in names:
-        if n not in known:
-            raise ModelError(f"unknown model {n!r} (known: {', '.join(known)}, or all)")
+        if registry.is_spec(n):
+            registry.get(n)
+        elif n not in known:
+            raise ModelError(f"unknown model {n!r} (known: {', '.join(known)}, or all; or python:MODULE:NAME, "
+                             f"mitsuba:FILE.xml|.json)")
     return list(dict.fromkeys(names))
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from models import registry
+from models.base import ModelError
 from models.report.appendix_e import appendix_e_markdown, appendix_e_section, is_appendix_e
 from models.report.evaluation import evaluate_material, model_code_key, report_code_key
 from models.report.figures import material_figures, model_style
@@ -112,10 +113,10 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     if subcells < 1:
         raise ReportError(f"subcells = {subcells}: must be >= 1")
     if models is not None:
-        known = registry.catalogue()
-        unknown = [n for n in models if n not in known]
-        if unknown:
-            raise ReportError(f"unknown model {unknown[0]!r} (known: {', '.join(known)})")
+        try:
+            registry.check_names(models)
+        except ModelError as e:
+            raise ReportError(str(e)) from None
         models = list(dict.fromkeys(models))
     manifest, materials, missing, warnings = open_results(rd, definition, exclude=out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
 """A material's evaluation by the models and its cache in the report directory.
 
 The evaluation of a material is keyed by the content hash of its reference file, the hash of the
-model code (:func:`model_code_key`), the number of sub-cells, the requested models and the
-isotropization; the figures are keyed by that key and :func:`report_code_key`. The cache files and
+model code (:func:`model_code_key`: the project's and the installed model plugins'), the number of
+sub-cells, the requested models (with the code of adapter specs among them) and the isotropization; the figures are keyed by that key and :func:`report_code_key`. The cache files and
 the rules are described in ``docs/report.md`` (caching).
 """
 
@@ -23,7 +23,7 @@ from goniometer.results import SimulationResult
 from models import registry
 from models._jit import models_key
 from models.base import ModelError
-from models.evaluation import comparison_side, evaluate
+from models.evaluation import comparison_side, evaluate, group_name
 from models.report.files import material_dir, read_json, write_json
 from models.report.results import MaterialResult, ReportError, ReportMaterial
 
@@ -44,9 +44,13 @@ def _sha256_file(path: Path) -> str:
 
 
 def model_code_key() -> str:
-    """Hash of the sources that determine model values and errors: the models' key
-    (:func:`models._jit.models_key`: ``goniometer`` and ``models`` without their application)."""
-    return models_key()
+    """Hash of the sources that determine the registered models' values and errors: the models' key
+    (:func:`models._jit.models_key`: ``goniometer`` and ``models`` without their application),
+    followed, when model plugins are installed, by :func:`models.registry.code_key` of them (each
+    plugin's distribution, version and module sources), so that an updated plugin is evaluated
+    again. Adapter specs enter each evaluation's key instead (:func:`_evaluation_key`)."""
+    extra = registry.code_key(None)
+    return models_key() + (f"+{extra}" if extra else "")
 
 
 def report_code_key() -> str:
@@ -66,6 +70,9 @@ def _evaluation_key(digest: str, code: str, subcells: int, models: Sequence[str]
                     isotropize: str | None = None) -> str:
     doc = {"v": CACHE_VERSION, "reference": digest, "code": code, "subcells": subcells,
            "models": sorted(models) if models is not None else "all", "isotropize": isotropize}
+    specs = [m for m in models or () if registry.is_spec(m)]
+    if specs:   # the adapters' modules and files (absent otherwise: the other keys stay as they were)
+        doc["adapters"] = registry.code_key(specs)
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -134,7 +141,7 @@ def _save_cache(json_path: Path, h5_path: Path, entry: dict, slices: dict[str, t
             f.attrs["key"] = entry["key"]
             f.attrs["precision"] = f"float32 rounded to {SLICE_CACHE_MANTISSA_BITS} mantissa bits"
             for name, (top, internal) in slices.items():
-                g = f.create_group(name)
+                g = f.create_group(group_name(name))
                 for part, arr in (("top", top), ("internal", internal)):
                     g.create_dataset(part, data=round_mantissa(arr), chunks=True, compression="gzip",
                                      compression_opts=4, shuffle=True)
@@ -148,7 +155,8 @@ def load_slices(h5_path: Path, key: str, names: Iterable[str]) -> dict[str, tupl
         with h5py.File(h5_path, "r") as f:
             if f.attrs.get("key") != key:
                 return None
-            return {n: (f[f"{n}/top"][()].astype(np.float64), f[f"{n}/internal"][()].astype(np.float64))
+            return {n: (f[f"{group_name(n)}/top"][()].astype(np.float64),
+                        f[f"{group_name(n)}/internal"][()].astype(np.float64))
                     for n in names}
     except (OSError, KeyError, ValueError):
         return None

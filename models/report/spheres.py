@@ -23,6 +23,7 @@ from goniometer import store
 from goniometer.results import SimulationResult
 from models import registry
 from models.base import ModelError
+from models.evaluation import group_name
 from models.render import (RenderError, SphereSet, SphereView, comparison_figure, render_views,
                            slices_reference, view_text, write_png)
 from models.render.reference import Reference
@@ -55,9 +56,10 @@ def _key(eval_key: str, angle: float, size: int, names: Sequence[str]) -> str:
 
 
 def _rendered_models(res: MaterialResult) -> list[str]:
-    """The evaluated models that can be rendered (the analytic ones; fitted models need their fit)."""
+    """The evaluated models that can be rendered (the analytic ones and adapter specs; fitted models
+    need their fit)."""
     analytic = registry.all_models()
-    return [n for n in res.evaluation["models"] if n in analytic]
+    return [n for n in res.evaluation["models"] if n in analytic or registry.is_spec(n)]
 
 
 def _load(path: Path, tag: str, key: str) -> tuple[dict[str, np.ndarray], dict[str, str], str] | None:
@@ -66,7 +68,7 @@ def _load(path: Path, tag: str, key: str) -> tuple[dict[str, np.ndarray], dict[s
             if tag not in f or f[tag].attrs.get("key") != key:
                 return None
             g = f[tag]
-            images = {n: g[n][()].astype(np.float64) for n in json.loads(g.attrs["order"])}
+            images = {n: g[group_name(n)][()].astype(np.float64) for n in json.loads(g.attrs["order"])}
             return images, json.loads(g.attrs["skipped"]), str(g.attrs["description"])
     except (OSError, KeyError, ValueError):
         return None
@@ -95,7 +97,7 @@ def _save(path: Path, tag: str, key: str, spheres: SphereSet) -> None:
             g.attrs.update({"key": key, "order": json.dumps(list(spheres.images)),
                             "skipped": json.dumps(spheres.skipped), "description": spheres.reference.description})
             for n, img in spheres.images.items():
-                g.create_dataset(n, data=img.astype(np.float32), compression="gzip", compression_opts=4, shuffle=True)
+                g.create_dataset(group_name(n), data=img.astype(np.float32), compression="gzip", compression_opts=4, shuffle=True)
 
 
 class _Lazy:

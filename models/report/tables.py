@@ -91,13 +91,19 @@ def category_markdown(category: str, results: list[MaterialResult]) -> str:
             errs = r.evaluation["models"]
             vals = {n: errs[n][part]["rmse_mean"] for n in models if n in errs}
             best = min(vals, key=vals.get) if vals else None
-            cells = [f"**{vals[n]:.3e}**" if n == best else (f"{vals[n]:.3e}" if n in vals else "–")
-                     for n in models]
+            cells = [(f"**{vals[n]:.3e}**" if n == best else f"{vals[n]:.3e}") + _model_noise(errs[n][part])
+                     if n in vals else "–" for n in models]
             nf = next(iter(errs.values()))[part]["noise_floor_mean"] if errs else float("nan")
             row = [r.material.name, r.material.paper_name,
                    *[param_text(r.material.params, k) or "" for k in keys], *cells, f"{nf:.1e}"]
             parts.append("| " + " | ".join(row) + " |")
     return "\n".join(parts) + "\n"
+
+
+def _model_noise(e: dict) -> str:
+    """`` (model noise N)`` after the error of a stochastic model (its own noise, beside the
+    reference's floor; ``docs/models.md`` §3), nothing for an exact model."""
+    return f" (model noise {e['model_noise_mean']:.1e})" if "model_noise_mean" in e else ""
 
 
 def _ordered_models(results: list[MaterialResult]) -> list[str]:
