@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from goniometer import halfdiff
+from goniometer.merl import MERL_SCALE
 from goniometer.rgl.tensor import MAGIC, TensorError, read_tensor
 from goniometer.rgl.warp import Warp2D, bilinear
 
 __all__ = ["MERL_SCALE", "MeasuredBRDF", "MeasuredError", "measured_reference", "read_measured"]
 
-MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)
 #: where a spectral tensor file is read as R, G, B (nm)
 RGB_NM = (610.0, 550.0, 465.0)
 
