@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -168,9 +168,27 @@ def fit_lobes(data: np.ndarray, stderr: np.ndarray, edges: np.ndarray, rays: int
     """
     D = np.asarray(data, dtype=float)
     se = np.asarray(stderr, dtype=float)
-    G = len(alpha0)
     hit = (D > 0) & (se > 0)
     ratio = np.where(hit, se * se * rays / np.where(hit, D, 1.0), 1.0)     # mean w^2 / mean w per ring
+
+    def deviation(m: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.maximum(m, 1.0 / rays) * ratio / rays)
+
+    return fit_ring_lobes(D, edges, alpha0, energy0, deviation)
+
+
+def fit_ring_lobes(data: np.ndarray, edges: np.ndarray, alpha0: Sequence[float], energy0: Sequence[float],
+                   deviation: Callable[[np.ndarray], np.ndarray], scales: Sequence[float] = (1.0, 0.5, 2.0),
+                   scale_errors: str = "above_one") -> LobeFit:
+    """The least squares of :func:`fit_lobes` with the rings' standard deviations given by
+    ``deviation(model)`` (ring energies of the model -> one deviation per ring; a ring with an
+    infinite deviation is left out): ``len(alpha0)`` normalised GGX lobes, energies in [0, 1],
+    roughnesses in [ALPHA_FIT_MIN, ALPHA_FIT_MAX] (fitted in log alpha), started from ``energy0``
+    and ``alpha0`` times each of ``scales``, the lowest cost kept. Standard errors from the Jacobian,
+    scaled by ``sqrt(chi2/dof)`` when it is above 1 (``scale_errors="above_one"``) or always
+    (``"always"``: deviations known only up to a factor)."""
+    D = np.asarray(data, dtype=float)
+    G = len(alpha0)
     fr_cache: dict[float, np.ndarray] = {}
 
     def frac(a: float) -> np.ndarray:
@@ -189,23 +207,23 @@ def fit_lobes(data: np.ndarray, stderr: np.ndarray, edges: np.ndarray, rays: int
 
     def resid(x: np.ndarray) -> np.ndarray:
         m = model(x)
-        sd = np.sqrt(np.maximum(m, 1.0 / rays) * ratio / rays)
-        return (m - D) / sd
+        return (m - D) / deviation(m)
 
     lo = np.concatenate([np.zeros(G), np.full(G, math.log(ALPHA_FIT_MIN))])
     hi = np.concatenate([np.ones(G), np.full(G, math.log(ALPHA_FIT_MAX))])
     best = None
-    for scale in (1.0, 0.5, 2.0):
+    for scale in scales:
         a = np.clip(np.asarray(alpha0, dtype=float) * scale, ALPHA_FIT_MIN * 1.01, ALPHA_FIT_MAX * 0.99)
         x0 = np.concatenate([np.clip(np.asarray(energy0, dtype=float), 1e-7, 0.99), np.log(a)])
         r = optimize.least_squares(resid, x0, bounds=(lo, hi), x_scale="jac", max_nfev=400)
         if best is None or r.cost < best.cost:
             best = r
     x = best.x
-    dof = max(1, D.shape[0] - 2 * G)
+    used = int(np.count_nonzero(np.isfinite(deviation(model(x)))))
+    dof = max(1, used - 2 * G)
     chi2 = 2.0 * best.cost / dof
     J = best.jac
-    cov = np.linalg.pinv(J.T @ J) * max(1.0, chi2)
+    cov = np.linalg.pinv(J.T @ J) * (max(1.0, chi2) if scale_errors == "above_one" else chi2)
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
     alpha = np.exp(x[G:])
     return LobeFit(x[:G].copy(), alpha, err[:G], alpha * err[G:], float(chi2))
