@@ -165,6 +165,11 @@ def _invert_measured(args: argparse.Namespace) -> int:
     if not 1 <= n_lobes <= M.MAX_LOBES:
         raise _usage(f"--lobes: {n_lobes} is not in 1..{M.MAX_LOBES}")
     layers = _layers(args.layers, n_lobes)
+    if not args.simulate:
+        given = [o for o, k in (("--rays", "rays"), ("--seed", "seed"), ("--threads", "threads"))
+                 if getattr(args, k) is not None]
+        if given:
+            raise _usage(f"{given[0]}: goes with --simulate")
     rays = M.SIMULATE_RAYS if args.rays is None else args.rays
     if rays < 1000:
         raise _usage(f"--rays: at least 1000, got {rays}")
