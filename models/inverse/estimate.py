@@ -252,8 +252,9 @@ def lobe_groups(lobes: Sequence[Lobe]) -> list[list[int]]:
     return _group_sigmas([lb.sigma for lb in lobes])
 
 
-def _sigma_err(a: float, a_err: float) -> float:
-    """Delta method: d f / d alpha = 1.1 a^0.1 / (1 - a^1.1)^2."""
+def sigma_stderr(a: float, a_err: float) -> float:
+    """Standard error of ``sigma = f(alpha)`` from that of ``alpha``, by the delta method:
+    ``d f / d alpha = 1.1 a^0.1 / (1 - a^1.1)^2``."""
     return 1.1 * a ** 0.1 / (1.0 - a ** 1.1) ** 2 * a_err
 
 
@@ -284,7 +285,7 @@ def estimate_lobes(rings: RingData, lobes: Sequence[Lobe]) -> dict[str, Any]:
             continue
         f = fit_lobes(d, se, edges, N, [a_top], [tot])
         top.append({"R": f.energy[0], "R_err": f.energy_err[0], "sigma": roughness_to_variance(f.alpha[0]),
-                    "sigma_err": _sigma_err(f.alpha[0], f.alpha_err[0]), "alpha": f.alpha[0], "chi2": f.chi2_dof})
+                    "sigma_err": sigma_stderr(f.alpha[0], f.alpha_err[0]), "alpha": f.alpha[0], "chi2": f.chi2_dof})
     # ---- internal components
     comps: list[tuple[int, float, np.ndarray]] = []      # (lobe index, sigma, energy guess RGB)
     if lobes[0].layers == 2:
@@ -310,7 +311,7 @@ def estimate_lobes(rings: RingData, lobes: Sequence[Lobe]) -> dict[str, Any]:
         A = np.array([f.alpha[gi] for f in fits])
         Ae = np.array([f.alpha_err[gi] for f in fits])
         S = np.array([roughness_to_variance(a) for a in A])
-        dS = np.array([_sigma_err(a, ae) for a, ae in zip(A, Ae)])
+        dS = np.array([sigma_stderr(a, ae) for a, ae in zip(A, Ae)])
         members = [comps[j][0] + 1 for j in g]
         group_out.append({"lobes": members, "part": "internal", "R": E, "R_err": Ee, "sigma": S, "sigma_err": dS,
                           "alpha": A})

@@ -39,7 +39,8 @@ import numpy as np
 
 from goniometer.measured import MeasuredBRDF, measured_reference, read_measured
 from models.belcour import roughness_to_variance
-from models.inverse.estimate import SEPARABLE_RATIO, LobeFit, estimate_lobes, fit_ring_lobes, lobe_ring_fractions
+from models.inverse.estimate import (SEPARABLE_RATIO, LobeFit, estimate_lobes, fit_ring_lobes, lobe_ring_fractions,
+                                     sigma_stderr)
 from models.inverse.lobes import InverseError, InverseOptions, Lobe, Pick, jsonable
 from models.inverse.solver import Inversion, solve
 
@@ -163,7 +164,7 @@ class MeasuredFit:
 
     def to_json(self) -> dict[str, Any]:
         sig = self.sigma
-        ds = np.array([[_sigma_err(a, ae) for a, ae in zip(ra, rae)] for ra, rae in zip(self.alpha, self.alpha_err)])
+        ds = np.array([[sigma_stderr(a, ae) for a, ae in zip(ra, rae)] for ra, rae in zip(self.alpha, self.alpha_err)])
         sl = self.lobe_sigma()
         return jsonable({
             "lobes": self.n_lobes, "weighting": WEIGHTING, "misfit": self.misfit,
@@ -171,10 +172,6 @@ class MeasuredFit:
             "fitted": [{"R": self.R[k], "R_stderr": self.R_err[k], "alpha": self.alpha[k],
                         "alpha_stderr": self.alpha_err[k], "sigma": sig[k], "sigma_stderr": ds[k],
                         "sigma_lobe": sl[k]} for k in range(self.n_lobes)]})
-
-
-def _sigma_err(a: float, a_err: float) -> float:
-    return 1.1 * a ** 0.1 / (1.0 - a ** 1.1) ** 2 * a_err
 
 
 def fit_measured_lobes(rings: MeasuredRings, n_lobes: int = DEFAULT_LOBES) -> MeasuredFit:
@@ -283,7 +280,8 @@ def simulate_against(reference, stack, lobes: Sequence[Lobe], rays: int = SIMULA
     the measurement, so ``E[rmse^2] = noise_floor^2 + d^2`` with ``d`` the RMSE of the simulation's
     expectation against the measurement: ``excess_rmse`` estimates ``d``) and ``relative_excess``;
     per lobe the estimator's ``R_simulated``, ``sigma_simulated`` and standard errors
-    (:func:`models.inverse.estimate.estimate_lobes` with ``lobes`` as the requested lobes)."""
+    (:func:`models.inverse.estimate.estimate_lobes` with ``lobes`` as the requested lobes); ``result``
+    the simulation itself."""
     from models.compare.errors import noise_floor, rmse
     from models.inverse.validation import simulate_case
     sim, rings = simulate_case(stack, lobes, rays, tuple(reference.settings.resolution), seed, threads)
