@@ -65,7 +65,15 @@ def cmd_invert(args: argparse.Namespace) -> int:
     from goniometer import atomic
     from models import inverse
     from models.inverse import InverseError, forward_check
-    from models.report.inverse import material_text, rgb_text, value_text
+    from models.report.inverse import material_text
+    if args.measured is not None:
+        if args.lobe:
+            raise _usage(f"invert: a MEASURED file ({args.measured}) and --lobe exclude each other: the lobes of a "
+                         f"measurement are fitted (--lobes K)")
+        return _invert_measured(args)
+    extra = _measured_only(args)
+    if extra:
+        raise _usage(f"{extra[0]}: goes with a MEASURED file (gonio invert FILE.bsdf|FILE.binary {extra[0]} ...)")
     if not args.lobe:
         raise _usage("invert: at least one --lobe is required (e.g. --lobe \"R=0.04 sigma=0 layers=1\")")
     try:
@@ -99,6 +107,16 @@ def cmd_invert(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(inverse.inversion_json(inv, stack, checks), indent=2))
         return 0
+    _print_stack(inv, stack, checks, lobes)
+    if out is not None:
+        print(f"wrote {out} (simulate it with: gonio simulate {out} --out FILE.h5 --incident 0 --parametrization half)")
+    if classes_png is not None:
+        print(f"wrote {classes_png}")
+    return 0
+
+
+def _print_stack(inv, stack, checks, lobes) -> None:
+    from models.report.inverse import rgb_text, value_text
     print(f"{stack.name} ({stack.category}), {len(stack.interfaces)} interface(s), solved in "
           f"{1000 * inv.elapsed_s:.1f} ms" + (" (default choices moved by the search)" if inv.searched else ""))
     for layer in json.loads(stack.to_json())["layers"]:
@@ -107,8 +125,113 @@ def cmd_invert(args: argparse.Namespace) -> int:
     for k, (lobe, c) in enumerate(zip(lobes, checks)):
         print(f"{k + 1:>4}  {rgb_text(lobe.rgb):>22} {rgb_text(c.R_forward):>22}  {lobe.sigma:>10.4g} "
               f"{rgb_text(c.sigma_forward):>24}")
+
+
+# ---------------------------------------------------------------------------- invert MEASURED
+
+#: options of ``gonio invert`` that only a MEASURED file takes, with their "not given" values
+_MEASURED_ONLY = (("--lobes", "lobes", None), ("--layers", "layers", None), ("--simulate", "simulate", False),
+                  ("--rays", "rays", None), ("--seed", "seed", None), ("--threads", "threads", None))
+
+
+def _measured_only(args: argparse.Namespace) -> list[str]:
+    """The measured-only options given."""
+    return [o for o, k, unset in _MEASURED_ONLY if getattr(args, k) != unset]
+
+
+def _layers(text: str | None, n_lobes: int) -> list[int] | None:
+    if text is None:
+        return None
+    try:
+        layers = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise _usage(f"--layers: {text!r} is not a comma-separated list of 1 or 2 (one per lobe, top first)") from None
+    if len(layers) != n_lobes or any(x not in (1, 2) for x in layers):
+        raise _usage(f"--layers: {text!r} needs {n_lobes} value(s), each 1 or 2 (one per fitted lobe, top first)")
+    return layers
+
+
+def _invert_measured(args: argparse.Namespace) -> int:
+    """``gonio invert MEASURED``: fit lobes to a measurement at normal incidence, invert them,
+    optionally simulate the stack against the measurement (docs/inverse.md, "From a measurement")."""
+    from goniometer import atomic
+    from goniometer.cli.common import usage_errors
+    from goniometer.measured import MeasuredError, read_measured
+    from models import inverse
+    from models.inverse import InverseError, forward_check
+    from models.inverse import measured as M
+    from models.report.inverse import material_text, rgb_text
+    n_lobes = M.DEFAULT_LOBES if args.lobes is None else args.lobes
+    if not 1 <= n_lobes <= M.MAX_LOBES:
+        raise _usage(f"--lobes: {n_lobes} is not in 1..{M.MAX_LOBES}")
+    layers = _layers(args.layers, n_lobes)
+    if not args.simulate:
+        given = [o for o, k in (("--rays", "rays"), ("--seed", "seed"), ("--threads", "threads"))
+                 if getattr(args, k) is not None]
+        if given:
+            raise _usage(f"{given[0]}: goes with --simulate")
+    rays = M.SIMULATE_RAYS if args.rays is None else args.rays
+    if rays < 1000:
+        raise _usage(f"--rays: at least 1000, got {rays}")
+    with usage_errors(InverseError):
+        picks = inverse.parse_picks(args.pick, n_lobes)
+    out = _check_out(args.out, ".toml", "--out", overwrite=args.overwrite, inputs=[args.measured])
+    classes_png = _check_out(args.classes, ".png", "--classes", overwrite=args.overwrite, inputs=[args.measured])
+    options = _options(args)
+    with usage_errors(MeasuredError):
+        measured = read_measured(args.measured)
+    with usage_errors(InverseError, prefix=str(args.measured)):
+        mi = M.invert_measured(measured, n_lobes, layers, args.base, picks, options, name=args.name)
+    inv = mi.inversion
+    doc = {"measurement": mi.to_json()}
+    if not inv.achievable:
+        print(f"not physically achievable: {inv.reason}", file=sys.stderr)
+        if classes_png is not None and inv.classes:
+            from models.report.inverse import classes_figure, save_png
+            save_png(classes_figure(inv), classes_png)
+            print(f"wrote {classes_png} (classes down to the failing lobe)", file=sys.stderr)
+        if args.json:
+            print(json.dumps({**doc, **inverse.inversion_json(inv)}, indent=2))
+        return EXIT_NOT_ACHIEVABLE
+    stack = inv.stack()
+    checks = forward_check(inv)
     if out is not None:
-        print(f"wrote {out} (simulate it with: gonio simulate {out} --out FILE.h5 --incident 0 --parametrization half)")
+        atomic.write_bytes(out, material_text(inv, stack, checks).encode())
+    if classes_png is not None:
+        from models.report.inverse import classes_figure, save_png
+        save_png(classes_figure(inv), classes_png)
+    sim = None
+    if args.simulate:
+        sim = M.simulate_against(mi.reference, stack, mi.lobes, rays, 1 if args.seed is None else args.seed,
+                                 args.threads)
+        sim.pop("result")
+        fit = mi.fit
+        for k, lobe in enumerate(sim["lobes"]):
+            lobe["R_fitted"], lobe["sigma_fitted"] = fit.R[k], fit.sigma[k]
+        doc["simulation"] = inverse.jsonable(sim)
+    if args.json:
+        print(json.dumps({**doc, **inverse.inversion_json(inv, stack, checks)}, indent=2))
+        return 0
+    fit = mi.fit
+    print(f"{measured.path} ({measured.kind}): {int(fit.rings.valid.sum())} rings at normal incidence, "
+          f"{fit.n_lobes} GGX lobe(s) per channel, misfit {rgb_text(fit.misfit)} (relative)")
+    for k in range(fit.n_lobes):
+        print(f"  lobe {k + 1}: R {rgb_text(fit.R[k])}, alpha {rgb_text(fit.alpha[k])}, sigma {rgb_text(fit.sigma[k])} "
+              f"-> {mi.lobes[k].sigma:.4g}")
+    _print_stack(inv, stack, checks, mi.lobes)
+    if sim is not None:
+        print(f"simulated ({rays:,} rays, normal incidence, half {sim['cells']} cells): RMSE {rgb_text(sim['rmse'])}, "
+              f"measurement's norm {rgb_text(sim['reference_norm'])}, relative {rgb_text(sim['relative_rmse'])}, "
+              f"simulation's noise floor {rgb_text(sim['noise_floor'])}; beyond the noise {rgb_text(sim['excess_rmse'])}, "
+              f"relative {rgb_text(sim['relative_excess'])}")
+        for k, s in enumerate(sim["lobes"]):
+            if s.get("R_simulated") is None:
+                print(f"  lobe {k + 1}: simulated together with lobes {s.get('simulated_group')}")
+                continue
+            print(f"  lobe {k + 1}: R fitted {rgb_text(fit.R[k])} simulated {rgb_text(s['R_simulated'])}; sigma fitted "
+                  f"{rgb_text(fit.sigma[k])} simulated {rgb_text(s['sigma_simulated'])}")
+    if out is not None:
+        print(f"wrote {out}")
     if classes_png is not None:
         print(f"wrote {classes_png}")
     return 0
@@ -206,7 +329,11 @@ def _print_table(results, simulate: bool) -> None:
 
 def register(subparsers) -> None:
     """Register ``invert`` and ``validate-inverse`` on the ``gonio`` sub-command parser."""
-    p = subparsers.add_parser("invert", help="lobes at normal incidence -> a layered material (Bati 2021 inverse)")
+    p = subparsers.add_parser("invert", help="lobes at normal incidence -> a layered material (Bati 2021 inverse); "
+                                             "or a measured file's lobes")
+    p.add_argument("measured", nargs="?", metavar="MEASURED",
+                   help="a measured BRDF (MERL .binary or RGL .bsdf) whose lobes at normal incidence are fitted and "
+                        "inverted, instead of --lobe (default: none)")
     p.add_argument("--lobe", action="append", metavar="SPEC",
                    help='a lobe, top first, e.g. "R=0.03,0.06,0.09 sigma=0.05 layers=2" (repeatable; at least one, '
                         'no default)')
@@ -225,6 +352,16 @@ def register(subparsers) -> None:
     p.add_argument("--classes", metavar="OUT.png", help="plot the equivalence classes (default: no plot)")
     p.add_argument("--name", default="inverse", help="material name (default inverse)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--lobes", type=whole_number, metavar="K",
+                   help="MEASURED: GGX lobes fitted per channel, 1..3 (default 1)")
+    p.add_argument("--layers", metavar="L[,L...]",
+                   help="MEASURED: interfaces of each fitted lobe, top first, 1 or 2 (default 1 each)")
+    p.add_argument("--simulate", action="store_true",
+                   help="MEASURED: simulate the retrieved stack at normal incidence and compare it with the "
+                        "measurement (default: no simulation)")
+    p.add_argument("--rays", type=whole_number, help="MEASURED --simulate: rays (default 1,000,000)")
+    p.add_argument("--seed", type=whole_number, help="MEASURED --simulate: seed (default 1)")
+    p.add_argument("--threads", type=whole_number, help="MEASURED --simulate: " + THREADS_HELP)
     add_overwrite(p)
     p.set_defaults(func=cmd_invert)
 

@@ -13,7 +13,8 @@ Modules: :mod:`~models.inverse.lobes` (inputs: :class:`Lobe`, :class:`Pick`,
 :mod:`~models.inverse.context` (alg. 3), :mod:`~models.inverse.classes`,
 :mod:`~models.inverse.one_layer` (section 5.1), :mod:`~models.inverse.two_layer` (section 5.2),
 :mod:`~models.inverse.solver` (alg. 2: :func:`solve`, :func:`invert`), and the validation:
-:mod:`~models.inverse.validation`, :mod:`~models.inverse.estimate`. Reports and figures of the
+:mod:`~models.inverse.validation`, :mod:`~models.inverse.estimate`; from a measured BRDF:
+:mod:`~models.inverse.measured` (:func:`invert_measured`, :func:`simulate_against`). Reports and figures of the
 method are the application's (:mod:`models.report.inverse`).
 """
 
@@ -23,10 +24,12 @@ from models.inverse.equations import (CONDUCTOR_R_MIN, conductor_eta_bounds, eq1
                                       eq8_kappa, eq9_eta_max, eq10_eta_min, eq11_inverse_adding, eq13_tau,
                                       eq15_sigma_r12, eq17_energy, eq18_r_prime, eq19_sigma_r, eta_sigma_max)
 from models.inverse.estimate import (SEPARABLE_RATIO, SIGMA_RES, LobeFit, RingData, estimate_lobes, fit_lobes,
-                                     lobe_albedo, lobe_groups, lobe_ring_fractions, ring_data)
+                                     fit_ring_lobes, lobe_albedo, lobe_groups, lobe_ring_fractions, ring_data)
 from models.inverse.kernels import albedo_normal, fgd_for, fgd_normal, kernel_for
 from models.inverse.lobes import (ETA_MAX_DEFAULT, PICK_FIELDS, InverseError, InverseOptions, Interval, Lobe,
                                   NotAchievable, Pick, PickError, jsonable, parse_lobe, parse_picks)
+from models.inverse.measured import (MeasuredFit, MeasuredInversion, MeasuredRings, fit_measured_lobes,
+                                     invert_measured, measured_rings, normal_reference, simulate_against)
 from models.inverse.one_layer import (ConductorClass, OneLayerDielectricClass, conductor_class, conductor_point,
                                       one_layer_dielectric_class)
 from models.inverse.solver import (FIG17_LOBES, Inversion, bench_invert, equivalence_classes, invert, layers_to_stack,
@@ -59,5 +62,8 @@ __all__ = [
     "DEFAULT_RESOLUTION",
     # lobe estimator
     "RingData", "ring_data", "LobeFit", "fit_lobes", "lobe_ring_fractions", "lobe_albedo", "lobe_groups",
-    "estimate_lobes", "SEPARABLE_RATIO", "SIGMA_RES",
+    "estimate_lobes", "SEPARABLE_RATIO", "SIGMA_RES", "fit_ring_lobes",
+    # from a measurement
+    "normal_reference", "MeasuredRings", "measured_rings", "MeasuredFit", "fit_measured_lobes", "MeasuredInversion",
+    "invert_measured", "simulate_against",
 ]

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -168,9 +168,27 @@ def fit_lobes(data: np.ndarray, stderr: np.ndarray, edges: np.ndarray, rays: int
     """
     D = np.asarray(data, dtype=float)
     se = np.asarray(stderr, dtype=float)
-    G = len(alpha0)
     hit = (D > 0) & (se > 0)
     ratio = np.where(hit, se * se * rays / np.where(hit, D, 1.0), 1.0)     # mean w^2 / mean w per ring
+
+    def deviation(m: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.maximum(m, 1.0 / rays) * ratio / rays)
+
+    return fit_ring_lobes(D, edges, alpha0, energy0, deviation)
+
+
+def fit_ring_lobes(data: np.ndarray, edges: np.ndarray, alpha0: Sequence[float], energy0: Sequence[float],
+                   deviation: Callable[[np.ndarray], np.ndarray], scales: Sequence[float] = (1.0, 0.5, 2.0),
+                   scale_errors: str = "above_one") -> LobeFit:
+    """The least squares of :func:`fit_lobes` with the rings' standard deviations given by
+    ``deviation(model)`` (ring energies of the model -> one deviation per ring; a ring with an
+    infinite deviation is left out): ``len(alpha0)`` normalised GGX lobes, energies in [0, 1],
+    roughnesses in [ALPHA_FIT_MIN, ALPHA_FIT_MAX] (fitted in log alpha), started from ``energy0``
+    and ``alpha0`` times each of ``scales``, the lowest cost kept. Standard errors from the Jacobian,
+    scaled by ``sqrt(chi2/dof)`` when it is above 1 (``scale_errors="above_one"``) or always
+    (``"always"``: deviations known only up to a factor)."""
+    D = np.asarray(data, dtype=float)
+    G = len(alpha0)
     fr_cache: dict[float, np.ndarray] = {}
 
     def frac(a: float) -> np.ndarray:
@@ -189,23 +207,23 @@ def fit_lobes(data: np.ndarray, stderr: np.ndarray, edges: np.ndarray, rays: int
 
     def resid(x: np.ndarray) -> np.ndarray:
         m = model(x)
-        sd = np.sqrt(np.maximum(m, 1.0 / rays) * ratio / rays)
-        return (m - D) / sd
+        return (m - D) / deviation(m)
 
     lo = np.concatenate([np.zeros(G), np.full(G, math.log(ALPHA_FIT_MIN))])
     hi = np.concatenate([np.ones(G), np.full(G, math.log(ALPHA_FIT_MAX))])
     best = None
-    for scale in (1.0, 0.5, 2.0):
+    for scale in scales:
         a = np.clip(np.asarray(alpha0, dtype=float) * scale, ALPHA_FIT_MIN * 1.01, ALPHA_FIT_MAX * 0.99)
         x0 = np.concatenate([np.clip(np.asarray(energy0, dtype=float), 1e-7, 0.99), np.log(a)])
         r = optimize.least_squares(resid, x0, bounds=(lo, hi), x_scale="jac", max_nfev=400)
         if best is None or r.cost < best.cost:
             best = r
     x = best.x
-    dof = max(1, D.shape[0] - 2 * G)
+    used = int(np.count_nonzero(np.isfinite(deviation(model(x)))))
+    dof = max(1, used - 2 * G)
     chi2 = 2.0 * best.cost / dof
     J = best.jac
-    cov = np.linalg.pinv(J.T @ J) * max(1.0, chi2)
+    cov = np.linalg.pinv(J.T @ J) * (max(1.0, chi2) if scale_errors == "above_one" else chi2)
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
     alpha = np.exp(x[G:])
     return LobeFit(x[:G].copy(), alpha, err[:G], alpha * err[G:], float(chi2))
@@ -234,8 +252,9 @@ def lobe_groups(lobes: Sequence[Lobe]) -> list[list[int]]:
     return _group_sigmas([lb.sigma for lb in lobes])
 
 
-def _sigma_err(a: float, a_err: float) -> float:
-    """Delta method: d f / d alpha = 1.1 a^0.1 / (1 - a^1.1)^2."""
+def sigma_stderr(a: float, a_err: float) -> float:
+    """Standard error of ``sigma = f(alpha)`` from that of ``alpha``, by the delta method:
+    ``d f / d alpha = 1.1 a^0.1 / (1 - a^1.1)^2``."""
     return 1.1 * a ** 0.1 / (1.0 - a ** 1.1) ** 2 * a_err
 
 
@@ -266,7 +285,7 @@ def estimate_lobes(rings: RingData, lobes: Sequence[Lobe]) -> dict[str, Any]:
             continue
         f = fit_lobes(d, se, edges, N, [a_top], [tot])
         top.append({"R": f.energy[0], "R_err": f.energy_err[0], "sigma": roughness_to_variance(f.alpha[0]),
-                    "sigma_err": _sigma_err(f.alpha[0], f.alpha_err[0]), "alpha": f.alpha[0], "chi2": f.chi2_dof})
+                    "sigma_err": sigma_stderr(f.alpha[0], f.alpha_err[0]), "alpha": f.alpha[0], "chi2": f.chi2_dof})
     # ---- internal components
     comps: list[tuple[int, float, np.ndarray]] = []      # (lobe index, sigma, energy guess RGB)
     if lobes[0].layers == 2:
@@ -292,7 +311,7 @@ def estimate_lobes(rings: RingData, lobes: Sequence[Lobe]) -> dict[str, Any]:
         A = np.array([f.alpha[gi] for f in fits])
         Ae = np.array([f.alpha_err[gi] for f in fits])
         S = np.array([roughness_to_variance(a) for a in A])
-        dS = np.array([_sigma_err(a, ae) for a, ae in zip(A, Ae)])
+        dS = np.array([sigma_stderr(a, ae) for a, ae in zip(A, Ae)])
         members = [comps[j][0] + 1 for j in g]
         group_out.append({"lobes": members, "part": "internal", "R": E, "R_err": Ee, "sigma": S, "sigma_err": dS,
                           "alpha": A})
