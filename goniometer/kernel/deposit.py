@@ -16,6 +16,7 @@ import numba
 import numpy as np
 
 from goniometer.kernel.codegen import STACK_BLOCK, prefer_wide_vectors, prefetch, stack_block
+from goniometer.rgl.warp import invert_point
 from goniometer.slices import RGL, cell_index_fast, cell_index_lanes
 
 #: exits a buffer holds: rows d_x, d_y, d_z, w_0, w_1, w_2, order row, 1.0 if transmitted (one
@@ -41,7 +42,16 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
     nb = n_theta * n_phi * row
     hb = brdf.reshape(-1)
     ht = btdf.reshape(-1)
-    if param != RGL and n_phi >= 8 and n_theta + 1 <= STACK_BLOCK and n_phi + 1 <= STACK_BLOCK:
+    if param == RGL:
+        # the RGL grid: the node of each reflected exit through the incident direction's warp (the
+        # tables' slots hold it, goniometer.rgl.warp.pack_kernel_tables); transmitted exits are
+        # booked in the energies only
+        for e in range(n_exit):
+            transmission = xbuf[7, e] != 0.0
+            i, j = invert_point(lx, ly, lz, xbuf[0, e], xbuf[1, e], xbuf[2, e], n_theta, row_cos, col_cos, col_sin)
+            i = -1 if transmission else i
+            cell[e], sqo[e] = _offsets(i, j, np.int64(xbuf[6, e]), transmission, n_phi, row, nb, max_order)
+    elif n_phi >= 8 and n_theta + 1 <= STACK_BLOCK and n_phi + 1 <= STACK_BLOCK:
         # the cells of all exits in one vectorised loop (the boundary tables on this function's
         # stack: gathers that provably do not alias the results)
         prefer_wide_vectors()

@@ -71,3 +71,13 @@ def test_the_tracers_inversion_finds_the_node_of_the_warps_u(isotropic):
         assert (r, c) == (int(np.rint(uy * (n - 1))), int(np.rint(ux * (n - 1))))
         hits += 1
     assert hits > 800
+
+
+def test_the_polynomial_atan2_is_libms_to_a_few_ulp():
+    from goniometer.rgl.warp import atan2_poly
+    rng = np.random.default_rng(4)
+    pts = np.concatenate([rng.normal(size=(20000, 2)), rng.normal(size=(2000, 2)) * 1e-9,
+                          [[0.0, 1.0], [1.0, 0.0], [0.0, -1.0], [-1.0, 0.0], [1.0, 1.0], [-1.0, -1e-300],
+                           [0.0, 0.0], [1e-300, -1.0]]])
+    worst = max(abs(atan2_poly(y, x) - math.atan2(y, x)) for y, x in pts if not (y == 0.0 and x < 0))
+    assert worst < 4e-15
