@@ -17,6 +17,7 @@ def all_models() -> dict[str, Model]:
     from models.production import (GGXKullaConty, MitsubaPrincipled, MitsubaRoughPlastic, OpenPBRCoat,
                                    StandardSurfaceCoat)
     found += [OpenPBRCoat(), StandardSurfaceCoat(), GGXKullaConty(), MitsubaRoughPlastic(), MitsubaPrincipled()]
+    found += __import__("models.pbrt_layered", fromlist=["built_in_models"]).built_in_models()  # pbrt-v4 LayeredBxDF
     return {m.name: m for m in found}
 
 
