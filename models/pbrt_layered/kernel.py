@@ -25,7 +25,7 @@ The parameters of one evaluation are packed by :func:`models.pbrt_layered.model.
 * ``real`` (float64): ``[coat eta, coat alpha, base alpha, g]``;
 * ``chan`` (float64, ``(n_groups, 5, 3)``): per walk group, rows optical depth, scattering albedo,
   Lambertian reflectance, conductor eta and k (both relative to the coat), one column per slot;
-* ``source`` (int64, ``(3,)``): the group whose result each output channel takes, and the slot.
+* ``source`` (int64, ``(3,)``): where each output channel's result comes from, ``3 group + slot``.
 
 One group carries the three channels together (as pbrt's walk carries its wavelengths); a
 scattering medium whose optical depth differs between channels needs one walk per channel
@@ -35,13 +35,15 @@ scattering medium whose optical depth differs between channels needs one walk pe
 from __future__ import annotations
 
 import math
+import types
 
 import numba
 import numpy as np
 
+from goniometer import optics
 from goniometer.bits import double_as_uint64
 from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric, ggx_lambda,
-                               hg_phase, hg_scatter, microfacet_reflection, microfacet_transmission, reflect, refract,
+                               hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
                                sample_vndf, vndf_pdf)
 from goniometer.rng import next_float, seed_state, splitmix64
 from models._jit import njit
@@ -60,6 +62,32 @@ K_TAU, K_ALBEDO, K_RHO, K_ETA, K_K = range(5)
 #: pbrt's threshold under which a GGX distribution is a perfect mirror/refractor
 SMOOTH_ALPHA = 1e-3
 _INV_PI = 1.0 / math.pi
+
+
+# ---------------------------------------------------------------------- Henyey-Greenstein sampling
+
+def _models_copy(fn, inline: str = "never", **replace):
+    """``goniometer.optics``' function ``fn`` compiled again, from the same source, in the models'
+    cache (``models._jit``), with the optics functions it calls replaced by ``replace``.
+
+    The simulator's lane kernel inlines :func:`goniometer.optics.hg_scatter_cs`, which calls
+    ``sample_hg_cos``; if any other code compiled ``sample_hg_cos`` into the simulator's cache first,
+    a fresh compilation of the lane kernel would link that cached object instead of inlining it,
+    and its scattering step would no longer vectorise (``tests/goniometer/kernel/test_vectorised.py``).
+    So this module never compiles those dispatchers: it uses copies (the formula stays in
+    ``goniometer.optics``)."""
+    py = fn.py_func
+    env = dict(py.__globals__)
+    env.update(replace)
+    copy = types.FunctionType(py.__code__, env, py.__name__, py.__defaults__, py.__closure__)
+    copy.__qualname__ = py.__qualname__
+    copy.__doc__ = py.__doc__
+    return njit(cache=True, inline=inline)(copy)
+
+
+_sample_hg_cos = _models_copy(optics.sample_hg_cos)
+_hg_scatter_cs = _models_copy(optics.hg_scatter_cs, inline="always", sample_hg_cos=_sample_hg_cos)
+hg_scatter = _models_copy(optics.hg_scatter, inline="always", hg_scatter_cs=_hg_scatter_cs)
 
 
 # ---------------------------------------------------------------------- small helpers
