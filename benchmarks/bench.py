@@ -251,6 +251,9 @@ def bench_models(repeats: int = 3) -> list[dict]:
         st = MATERIALS[name]
         refs[name] = simulate(st, SimulationSettings(incident_deg=INCIDENT, rays=1000, parametrization="half", threads=1))
     for mname, model in all_models().items():
+        if getattr(model, "stochastic", False):
+            print(f"integrate {mname:16s} (stochastic: benchmarks/bench_pbrt_layered.py times it)", flush=True)
+            continue
         for name, ref in refs.items():
             side = "btdf" if ref.stack.transmits else "brdf"
             if not model.supports(ref.stack) or side not in model.sides:

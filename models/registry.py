@@ -38,6 +38,9 @@ def _built_in_models() -> list[Model]:
     from models.production import (GGXKullaConty, MitsubaPrincipled, MitsubaRoughPlastic, OpenPBRCoat,
                                    StandardSurfaceCoat)
     found += [OpenPBRCoat(), StandardSurfaceCoat(), GGXKullaConty(), MitsubaRoughPlastic(), MitsubaPrincipled()]
+    # pbrt-v4's LayeredBxDF estimator (docs/pbrt-layered.md)
+    from models.pbrt_layered import built_in_models as pbrt_layered
+    found += pbrt_layered()
     return found
 
 

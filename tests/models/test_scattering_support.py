@@ -30,7 +30,9 @@ ABSORBING = Stack("absorbing", (Interface(0.1, (1.5,) * 3), Medium((0.4, 0.4, 0.
                                 Lambertian((0.5,) * 3)), "plastic")
 
 BELCOUR = [n for n in registry.all_models() if n.startswith("belcour")]
-OTHERS = [n for n in registry.all_models() if not n.startswith("belcour")]
+#: pbrt-v4's layered BSDF rows walk through HG media of any g (tests/models/test_pbrt_layered.py)
+PBRT = [n for n in registry.all_models() if n.startswith("pbrt-layered")]
+OTHERS = [n for n in registry.all_models() if not n.startswith("belcour") and n not in PBRT]
 
 
 def _sigma_hg(g: float) -> float:
@@ -48,6 +50,14 @@ def test_every_other_analytic_model_refuses_a_scattering_medium(name):
         model.evaluate(SCATTERING, [0.0, 0.0, 1.0], [[0.0, 0.0, 1.0]], model.sides[0])
     # a medium that does not scatter is not refused for scattering
     assert "scattering" not in (model.reason(ABSORBING) or "")
+
+
+@pytest.mark.parametrize("name", PBRT)
+def test_pbrt_rows_accept_scattering_media_of_any_g(name):
+    model = registry.all_models()[name]
+    assert model.scattering and PBRT
+    for stack in (SCATTERING, ISOTROPIC, ABSORBING):
+        assert model.reason(stack) is None
 
 
 @pytest.mark.parametrize("name", BELCOUR)
@@ -138,7 +148,7 @@ def test_gonio_models_says_who_supports_scattering(capsys):
     assert all(c.scattering for c in registry.fitted_models().values())
     assert main(["models", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
-    assert {n for n, m in d.items() if m["scattering"]} == set(registry.fitted_models()) | set(BELCOUR)
+    assert {n for n, m in d.items() if m["scattering"]} == set(registry.fitted_models()) | set(BELCOUR) | set(PBRT)
     assert main(["models"]) == 0
     out = capsys.readouterr().out
     for line in out.splitlines():
