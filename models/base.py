@@ -78,6 +78,9 @@ class Model(ABC):
     anisotropic: bool = False
     #: whether the model handles scattering media (``scattering_albedo > 0``)
     scattering: bool = False
+    #: evaluated only when named (``--model NAME``), not among "every model that applies": for
+    #: models whose cost would dominate a report (e.g. the stochastic pbrt-v4 rows)
+    on_request: bool = False
     #: a sentence every evaluation records under ``approximations`` (e.g. an adapter that does not
     #: read the stack); None for none
     approximation: str | None = None
@@ -95,6 +98,14 @@ class Model(ABC):
             if reason is not None:
                 return reason
         return self.support_reason(stack)
+
+    def on_request_reason(self) -> str:
+        """Why the model is evaluated only when named (``on_request``)."""
+        return "its cost would dominate a report"
+
+    def on_request_note(self) -> str:
+        """The ``skipped`` entry of an evaluation of "every model" that leaves an ``on_request`` model out."""
+        return f"evaluated on request only (--model {self.name}): {self.on_request_reason()}"
 
     def supports(self, stack: Stack) -> bool:
         return self.reason(stack) is None

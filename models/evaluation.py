@@ -114,6 +114,9 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     for name, model in available.items():
         if names and name not in names:
             continue
+        if not names and model.on_request:
+            result.skipped[name] = model.on_request_note()
+            continue
         model_stack = stack
         if anisotropic and isotropize and not model.anisotropic:
             model_stack = isotropized(stack, isotropize)

@@ -269,6 +269,13 @@ class PBRTLayeredConverged(PBRTLayered):
     description = "pbrt-v4 LayeredBxDF's f as written, converged: maxdepth 100, nsamples 64"
     max_depth_default = 100
     n_samples_default = 64
+    #: "every model that applies" (a default evaluate, a report) leaves this row out: about 13
+    #: CPU-minutes per database file; name it (--model pbrt-layered-converged) to evaluate it
+    on_request = True
+
+    def on_request_reason(self) -> str:
+        return ("64 walks of depth up to 100 per sub-cell direction, about 900x belcour-fwd's cost "
+                "per cell (docs/pbrt-layered.md section 6)")
 
 
 class PBRTLayeredFixed(PBRTLayeredConverged):

@@ -99,9 +99,17 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
     """
     stack = reference.stack
     side = judged_side(reference, stack.name)
-    names = list(registry.all_models()) if models is None else list(models)
     doc = {"material": stack.name, "category": stack.category, "side": side, "models": {}, "skipped": {},
            "failed": {}}
+    if models is None:   # every model that applies, as a default evaluate chooses them
+        names = []
+        for name, model in registry.all_models().items():
+            if model.on_request:
+                doc["skipped"][name] = model.on_request_note()
+            else:
+                names.append(name)
+    else:
+        names = list(models)
     slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
         try:

@@ -100,7 +100,8 @@ def _simulate(stack: Stack, rays: int, masking: str, incident=INCIDENT, resoluti
 
 def test_rows_are_registered_with_their_defaults():
     models = registry.all_models()
-    assert list(models)[-3:] == list(NAMES)
+    at = list(models).index(NAMES[0])
+    assert list(models)[at:at + 3] == list(NAMES)   # together, in this order (plugins may follow)
     rows = [models[n] for n in NAMES]
     assert [(m.max_depth, m.n_samples, m.fixed_mis) for m in rows] == [(10, 1, False), (100, 64, False), (100, 64, True)]
     for m in rows:
@@ -273,6 +274,20 @@ def test_converged_row_on_a_tiny_grid_and_a_wrong_coat_index_fails():
     mw = integrate(model, res, "brdf", s=2, stack=wrong)
     chi2, dof = cell_chi2(sim, se, mw.internal, mw.stderr("internal"), omega, res.settings.rays)
     assert chi2 > 3.0 * chi2_limit(dof)
+
+
+def test_converged_rows_are_evaluated_only_when_named():
+    """A default evaluation (and so a report) runs pbrt's defaults and lists the two converged rows
+    as skipped on request, with the reason; naming a row evaluates it."""
+    from models.evaluation import evaluate
+    res = _simulate(SMOOTH_PLASTIC, 20_000, "separable", incident=(30.0,), resolution=(4, 8), seed=3)
+    ev = evaluate(res, s=1)
+    assert "pbrt-layered" in ev.errors
+    for name in NAMES[1:]:
+        assert name not in ev.errors
+        assert ev.skipped[name].startswith(f"evaluated on request only (--model {name})"), ev.skipped[name]
+    named = evaluate(res, [NAMES[1]], s=1)
+    assert list(named.errors) == [NAMES[1]] and NAMES[1] not in named.skipped
 
 
 # ---------------------------------------------------------------------- slow physics checks
