@@ -110,11 +110,16 @@ Layer = Union[Interface, Medium, Lambertian]
 
 @dataclass(frozen=True)
 class Stack:
-    """A validated layer stack (top first)."""
+    """A validated layer stack (top first).
+
+    ``wavelengths_nm``: the wavelengths (nm) of the three channels when the stack is one
+    wavelength triple of a spectral run (``docs/spectral.md``); None for an RGB stack, whose
+    channels are colours, not wavelengths."""
 
     name: str
     layers: tuple[Layer, ...]
     category: str = "other"
+    wavelengths_nm: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         _validate_structure(self.layers, source="stack")
@@ -173,7 +178,7 @@ class Stack:
         --multiple-scattering``); the canonical JSON, hence the recorded stack, shows it."""
         layers = tuple(dataclasses.replace(x, multiple_scattering=on) if isinstance(x, Interface) else x
                        for x in self.layers)
-        return Stack(self.name, layers, self.category)
+        return Stack(self.name, layers, self.category, self.wavelengths_nm)
 
     def to_json(self) -> str:
         """Canonical JSON: sorted keys, no whitespace, RGB lists, shortest float repr."""
