@@ -35,11 +35,12 @@ from goniometer.spectral.spectrum import (
     is_spectral,
 )
 from goniometer.spectral.upsampling import Upsampled, upsample_rgb
+from goniometer.spectral.equivalent import rgb_equivalent
 
 __all__ = [
     "DEFAULT_BINS", "NAMED_CONDUCTORS", "RANGE_NM", "XYZ_TO_LINEAR_SRGB",
     "Cauchy", "Sellmeier", "Spectral", "Spectrum", "SpectrumError", "Upsampled",
-    "combined_stderr", "from_toml", "is_spectral", "named_conductor", "rgb_weights",
+    "combined_stderr", "from_toml", "is_spectral", "named_conductor", "rgb_equivalent", "rgb_weights",
     "spectral_to_rgb", "spectral_to_xyz", "upsample_rgb", "wavelength_bins", "xyz_weights",
 ]
 
