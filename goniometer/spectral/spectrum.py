@@ -28,7 +28,7 @@ class SpectrumError(ValueError):
 
 def _short(values: Any, limit: int = 8) -> str:
     seq = list(values)
-    text = ", ".join(repr(v) for v in seq[:limit])
+    text = ", ".join(f"{v:g}" if _is_number(v) else repr(v) for v in seq[:limit])
     return f"[{text}{', ...' if len(seq) > limit else ''}]"
 
 
