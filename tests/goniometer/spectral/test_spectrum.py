@@ -99,7 +99,7 @@ def test_sellmeier_validates():
         Sellmeier((1.0, 2.0), (0.01,))
     with pytest.raises(SpectrumError, match="pole"):
         Sellmeier((1.0,), (0.5**2,))  # a pole at 500 nm
-    with pytest.raises(SpectrumError, match="pole|n\\^2"):
+    with pytest.raises(SpectrumError, match=r"n\^2 must be positive"):
         Sellmeier((-3.0,), (0.01,))  # n^2 < 0 throughout
 
 
