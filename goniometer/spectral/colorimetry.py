@@ -5,8 +5,8 @@ constant over its bin). ``values @ xyz_weights(edges)`` is CIE 1931 XYZ under D6
 ``values @ rgb_weights(edges)`` linear sRGB (D65 white), both normalised so that a spectrum of ones
 has Y = 1. Data through ``colour-science``: the CIE 1931 2-degree observer (1 nm, 360-830 nm) and
 CIE D65 (the CIE 5 nm table, linear to 1 nm; 785-830 nm, past colour's table, from the CIE daylight
-series at D65's CCT), integrated over each bin at 1 nm resolution (the exact integral of the 1 nm
-linear interpolant). sRGB: colour's ``RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB`` (IEC 61966-2-1).
+series at D65's CCT, which matches the table to 8e-6), integrated over each bin at 1 nm resolution
+(the exact integral of the 1 nm linear interpolant). sRGB: colour's ``RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB`` (IEC 61966-2-1).
 """
 
 from __future__ import annotations

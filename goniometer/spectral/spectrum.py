@@ -28,7 +28,7 @@ class SpectrumError(ValueError):
 
 def _short(values: Any, limit: int = 8) -> str:
     seq = list(values)
-    text = ", ".join(repr(v) for v in seq[:limit])
+    text = ", ".join(f"{v:g}" if _is_number(v) else repr(v) for v in seq[:limit])
     return f"[{text}{', ...' if len(seq) > limit else ''}]"
 
 
@@ -107,13 +107,13 @@ class Spectrum:
         return out
 
 
-def _check_positive_over_range(at, where: str) -> None:
+def _check_positive_over_range(at, where: str, what: str) -> None:
     lam = np.linspace(*RANGE_NM, 471)
     n = at(lam)
     if not np.all(np.isfinite(n) & (n > 0)):
         i = int(np.argmax(~(np.isfinite(n) & (n > 0))))
         raise SpectrumError(f"{where}: the index must be positive over {RANGE_NM[0]:g}-{RANGE_NM[1]:g} nm "
-                            f"(got {float(n[i])!r} at {float(lam[i]):g} nm)")
+                            f"(got n = {float(n[i]):g} at {float(lam[i]):g} nm with {what})")
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ class Cauchy:
             if not _is_number(x) or not math.isfinite(x):
                 raise SpectrumError(f"Cauchy.{name}: must be a finite number (got {x!r})")
             object.__setattr__(self, name, float(x))
-        _check_positive_over_range(self.at, f"Cauchy{(self.a, self.b_um2, self.c_um4)}")
+        _check_positive_over_range(self.at, "Cauchy", f"a = {self.a:g}, b_um2 = {self.b_um2:g}, c_um4 = {self.c_um4:g}")
 
     def covers(self, lo: float, hi: float) -> bool:
         return True
@@ -161,10 +161,15 @@ class Sellmeier:
         if len(b) != len(c) or not b:
             raise SpectrumError(f"Sellmeier: b and c_um2 need the same, non-zero length (got {len(b)} and {len(c)})")
         if not all(math.isfinite(x) for x in b + c):
-            raise SpectrumError(f"Sellmeier: coefficients must be finite (got b={list(b)}, c_um2={list(c)})")
-        if not self.covers(*RANGE_NM):
-            raise SpectrumError(f"Sellmeier(b={list(b)}, c_um2={list(c)}): a pole lambda^2 = c_i or n^2 <= 0 "
-                                f"within {RANGE_NM[0]:g}-{RANGE_NM[1]:g} nm")
+            raise SpectrumError(f"Sellmeier: coefficients must be finite (got b = {_short(b)}, c_um2 = {_short(c)})")
+        lo, hi = RANGE_NM
+        poles = [x for x in c if (lo * 1e-3) ** 2 <= x <= (hi * 1e-3) ** 2]
+        if poles:
+            raise SpectrumError(f"Sellmeier: a pole lambda^2 = c_i within {lo:g}-{hi:g} nm (c_um2 = {poles[0]:g}, "
+                                f"at {1e3 * math.sqrt(poles[0]):g} nm)")
+        if not self.covers(lo, hi):
+            raise SpectrumError(f"Sellmeier: n^2 must be positive over {lo:g}-{hi:g} nm "
+                                f"(b = {_short(b)}, c_um2 = {_short(c)})")
 
     def _n2(self, lam_nm: np.ndarray) -> np.ndarray:
         l2 = (lam_nm * 1e-3) ** 2
@@ -187,8 +192,8 @@ class Sellmeier:
             n2 = self._n2(lam)
         if not np.all(np.isfinite(n2) & (n2 > 0)):
             bad = np.ravel(lam[~(np.isfinite(n2) & (n2 > 0))] if lam.ndim else lam)[0]
-            raise SpectrumError(f"Sellmeier(b={list(self.b)}, c_um2={list(self.c_um2)}): n^2 <= 0 or a pole "
-                                f"at {float(bad)!r} nm")
+            raise SpectrumError(f"Sellmeier: n^2 <= 0 or a pole at {float(bad):g} nm "
+                                f"(b = {_short(self.b)}, c_um2 = {_short(self.c_um2)})")
         return np.sqrt(n2)
 
     def to_dict(self) -> dict[str, Any]:
