@@ -13,10 +13,11 @@ as a ratio to it (1-thread rows), and the noise floor per second of the whole si
 judged on (internal BRDF, or BTDF) and of the whole BRDF; and, where it applies, the same whole
 simulate with bounce order 1 integrated (``first_order = "integrated"``, docs/first-order.md).
 Rows of ``kind = "rgl"``: recording on the RGL grid (``--parametrization rgl``) against a classic run
-of the same rays, and the export's time. Writes ``benchmarks/results/<date>-<host>.json`` and prints
+of the same rays, and the export's time. Rows of ``kind = "spectral"``: a 30-bin spectral run against
+the RGB run of the same paths (CPU time per path, noise floor per CPU-second). Writes ``benchmarks/results/<date>-<host>.json`` and prints
 a table.
 
-Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE] [--only-rgl]
+Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE] [--only-rgl] [--only-spectral]
 """
 
 from __future__ import annotations
@@ -228,6 +229,48 @@ def bench_rgl(rays_per_incident: int, repeats: int = 5) -> list[dict]:
     return rows
 
 
+def bench_spectral(rays_per_incident: int, repeats: int = 3, bins: int = 30) -> list[dict]:
+    """A spectral run (``bins`` wavelength bins, three hero wavelengths per path, docs/spectral.md)
+    against the RGB run of the same stack and the same number of paths, one thread, half 90 x 360,
+    7 incident directions, whole simulate, alternated ``repeats`` times (median ratio of CPU time
+    per path); and the noise floor per CPU-second ``1 / (floor^2 x CPU-s)`` of both, the spectral
+    run's taken in linear sRGB (``result.rgb()``, its standard errors an upper bound)."""
+    from goniometer.stack import stack_from_dict
+    gold = stack_from_dict({"name": "metal/Au-a0_0.2", "category": "metal", "layers": [
+        {"type": "interface", "roughness": 0.2, "conductor": "Au"}]})
+    rows = []
+    for name, stack in (("metal/M2-a0_0.05-a1_0.2", MATERIALS["metal/M2-a0_0.05-a1_0.2"]), (gold.name, gold)):
+        launches = bins // 3
+        per_bin = max(1, rays_per_incident // launches)
+        common = dict(incident_deg=INCIDENT, parametrization="half", threads=1, seed=1)
+        s_sp = SimulationSettings(rays=per_bin, spectral=True, wavelength_bins=bins, **common)
+        s_rgb = SimulationSettings(rays=per_bin * launches, **common)
+        warm_up(stack, s_sp)
+        warm_up(stack, s_rgb)
+        cpu = {"spectral": [], "rgb": []}
+        res = {}
+        for _ in range(repeats):
+            for kind, st in (("spectral", s_sp), ("rgb", s_rgb)):
+                c0 = time.process_time()
+                res[kind] = simulate(stack, st)
+                cpu[kind].append(time.process_time() - c0)
+        ratios = sorted(a / b for a, b in zip(cpu["spectral"], cpu["rgb"]))
+        n = per_bin * launches * len(INCIDENT)
+        f_sp, f_rgb = floor_of(res["spectral"].rgb()), floor_of(res["rgb"])
+        row = {"material": name, "kind": "spectral", "threads": 1, "paths": n, "wavelength_bins": bins,
+               "spectral_paths_per_cpu_s": n / min(cpu["spectral"]), "rgb_paths_per_cpu_s": n / min(cpu["rgb"]),
+               "spectral_vs_rgb_cpu_per_path": ratios[len(ratios) // 2], "spectral_vs_rgb_all": ratios,
+               "noise_floor_spectral_srgb": f_sp, "noise_floor_rgb": f_rgb,
+               "floor_per_cpu_s_spectral": 1.0 / (f_sp ** 2 * min(cpu["spectral"])),
+               "floor_per_cpu_s_rgb": 1.0 / (f_rgb ** 2 * min(cpu["rgb"]))}
+        rows.append(row)
+        print(f"{name:28s} spectral {bins} bins: {row['spectral_paths_per_cpu_s'] / 1e6:5.2f} M paths/CPU-s, "
+              f"{row['spectral_vs_rgb_cpu_per_path']:.3f}x the RGB run's CPU time per path (median of {repeats}); "
+              f"noise floor per CPU-s {row['floor_per_cpu_s_spectral']:.3g} (sRGB of the bins) vs "
+              f"{row['floor_per_cpu_s_rgb']:.3g} (RGB run)", flush=True)
+    return rows
+
+
 def _integrable(stack) -> bool:
     """True when ``first_order = "integrated"`` applies (a single-scattering interface on top)."""
     from goniometer.first_order import check_supported
@@ -279,16 +322,21 @@ def main() -> int:
     ap.add_argument("--no-compile-time", action="store_true")
     ap.add_argument("--no-models", action="store_true", help="skip the model-integration timings")
     ap.add_argument("--only-rgl", action="store_true", help="only the RGL-grid rows")
+    ap.add_argument("--only-spectral", action="store_true", help="only the spectral rows")
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
     threads = [t for t in threads if t <= numba.config.NUMBA_NUM_THREADS]
     print(f"machine: {cpu_model()}, {os.cpu_count()} logical CPUs; numba {numba.__version__}")
-    ct = {} if args.no_compile_time or args.only_rgl else compile_times()
+    only = args.only_rgl or args.only_spectral
+    ct = {} if args.no_compile_time or only else compile_times()
     if ct:
         print(f"kernel compile {ct['compile_s']:.1f} s, load from cache {ct['cache_load_s']:.2f} s")
-    rows = [] if args.only_rgl else run(args.rays_per_incident, threads)
-    rows += bench_rgl(args.rays_per_incident)
-    model_rows = [] if args.no_models or args.only_rgl else bench_models()
+    rows = [] if only else run(args.rays_per_incident, threads)
+    if not args.only_spectral:
+        rows += bench_rgl(args.rays_per_incident)
+    if not args.only_rgl:
+        rows += bench_spectral(args.rays_per_incident)
+    model_rows = [] if args.no_models or only else bench_models()
     host = socket.gethostname()
     out = args.out or HERE / "results" / f"{dt.date.today().isoformat()}-{host}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
