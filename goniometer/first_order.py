@@ -54,12 +54,15 @@ _NP = 14
 
 
 def check_supported(stack: Stack) -> None:
-    """Raise :class:`SettingsError` unless the first layer is an interface (whose single
-    microfacet reflection has a closed form)."""
+    """Raise :class:`SettingsError` unless the first layer is an interface without a thin film
+    (whose single microfacet reflection has a closed form)."""
     top = stack.layers[0]
     if isinstance(top, Medium) or not isinstance(top, Interface):
         raise SettingsError(f"first_order: integrated needs an interface on top; {stack.name!r} starts with a "
                             f"{type(top).__name__.lower()}")
+    if top.film is not None and top.film.thickness_nm > 0.0:
+        raise SettingsError(f"first_order: integrated has no closed form for a thin film on the top interface "
+                            f"({stack.name!r}); use first_order = \"traced\"")
 
 
 def first_order_fractions(stack: Stack, parametrization: str, n_theta: int, n_phi: int, light: np.ndarray,

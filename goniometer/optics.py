@@ -297,6 +297,142 @@ def fresnel_conductor_channels(cos_i: float, eta0: float, kappa0: float, eta1: f
     return r0, r1, r2
 
 
+# --------------------------------------------------------------------------- thin films
+#
+# A thin film on an interface: three media, the region on the side the light arrives from (real
+# index n1), the film (nf + i kf, thickness d) and the far side (n3 + i k3: the medium below, a
+# conductor's complex index, or, seen from below, the region above). Amplitudes summed over the
+# film's internal reflections (Airy), s and p separately, the intensities averaged. Written with
+# real arithmetic only (complex numbers as pairs), branch-free and libm-free, so that the lane
+# kernel's loop vectorises with it inlined (docs/kernel.md).
+
+@numba.njit(cache=True, inline='always')
+def _cmul(ar: float, ai: float, br: float, bi: float):
+    """The complex product ``(ar + i ai)(br + i bi)``."""
+    return ar * br - ai * bi, ar * bi + ai * br
+
+
+@numba.njit(cache=True, inline='always')
+def _csqrt(ar: float, ai: float):
+    """The principal square root of ``ar + i ai`` (real part >= 0; imaginary part of the sign of
+    ``ai``, ``ai = -0`` counting as positive), in the form without cancellation."""
+    m = math.sqrt(ar * ar + ai * ai)
+    t = math.sqrt(0.5 * (m + abs(ar)))
+    h = 0.5 * abs(ai) / max(t, 1e-300)
+    s = t if ai >= 0.0 else -t
+    hs = h if ai >= 0.0 else -h
+    return (t if ar >= 0.0 else h), (hs if ar >= 0.0 else s)
+
+
+@numba.njit(cache=True, inline='always')
+def film_rt_terms(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
+    """:func:`film_rt` as its parts ``(Rs_num, Ts_num, s_den, Rp_num, Tp_num, p_den)``: ``R = (Rs_num /
+    s_den + Rp_num / p_den) / 2`` and likewise ``T`` (``s_den, p_den > 0``), for callers that share
+    the divisions of several channels."""
+    c = min(abs(cos_i), 1.0)
+    # n^2 sin^2 theta, the invariant of Snell's law
+    s2 = n1 * n1 * (1.0 - c * c)
+    q1 = n1 * c
+    # the film: nf^2 and q2 = sqrt(nf^2 - s2) (Im >= 0: the field decays into an absorbing film)
+    a2r = nf * nf - kf * kf
+    a2i = 2.0 * nf * kf
+    q2r, q2i = _csqrt(a2r - s2, a2i)
+    # (q2 = 0, the film's own critical angle, makes the Airy sum 0 / 0: a limit the result reaches
+    # smoothly, and an even function of q2; q2 is kept 1e-8 away from it)
+    tiny = q2r * q2r + q2i * q2i < 1e-16
+    q2r = 1e-8 if tiny else q2r
+    # the far side: q3 with Im >= 0 (decays in a conductor, evanescent beyond total reflection)
+    a3r = n3 * n3 - k3 * k3
+    a3i = 2.0 * n3 * k3
+    q3r, q3i = _csqrt(a3r - s2, a3i)
+    # E = exp(2 i beta), beta = 2 pi (d / lambda) q2: |E| = exp(-4 pi (d / lambda) Im q2), phase 2 beta
+    # in turns 2 (d / lambda) Re q2 (>= 0), reduced to [0, 1)
+    u = 2.0 * d_lam * q2r
+    u = u - math.floor(u)
+    ce, se = cos_sin_2pi(u)
+    ea = exp_neg(-4.0 * math.pi * d_lam * q2i)
+    er = ea * ce
+    ei = ea * se
+    # s: eta = q; r_ij = (q_i - q_j) / (q_i + q_j)
+    n12r = q1 - q2r
+    n12i = -q2i
+    p12r = q1 + q2r
+    p12i = q2i
+    n23r = q2r - q3r
+    n23i = q2i - q3i
+    p23r = q2r + q3r
+    p23i = q2i + q3i
+    rs_num, s_den = _airy(n12r, n12i, p12r, p12i, n23r, n23i, p23r, p23i, er, ei)
+    # T_s = 16 q1 Re(q3) |q2|^2 |E| / |P12 P23 + N12 N23 E|^2
+    ts_num = 16.0 * q1 * max(q3r, 0.0) * (q2r * q2r + q2i * q2i) * ea
+    # p: eta = n^2 / q; r_ij = (a_i q_j - a_j q_i) / (a_i q_j + a_j q_i), a = n^2 (a1 = n1^2 real)
+    a1 = n1 * n1
+    a2q1r = a2r * q1
+    a2q1i = a2i * q1
+    n12r = a1 * q2r - a2q1r
+    n12i = a1 * q2i - a2q1i
+    p12r = a1 * q2r + a2q1r
+    p12i = a1 * q2i + a2q1i
+    x1r, x1i = _cmul(a2r, a2i, q3r, q3i)
+    x2r, x2i = _cmul(a3r, a3i, q2r, q2i)
+    n23r = x1r - x2r
+    n23i = x1i - x2i
+    p23r = x1r + x2r
+    p23i = x1i + x2i
+    rp_num, p_den = _airy(n12r, n12i, p12r, p12i, n23r, n23i, p23r, p23i, er, ei)
+    # T_p = 16 a1 q1 Re(a3 conj(q3)) |a2 q2|^2 |E| / |P12 P23 + N12 N23 E|^2
+    a2q2r, a2q2i = _cmul(a2r, a2i, q2r, q2i)
+    tp_num = 16.0 * a1 * q1 * max(a3r * q3r + a3i * q3i, 0.0) * (a2q2r * a2q2r + a2q2i * a2q2i) * ea
+    return rs_num, ts_num, s_den, rp_num, tp_num, p_den
+
+
+@numba.njit(cache=True, inline='always')
+def _airy(n12r, n12i, p12r, p12i, n23r, n23i, p23r, p23i, er, ei):
+    """``(|N12 P23 + N23 P12 E|^2, max(|P12 P23 + N12 N23 E|^2, 1e-300))``: the Airy sum's
+    reflectance ``r = (r12 + r23 E) / (1 + r12 r23 E)`` as a fraction, ``r_ij = N_ij / P_ij``."""
+    ar, ai = _cmul(n12r, n12i, p23r, p23i)
+    br, bi = _cmul(n23r, n23i, p12r, p12i)
+    br, bi = _cmul(br, bi, er, ei)
+    cr, ci = _cmul(p12r, p12i, p23r, p23i)
+    dr, di = _cmul(n12r, n12i, n23r, n23i)
+    dr, di = _cmul(dr, di, er, ei)
+    nr = ar + br
+    ni = ai + bi
+    mr = cr + dr
+    mi = ci + di
+    return nr * nr + ni * ni, max(mr * mr + mi * mi, 1e-300)
+
+
+@numba.njit(cache=True)
+def film_rt(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
+    """Unpolarised reflectance and transmittance ``(R, T)`` of a thin film (Airy summation; Born &
+    Wolf 1.6, Macleod's admittances; ``docs/material-format.md``, thin films).
+
+    The light arrives at ``cos_i`` (its absolute value is used) from a medium of real index
+    ``n1`` onto a film of complex index ``nf + i kf`` and thickness ``d``, behind which lies
+    ``n3 + i k3``; ``d_lam = d / lambda`` (the thickness in vacuum wavelengths). Indices may be
+    absolute or all relative to one medium (only their ratios and ``nf d / lambda`` in absolute
+    units count: pass absolute indices with the vacuum wavelength). With ``q_j = n_j cos theta_j``
+    (``sqrt(n_j^2 - n1^2 sin^2 theta_1)``, the branch with ``Im >= 0``, so that the field decays
+    in an absorbing film or substrate and beyond total reflection), the admittances ``eta_s = q``,
+    ``eta_p = n^2 / q`` give ``r_ij = (eta_i - eta_j) / (eta_i + eta_j)``, the phase
+    ``beta = 2 pi d q_2 / lambda``, ``r = (r12 + r23 e^{2 i beta}) / (1 + r12 r23 e^{2 i beta})``,
+    ``R = |r|^2`` and ``T = Re(eta_3) / eta_1 |t|^2`` (the power crossing into the far medium;
+    0 beyond total reflection). Each polarisation's ``R`` and ``T`` are fractions of one
+    denominator; ``R`` and ``T`` are the means of the s and p values. A non-absorbing film between
+    non-absorbing media gives ``R + T = 1``; ``d = 0`` gives the bare interface's Fresnel terms."""
+    rs, ts, ds, rp, tp, dp = film_rt_terms(cos_i, n1, nf, kf, n3, k3, d_lam)
+    return 0.5 * (rs / ds + rp / dp), 0.5 * (ts / ds + tp / dp)
+
+
+@numba.njit(cache=True, inline='always')
+def film_rt_channel(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
+    """:func:`film_rt` with one division (for the lane kernel, which inlines it)."""
+    rs, ts, ds, rp, tp, dp = film_rt_terms(cos_i, n1, nf, kf, n3, k3, d_lam)
+    inv = 0.5 / (ds * dp)
+    return (rs * dp + rp * ds) * inv, (ts * dp + tp * ds) * inv
+
+
 # --------------------------------------------------------------------------- GGX
 
 @numba.njit(cache=True)

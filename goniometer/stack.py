@@ -11,6 +11,10 @@ A stack is listed top first and starts in air (index 1). Layer kinds:
   Without scattering it absorbs by Beer-Lambert, factor ``exp(-tau / |cos theta|)`` per traversal.
 * :class:`Lambertian` -- an opaque diffuse base of albedo ``rho`` (RGB), last layer.
 
+An interface may carry a :class:`Film`: a thin film on every microfacet (Airy-summed reflection and
+transmission, ``docs/material-format.md``, thin films); it needs a spectral stack
+(``Stack.wavelengths_nm``).
+
 Every error is a :class:`StackError` whose message names the file, the layer index and the field.
 """
 
@@ -48,6 +52,23 @@ class StackError(ValueError):
 
 
 @dataclass(frozen=True)
+class Film:
+    """A thin film on an interface (``docs/material-format.md``, thin films): thickness
+    ``thickness_nm`` >= 0 (nm) and the film's **absolute** complex index ``ior + i extinction`` per
+    channel (``ior`` > 0, ``extinction`` >= 0). Every microfacet of the interface reflects and
+    transmits with the film's Airy-summed amplitudes (:func:`goniometer.optics.film_rt`) between
+    the region above and the medium below (a dielectric, or the conductor of a conductor
+    interface). A film of thickness 0 is optically absent (:func:`pack` drops it)."""
+
+    thickness_nm: float
+    ior: RGB
+    extinction: RGB = (0.0, 0.0, 0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"thickness_nm": self.thickness_nm, "ior": list(self.ior), "extinction": list(self.extinction)}
+
+
+@dataclass(frozen=True)
 class Interface:
     """GGX rough interface. ``roughness`` is alpha in [0, 1] (0 = perfectly smooth) along the
     interface's tangent x axis; ``roughness_y`` (None = isotropic) along its y axis, the tangent
@@ -66,6 +87,8 @@ class Interface:
     rotation_deg: float = 0.0
     #: every event on the interface is a random walk on the microsurface (Heitz et al. 2016)
     multiple_scattering: bool = False
+    #: a thin film on every microfacet (None: the bare interface)
+    film: Film | None = None
 
     @property
     def is_conductor(self) -> bool:
@@ -240,6 +263,9 @@ class Stack:
                 # omitted at its default: a single-scattering interface keeps its old identity
                 if x.multiple_scattering:
                     d["multiple_scattering"] = True
+                # omitted without a film: a bare interface keeps its old identity
+                if x.film is not None:
+                    d["film"] = x.film.to_dict()
                 layers.append(d)
             elif isinstance(x, Medium):
                 d = {"type": "medium", "optical_depth": list(x.optical_depth)}
@@ -281,7 +307,11 @@ class Stack:
         for d in self.to_dict()["layers"]:
             out.append("[[layers]]")
             for k, v in d.items():
-                out.append(f"{k} = {json.dumps(v)}")
+                if isinstance(v, dict):
+                    v = "{" + ", ".join(f"{a} = {json.dumps(b)}" for a, b in v.items()) + "}"
+                    out.append(f"{k} = {v}")
+                else:
+                    out.append(f"{k} = {json.dumps(v)}")
             out.append("")
         return "\n".join(out)
 
@@ -299,7 +329,9 @@ class PackedStack:
     ``region_g[r]`` Henyey-Greenstein asymmetry (both 0 where nothing scatters, see
     :attr:`Medium.scatters`); ``cond[0:3]``/``cond[3:6]`` the conductor's complex index
     **relative** to the region above it; ``rho`` the Lambertian albedo; ``base_kind`` one of
-    ``BASE_*``; ``if_ms[k]`` True where interface k scatters multiply (Heitz et al. 2016).
+    ``BASE_*``; ``if_ms[k]`` True where interface k scatters multiply (Heitz et al. 2016);
+    ``if_film[k]`` the thin film of interface k, :data:`FILM_COLS` columns (``FL_*``; all 0 where
+    it has none, or one of thickness 0, which is optically absent).
     """
 
     if_alpha: np.ndarray
@@ -312,17 +344,57 @@ class PackedStack:
     region_albedo: np.ndarray
     region_g: np.ndarray
     if_ms: np.ndarray
+    if_film: np.ndarray
+
+    @property
+    def has_film(self) -> bool:
+        """True when some interface carries a film (of thickness > 0)."""
+        return bool(np.any(self.if_film[:, FL_ON] != 0.0))
 
     def as_tuple(self) -> tuple:
         """The stack arguments of :func:`goniometer.tracer.trace_batch`, in order."""
-        return (self.if_alpha, self.if_rot, self.if_ms, self.region_eta, self.region_tau, self.region_albedo, self.region_g,
-                self.cond, self.rho, self.base_kind)
+        return (self.if_alpha, self.if_rot, self.if_ms, self.if_film, self.region_eta, self.region_tau,
+                self.region_albedo, self.region_g, self.cond, self.rho, self.base_kind)
+
+
+#: columns of ``PackedStack.if_film`` per interface: 1.0 where a film is present; the film's thickness
+#: in vacuum wavelengths of each channel (``d / lambda_c``); its absolute index ``n + i k`` per
+#: channel; the absolute (real) index of the region above the interface; the absolute index of the
+#: medium below per channel (a dielectric's, ``k = 0``, or the conductor's)
+FILM_COLS = 17
+FL_ON = 0
+FL_DL0 = 1
+FL_N0 = 4
+FL_K0 = 7
+FL_NA = 10
+FL_NB0 = 11
+FL_KB0 = 14
+#: most interfaces a stack with a film may have (the film's columns join the event's table, which
+#: has a fixed size, ``docs/kernel.md``)
+MAX_FILM_INTERFACES = 55
+
+
+def check_films(stack: Stack) -> None:
+    """Raise :class:`StackError` if a film of thickness > 0 is in a stack that is not one wavelength
+    triple of a spectral run (``wavelengths_nm`` None), or in one with too many interfaces."""
+    n_if = len(stack.interfaces)
+    for i, x in enumerate(stack.layers):
+        if isinstance(x, Interface) and x.film is not None and x.film.thickness_nm > 0.0:
+            if stack.wavelengths_nm is None:
+                raise StackError(f"layers[{i}].film: a thin film needs a spectral run (its colours come from "
+                                 f"interference at wavelengths; give --spectral)")
+            if n_if > MAX_FILM_INTERFACES:
+                raise StackError(f"layers: {n_if} interfaces; a stack with a thin film may have at most "
+                                 f"{MAX_FILM_INTERFACES}")
 
 
 def pack(stack: Stack) -> PackedStack:
-    """Pack a stack into the flat arrays of :class:`PackedStack`."""
+    """Pack a stack into the flat arrays of :class:`PackedStack` (a film needs the stack's
+    wavelengths: :func:`check_films`)."""
+    check_films(stack)
     ifs = stack.interfaces
     n = len(ifs)
+    if_film = np.zeros((max(n, 1), FILM_COLS))
     if_alpha = np.zeros((max(n, 1), 2))
     if_rot = np.zeros((max(n, 1), 2))
     if_rot[:, 0] = 1.0
@@ -348,6 +420,17 @@ def pack(stack: Stack) -> PackedStack:
                 cond[3:6] = np.asarray(layer.extinction) / above
             else:
                 region_eta[region + 1] = layer.ior[0]
+            f = layer.film
+            # (a film of thickness 0 is optically absent: the bare interface, bit for bit)
+            if f is not None and f.thickness_nm > 0.0:
+                row = if_film[k]
+                row[FL_ON] = 1.0
+                row[FL_DL0:FL_DL0 + 3] = f.thickness_nm / np.asarray(stack.wavelengths_nm, dtype=float)
+                row[FL_N0:FL_N0 + 3] = f.ior
+                row[FL_K0:FL_K0 + 3] = f.extinction
+                row[FL_NA] = region_eta[region]
+                row[FL_NB0:FL_NB0 + 3] = layer.ior if layer.is_conductor else (layer.ior[0],) * 3
+                row[FL_KB0:FL_KB0 + 3] = layer.extinction if layer.is_conductor else (0.0,) * 3
             region += 1
             k += 1
         elif isinstance(layer, Medium):
@@ -364,16 +447,19 @@ def pack(stack: Stack) -> PackedStack:
         base = BASE_CONDUCTOR
     else:
         base = BASE_TRANSMIT
-    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base, region_albedo, region_g, if_ms)
+    return PackedStack(if_alpha, if_rot, region_eta, region_tau, cond, rho, base, region_albedo, region_g, if_ms,
+                       if_film)
 
 
 # ---------------------------------------------------------------------- loading
 
 _LAYER_KEYS = {
-    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg", "multiple_scattering", "conductor"},
+    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg", "multiple_scattering", "conductor",
+                  "film"},
     "medium": {"type", "optical_depth", "scattering_albedo", "g"},
     "lambertian": {"type", "albedo"},
 }
+_FILM_KEYS = {"thickness_nm", "ior", "extinction"}
 _TOP_KEYS = {"name", "category", "layers", "simulation"}
 SIMULATION_KEYS = {"incident_deg", "rays", "parametrization", "resolution", "seed", "masking",
                    "max_order", "threads", "first_order", "rgl_grid", "spectral", "wavelength_bins"}
@@ -483,8 +569,9 @@ def _layer_from_dict(d: Any, i: int, source: str, spectra: list | None = None) -
         ms = d.get("multiple_scattering", False)
         if not isinstance(ms, bool):
             raise StackError(f"{where}.multiple_scattering: {ms!r} is not a boolean (true or false)")
+        film = _film(d["film"], f"{where}.film", spectra, i) if "film" in d else None
         return Interface(roughness=rough, ior=ior, extinction=ext, roughness_y=rough_y, rotation_deg=rotation,
-                         multiple_scattering=ms)
+                         multiple_scattering=ms, film=film)
     if kind == "medium":
         albedo = _rgb(d, "scattering_albedo", where, lo=0.0, hi=1.0, default=0.0, spectra=found)
         g = _number(d["g"], f"{where}.g") if "g" in d else 0.0
@@ -516,6 +603,53 @@ def _named_conductor(d: dict, where: str) -> dict:
     out = {key: v for key, v in d.items() if key != "conductor"}
     out["ior"], out["extinction"] = eta, k
     return out
+
+
+def _film(d: Any, where: str, spectra: list | None = None, layer: int = 0) -> Film:
+    """The ``film`` table of an interface: ``thickness_nm`` (>= 0), ``ior`` (RGB, > 0) and
+    ``extinction`` (RGB, >= 0, default 0), the film's absolute index; ``ior`` and ``extinction``
+    may be spectral tables (appended to ``spectra`` as ``film.ior``, ``film.extinction`` of
+    ``layer``)."""
+    if not isinstance(d, dict):
+        raise StackError(f"{where}: must be a table, e.g. {{thickness_nm = 350, ior = 1.33}}")
+    unknown = sorted(set(d) - _FILM_KEYS)
+    if unknown:
+        raise StackError(f"{where}.{unknown[0]}: unknown key for a film (allowed: {', '.join(sorted(_FILM_KEYS))})")
+    if "thickness_nm" not in d:
+        raise StackError(f"{where}.thickness_nm: required")
+    raw = d["thickness_nm"]
+    if isinstance(raw, float) and not math.isfinite(raw):
+        _check_film_thickness(raw, f"{where}.thickness_nm")
+    thickness = _number(raw, f"{where}.thickness_nm")
+    _check_film_thickness(thickness, f"{where}.thickness_nm")
+    found: list[tuple[str, Any]] = []
+    film = Film(thickness_nm=thickness, ior=_rgb(d, "ior", where, positive=True, spectra=found, field="film.ior"),
+                extinction=_rgb(d, "extinction", where, lo=0.0, default=0.0, spectra=found, field="film.extinction"))
+    if spectra is not None:
+        spectra.extend((layer, f, sp) for f, sp in found)
+    return film
+
+
+def _check_film_thickness(v: float, where: str) -> None:
+    if not (math.isfinite(v) and v >= 0.0):
+        raise StackError(f"{where}: {v!r} is outside [0, inf) (the film's thickness in nm)")
+
+
+def _check_film(f: Any, where: str) -> None:
+    """A :class:`Film` built in Python: the rules of :func:`_film`."""
+    if not isinstance(f, Film):
+        raise StackError(f"{where}: {f!r} is not a Film")
+    if isinstance(f.thickness_nm, bool) or not isinstance(f.thickness_nm, (int, float, np.floating)):
+        raise StackError(f"{where}.thickness_nm: {f.thickness_nm!r} is not a number")
+    _check_film_thickness(float(f.thickness_nm), f"{where}.thickness_nm")
+    for key, positive, lo in (("ior", True, None), ("extinction", False, 0.0)):
+        vals = getattr(f, key)
+        if len(vals) != 3:
+            raise StackError(f"{where}.{key}: an RGB value needs 3 numbers, got {len(vals)}")
+        for v in vals:
+            if not math.isfinite(v):
+                raise StackError(f"{where}.{key}: {v!r} is not finite")
+            _check_range(v, f"{where}.{key}", lo, None, positive)
 
 
 def _roughness(d: dict, where: str) -> tuple[float, float | None, float]:
@@ -638,6 +772,8 @@ def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:
                 raise StackError(f"{where}.rotation_deg: a rotation needs an anisotropic roughness")
             if x.is_conductor and not last:
                 raise StackError(f"{where}.extinction: a conductor (extinction > 0) must be the last layer")
+            if x.film is not None:
+                _check_film(x.film, f"{where}.film")
         elif isinstance(x, Medium):
             for a in x.scattering_albedo:
                 if not 0.0 <= a <= 1.0:

@@ -74,7 +74,7 @@ KERNEL_PATHS = 2
 
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms)``. ``kernel``:
+    ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film)``. ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or
     ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
     cached) only when some stack needs it."""
@@ -92,7 +92,7 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 
     if not lanes:
         # the per-path kernel has no variants but the masking's (one compiled kernel per masking)
-        return None, flag(height_correlated), None, None, None, None, None, None, None, None
+        return None, flag(height_correlated), None, None, None, None, None, None, None, None, None
     aniso = bool(np.any(p.if_alpha[:, 0] != p.if_alpha[:, 1]) or np.any(p.if_rot[:, 1] != 0.0))
     cond = p.base_kind == BASE_CONDUCTOR
     c = p.cond
@@ -106,13 +106,13 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
         aniso = True
         g_is_r = b_is_g = False
     return (True, flag(height_correlated), flag(tabulate), flag(scattering), flag(p.base_kind == BASE_LAMBERTIAN),
-            flag(cond), flag(g_is_r), flag(b_is_g), flag(aniso), flag(ms))
+            flag(cond), flag(g_is_r), flag(b_is_g), flag(aniso), flag(ms), flag(p.has_film))
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
+def trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
                 lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf,
+                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf,
                 energy, energy_sq, counts, exit_cell, exit_w):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
@@ -141,7 +141,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     tau_mode = tau_modes(region_tau, region_albedo)
     eta_dn, eta_up = relative_indices(region_eta)
     table, off = stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, n_if,
-                             conductor_base)
+                             conductor_base, if_film, film is not None)
     if table.shape[0] > STACK_BLOCK:
         raise ValueError("the stack's table does not fit the event's block (too many layers)")
     # conductor channels that share their complex index share their Fresnel value (walks)
@@ -167,7 +167,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian,
-             conductor, g_is_r, b_is_g, aniso, ms)
+             conductor, g_is_r, b_is_g, aniso, ms, film)
         # ---- per-lane pass: the walks that go on, then the exits of the paths that left the stack
         # at this step (lanes listed without branches, then visited; booked at the next step)
         if ms is not None:
@@ -175,7 +175,7 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 if S[F_STATUS * LANES + i] == ST_SCALAR:
                     S[F_STATUS * LANES + i] = continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond,
                                                             walk_g_is_r, walk_b_is_g, n_if, transmit_base,
-                                                            conductor_base, event_cap)
+                                                            conductor_base, event_cap, film, if_film)
         live = 0
         n_x = 0
         for i in range(LANES):
@@ -235,10 +235,10 @@ def trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+def trace_slot(b, if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
                col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, media,
-               lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts, exit_cell,
+               lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts, exit_cell,
                exit_w):
     """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
     ``exit_w[b]``: see :func:`trace_chunk`).
@@ -261,41 +261,41 @@ def trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo
         return
     if lanes is None:
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+        trace_paths(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                     ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
                     height_correlated is not None, event_cap, skip_first, brdf[b], btdf[b], energy[b], energy_sq[b],
                     counts[b], exit_cell[b], exit_w[b])
     else:
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_chunk(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
+        trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
                     ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                    height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf[b],
+                    height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf[b],
                     btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
+def trace_batch(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
                 lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
                 col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, media,
-                lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts, exit_cell,
+                lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts, exit_cell,
                 exit_w):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
     ``ms`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
     the variant they name."""
     for b in numba.prange(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+        trace_slot(b, if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
+                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts,
                    exit_cell, exit_w)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+def trace_batch_serial(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                        lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                        row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                       media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
+                       media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts,
                        exit_cell, exit_w):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
@@ -303,8 +303,8 @@ def trace_batch_serial(if_alpha, if_rot, if_ms, region_eta, region_tau, region_a
     default threading layer must not be entered by several threads at once.
     """
     for b in range(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+        trace_slot(b, if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                    lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
                    row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, brdf, btdf, energy, energy_sq, counts,
+                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts,
                    exit_cell, exit_w)

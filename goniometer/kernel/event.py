@@ -35,6 +35,7 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       T_G, T_IEXT0, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT,
                                       T_TAU0, T_TAU1, T_TAU2)
 from goniometer.rng import draw, path_key, uniform_pair
+from goniometer.stack import FILM_COLS, FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
 #: RR_THRESHOLD survive with probability max(w) / RR_THRESHOLD
@@ -55,10 +56,10 @@ LN = LANES
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
          lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
-         aniso, ms):
+         aniso, ms, film):
     """One step for all lanes of ``S`` (see the module docstring).
 
-    The last nine arguments are None or True and select what is compiled (numba compiles a None
+    The last ten arguments are None or True and select what is compiled (numba compiles a None
     argument's specialisation without the other branch; LLVM vectorises the loops of every
     specialisation):
 
@@ -78,7 +79,12 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
       its microsurface walk (the height of the hit, the visible normal, Fresnel, and whether the
       ray then leaves the microsurface); a walk that goes on is continued by a per-lane step
       (:func:`goniometer.kernel.steps.continue_walk`), and only lanes whose next action is the
-      event take it (without, every lane takes it).
+      event take it (without, every lane takes it);
+    * ``film``: True when some interface carries a thin film (the table's film block): on such an
+      interface the microfacet's reflectance and transmittance are the film's per channel
+      (:func:`goniometer.optics.film_rt_channel`); a dielectric reflects with probability
+      ``P = sum R_c / sum (R_c + T_c)`` and the weights take ``R_c / P`` or ``T_c / (1 - P)``, a
+      conductor reflects with the weights times ``R_c`` (``docs/material-format.md``, thin films).
 
     The loop bodies are written out here, as an inlined function taking the state array would
     keep reference counting in the loop and stop LLVM."""
@@ -395,7 +401,38 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             f2 = f0
             qd = nd / dd
         fd = optics.fresnel_dielectric_select(qd, eta, tir)
-        refl_ = is_cond or u3 < fd
+        if film is None:
+            refl_ = is_cond or u3 < fd
+            fon = False
+            j0 = j1 = j2 = 1.0
+        else:
+            # a thin film on the interface: per channel its R and T at the microfacet's cosine,
+            # from the side the light arrives from (above: region above / film / medium below;
+            # below: the medium below / film / region above)
+            fo = off + (n_if + 1) * RG_STRIDE + kc * FILM_COLS
+            fon = T[fo + FL_ON] != 0.0
+            fna = T[fo + FL_NA]
+            fn_in = fna if from_above else T[fo + FL_NB0]
+            xr0 = T[fo + FL_NB0] if from_above else fna
+            xr1 = T[fo + FL_NB0 + 1] if from_above else fna
+            xr2 = T[fo + FL_NB0 + 2] if from_above else fna
+            xi0 = T[fo + FL_KB0] if from_above else 0.0
+            xi1 = T[fo + FL_KB0 + 1] if from_above else 0.0
+            xi2 = T[fo + FL_KB0 + 2] if from_above else 0.0
+            fr0, ft0 = optics.film_rt_channel(wm, fn_in, T[fo + FL_N0], T[fo + FL_K0], xr0, xi0, T[fo + FL_DL0])
+            fr1, ft1 = optics.film_rt_channel(wm, fn_in, T[fo + FL_N0 + 1], T[fo + FL_K0 + 1], xr1, xi1,
+                                              T[fo + FL_DL0 + 1])
+            fr2, ft2 = optics.film_rt_channel(wm, fn_in, T[fo + FL_N0 + 2], T[fo + FL_K0 + 2], xr2, xi2,
+                                              T[fo + FL_DL0 + 2])
+            s_r = fr0 + fr1 + fr2
+            s_t = ft0 + ft1 + ft2
+            s_rt = s_r + s_t
+            # reflect with probability s_r / s_rt (a conductor always: weights R_c)
+            refl_ = is_cond or (u3 * s_rt < s_r if fon else u3 < fd)
+            q_f = 1.0 if is_cond else (s_rt / max(s_r if refl_ else s_t, 1e-300))
+            j0 = (fr0 if refl_ else ft0) * q_f
+            j1 = (fr1 if refl_ else ft1) * q_f
+            j2 = (fr2 if refl_ else ft2) * q_f
         rx, ry, rz = optics.reflect(wx, wy, wz, mx, my, mz)
         sx, sy, sz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
         ox = rx if refl_ else sx
@@ -438,9 +475,15 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
                                           np.float32(ay)))
         g = 0.0 if wrong else (g if (plain and not walked) else 1.0)
         # weight factors: conductor Fresnel, or the base's albedo; absorbed what they take
-        h0 = rho0 if lamb else (f0 if (is_cond and plain) else 1.0)
-        h1 = rho1 if lamb else (f1 if (is_cond and plain) else 1.0)
-        h2 = rho2 if lamb else (f2 if (is_cond and plain) else 1.0)
+        if film is None:
+            h0 = rho0 if lamb else (f0 if (is_cond and plain) else 1.0)
+            h1 = rho1 if lamb else (f1 if (is_cond and plain) else 1.0)
+            h2 = rho2 if lamb else (f2 if (is_cond and plain) else 1.0)
+        else:
+            fp = fon and plain
+            h0 = rho0 if lamb else (j0 if fp else (f0 if (is_cond and plain) else 1.0))
+            h1 = rho1 if lamb else (j1 if fp else (f1 if (is_cond and plain) else 1.0))
+            h2 = rho2 if lamb else (j2 if fp else (f2 if (is_cond and plain) else 1.0))
         nb0 += nv0 * (1.0 - h0)
         nb1 += nv1 * (1.0 - h1)
         nb2 += nv2 * (1.0 - h2)

@@ -104,6 +104,11 @@ T_AX, T_AY, T_RC, T_RS, T_ETA_DN, T_ETA_UP, T_MATCHED, T_MS = range(8)
 RG_STRIDE = 12
 T_TAU0, T_TAU1, T_TAU2, T_SCAT, T_IEXT0, T_IEXT1, T_IEXT2, T_ALB0, T_ALB1, T_ALB2, T_G, T_CHROM = range(12)
 
+#: a stack with a thin film (the film variant, ``docs/kernel.md``) appends, at
+#: ``off + (n_if + 1) * RG_STRIDE``, per interface k ``FILM_COLS`` columns: the packed film of
+#: interface k (:data:`goniometer.stack.FILM_COLS`, columns ``FL_*``); a stack without films has
+#: no such block (its table is the same as before films existed)
+
 # tau_mode per region (as the steps read it): 0 clear, 1 achromatic absorption, 2 chromatic;
 # TAU_SCATTER (+ 1 chromatic extinction) a scattering medium
 TAU_SCATTER = 3
@@ -141,11 +146,15 @@ def relative_indices(region_eta: np.ndarray):
 
 @numba.njit(cache=True)
 def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, n_if,
-                conductor_base):
-    """The flat table of the event (layout above) and the offset of its region part."""
+                conductor_base, if_film, has_film):
+    """The flat table of the event (layout above) and the offset of its region part; with
+    ``has_film`` the films' block after the regions (an interface with a film is not
+    index-matched: the film reflects)."""
     n_k = max(n_if, 1)
     off = n_k * IF_STRIDE
-    t = np.zeros(off + (n_if + 1) * RG_STRIDE)
+    foff = off + (n_if + 1) * RG_STRIDE
+    n_film = if_film.shape[1]
+    t = np.zeros(foff + (n_k * n_film if has_film else 0))
     for k in range(n_k):
         b = k * IF_STRIDE
         t[b + T_AX] = if_alpha[k, 0]
@@ -155,7 +164,8 @@ def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albe
         t[b + T_ETA_DN] = eta_dn[k]
         t[b + T_ETA_UP] = eta_up[k]
         is_cond = conductor_base and k == n_if - 1
-        t[b + T_MATCHED] = 1.0 if (k < n_if and not is_cond and eta_dn[k] == 1.0) else 0.0
+        filmed = has_film and if_film[k, 0] != 0.0
+        t[b + T_MATCHED] = 1.0 if (k < n_if and not is_cond and eta_dn[k] == 1.0 and not filmed) else 0.0
         t[b + T_MS] = 1.0 if (k < n_if and if_ms[k] and t[b + T_MATCHED] == 0.0) else 0.0
     for r in range(n_if + 1):
         b = off + r * RG_STRIDE
@@ -169,4 +179,8 @@ def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albe
             for c in range(3):
                 t[b + T_IEXT0 + c] = 1.0 / region_tau[r, c] if region_tau[r, c] > 0.0 else 0.0
                 t[b + T_ALB0 + c] = region_albedo[r, c]
+    if has_film:
+        for k in range(n_k):
+            for j in range(n_film):
+                t[foff + k * n_film + j] = if_film[k, j]
     return t, off

@@ -28,6 +28,7 @@ from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, 
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
 from goniometer.rng import next_disk, next_float
 from goniometer.slices import cell_index_fast
+from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 @intrinsic
 def _prefetch(typingctx, arr, i, j, k, c):
@@ -101,7 +102,7 @@ def _book(energy, energy_sq, row, x0, x1, x2):
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
+def trace_paths(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
                 lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
                 height_correlated, event_cap, skip_first, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
     """Trace ``n_rays`` paths one after the other for light direction ``l``, drawing from the
@@ -128,6 +129,12 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
     A histogram exit is deposited when the next exit happens (or at the end of the chunk), its
     cell being prefetched meanwhile: each cell still receives its additions in path order, so the
     sums are the same, bit for bit, as with immediate deposits.
+
+    ``if_film``: the packed thin films (:attr:`goniometer.stack.PackedStack.if_film`): on an
+    interface with one, each microfacet reflects and transmits with the film's per-channel
+    ``R_c``, ``T_c`` (a dielectric reflects with probability ``P = sum R_c / sum (R_c + T_c)``,
+    weights ``R_c / P``, else refracts, weights ``T_c / (1 - P)``; a conductor reflects, weights
+    ``R_c``), in walks at every bounce (``docs/material-format.md``, thin films).
     """
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
@@ -286,7 +293,8 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                 wy = -dy
                 wz = -dz if from_above else dz
                 is_cond = conductor_base and k == n_if - 1
-                if not is_cond and eta_dn[k] == 1.0:
+                filmed = if_film[k, FL_ON] != 0.0
+                if not is_cond and eta_dn[k] == 1.0 and not filmed:
                     # index-matched dielectric: the interface is optically absent
                     region = k + 1 if from_above else k
                 else:
@@ -309,8 +317,9 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         inv_eta = eta_up[k] if from_above else eta_dn[k]
                         ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
                             wx, wy, wz, ax, ay, is_cond, cond[0], cond[1], cond[2], cond[3], cond[4], cond[5],
-                            cond_g_is_r, cond_b_is_g, eta, inv_eta, max(1, event_cap - events + 1), state)
-                        if is_cond:
+                            cond_g_is_r, cond_b_is_g, eta, inv_eta, max(1, event_cap - events + 1), state, True,
+                            if_film[k], from_above)
+                        if is_cond or filmed:
                             w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
                         if k == 0:
                             single = nb == 1
@@ -324,7 +333,39 @@ def trace_paths(if_alpha, if_rot, if_ms, region_eta, region_tau, region_albedo, 
                         mx, my, mz = optics.sample_vndf_disk(wx, wy, wz, ax, ay, qx, qy)
                         wm = wx * mx + wy * my + wz * mz
                         transmitted = False
-                        if is_cond:
+                        if filmed:
+                            # the thin film, from the side the light arrives from
+                            fr = if_film[k]
+                            n_in = fr[FL_NA] if from_above else fr[FL_NB0]
+                            r0, t0 = optics.film_rt(wm, n_in, fr[FL_N0], fr[FL_K0], fr[FL_NB0] if from_above else fr[FL_NA],
+                                                    fr[FL_KB0] if from_above else 0.0, fr[FL_DL0])
+                            r1, t1 = optics.film_rt(wm, n_in, fr[FL_N0 + 1], fr[FL_K0 + 1],
+                                                    fr[FL_NB0 + 1] if from_above else fr[FL_NA],
+                                                    fr[FL_KB0 + 1] if from_above else 0.0, fr[FL_DL0 + 1])
+                            r2, t2 = optics.film_rt(wm, n_in, fr[FL_N0 + 2], fr[FL_K0 + 2],
+                                                    fr[FL_NB0 + 2] if from_above else fr[FL_NA],
+                                                    fr[FL_KB0 + 2] if from_above else 0.0, fr[FL_DL0 + 2])
+                            if is_cond:
+                                w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, r0, r1, r2)
+                                ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
+                            else:
+                                eta = eta_dn[k] if from_above else eta_up[k]
+                                inv_eta = eta_up[k] if from_above else eta_dn[k]
+                                _, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
+                                s_r = r0 + r1 + r2
+                                s_rt = s_r + t0 + t1 + t2
+                                if next_float(state) * s_rt < s_r:
+                                    q = s_rt / s_r
+                                    w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, r0 * q, r1 * q,
+                                                                           r2 * q)
+                                    ox, oy, oz = optics.reflect(wx, wy, wz, mx, my, mz)
+                                else:
+                                    q = s_rt / max(s_rt - s_r, 1e-300)
+                                    w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, t0 * q, t1 * q,
+                                                                           t2 * q)
+                                    ox, oy, oz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
+                                    transmitted = True
+                        elif is_cond:
                             f0, f1, f2 = optics.fresnel_conductor_channels(wm, cond[0], cond[3], cond[1], cond[4], cond[2],
                                                                            cond[5], cond_g_is_r, cond_b_is_g)
                             w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)

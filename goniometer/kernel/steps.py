@@ -22,6 +22,7 @@ from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_D
                                       F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, LANES,
                                       ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED, ST_TRANSMITTED)
 from goniometer.rng import next_disk, next_float, seed_state
+from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 LN = LANES
 
@@ -93,7 +94,7 @@ def free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1,
 
 @numba.njit(cache=True, error_model='numpy')
 def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g,
-                      eta, inv_eta, max_bounces, state):
+                      eta, inv_eta, max_bounces, state, film=None, fr=None, from_above=True):
     """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
     GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
 
@@ -108,26 +109,41 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     ``inv_eta``), until the ray leaves the microsurface. ``g_is_r`` / ``b_is_g``: channels that
     share their complex index (one Fresnel evaluation).
 
+    With ``film`` True and ``fr`` a packed film row (:data:`goniometer.stack.FILM_COLS`, ``FL_ON``
+    set), every bounce reflects and transmits with the thin film's per-channel ``R_c``, ``T_c``
+    (:func:`goniometer.optics.film_rt`, from the side the bounce's light arrives from;
+    ``from_above``: the walk began on the interface's upper side): a conductor reflects with the
+    factors ``R_c``, a dielectric reflects with probability ``P = sum R_c / sum (R_c + T_c)``,
+    factors ``R_c / P``, and otherwise refracts (the film-free direction), factors
+    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films).
+
     Returns ``(ox, oy, oz, f0, f1, f2, n, transmitted)``: the exit direction (``o_z > 0``
     reflected, ``< 0`` transmitted), the product of the conductor's Fresnel factors per channel
-    (1 for a dielectric) and the number ``n >= 1`` of microfacet bounces; ``n = 0`` when the ray
-    is still on the microsurface after ``max_bounces`` bounces (the caller books it as capped).
+    (1 for a dielectric; the film's factors with a film) and the number ``n >= 1`` of microfacet
+    bounces; ``n = 0`` when the ray is still on the microsurface after ``max_bounces`` bounces
+    (the caller books it as capped).
     """
+    if film is None:
+        return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r,
+                         b_is_g, eta, inv_eta, max_bounces, state, None, np.empty(0), True)
     return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r,
-                     b_is_g, eta, inv_eta, max_bounces, state)
+                     b_is_g, eta, inv_eta, max_bounces, state, film, fr, from_above)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g, eta,
-              inv_eta, max_bounces, state):
+              inv_eta, max_bounces, state, film, fr, from_above):
     """:func:`microsurface_walk` from a given point of the walk: the ray travels along ``v`` at
     height CDF ``c`` after ``n`` bounces, on the far side of the microsurface if ``inside`` (there
     ``v`` and ``c`` are in the flipped frame); with ``hit`` its next hit is already drawn, at ``c``.
+    ``film`` None (compiled without films) or True, ``fr`` the interface's packed film row (read
+    only where ``film`` is True), ``from_above`` as :func:`microsurface_walk`'s.
     Returns as :func:`microsurface_walk` (``n`` counts the bounces before this call too; the
     Fresnel factors are those of the bounces from here)."""
     f0 = 1.0
     f1 = 1.0
     f2 = 1.0
+    fon = False if film is None else fr[FL_ON] != 0.0
     while n < max_bounces:
         cn = c if hit else optics.ms_sample_height(vx, vy, vz, c, ax, ay, next_float(state))
         hit = False
@@ -143,7 +159,45 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, c
         qx, qy = next_disk(state)
         mx, my, mz = optics.sample_vndf_disk(ix, iy, iz, ax, ay, qx, qy)
         im = ix * mx + iy * my + iz * mz
-        if conductor:
+        if fon:
+            # the film, seen from the side this bounce's light arrives from
+            down = from_above != inside
+            n_in = fr[FL_NA] if down else fr[FL_NB0]
+            r0, t0 = optics.film_rt(im, n_in, fr[FL_N0], fr[FL_K0], fr[FL_NB0] if down else fr[FL_NA],
+                                    fr[FL_KB0] if down else 0.0, fr[FL_DL0])
+            r1, t1 = optics.film_rt(im, n_in, fr[FL_N0 + 1], fr[FL_K0 + 1], fr[FL_NB0 + 1] if down else fr[FL_NA],
+                                    fr[FL_KB0 + 1] if down else 0.0, fr[FL_DL0 + 1])
+            r2, t2 = optics.film_rt(im, n_in, fr[FL_N0 + 2], fr[FL_K0 + 2], fr[FL_NB0 + 2] if down else fr[FL_NA],
+                                    fr[FL_KB0 + 2] if down else 0.0, fr[FL_DL0 + 2])
+            if conductor:
+                f0 *= r0
+                f1 *= r1
+                f2 *= r2
+                vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
+            else:
+                s_r = r0 + r1 + r2
+                s_rt = s_r + t0 + t1 + t2
+                e = inv_eta if inside else eta
+                ie = eta if inside else inv_eta
+                _, cos_t = optics.fresnel_dielectric_cos_t_inv(im, e, ie)
+                if next_float(state) * s_rt < s_r:
+                    q = s_rt / s_r
+                    f0 *= r0 * q
+                    f1 *= r1 * q
+                    f2 *= r2 * q
+                    vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
+                else:
+                    q = s_rt / max(s_rt - s_r, 1e-300)
+                    f0 *= t0 * q
+                    f1 *= t1 * q
+                    f2 *= t2 * q
+                    tx, ty, tz = optics.refract_known(ix, iy, iz, mx, my, mz, ie, im, cos_t)
+                    vx = -tx
+                    vy = -ty
+                    vz = -tz
+                    inside = not inside
+                    c = 1.0 - c
+        elif conductor:
             r0, r1, r2 = optics.fresnel_conductor_channels(im, ce0, ck0, ce1, ck1, ce2, ck2, g_is_r, b_is_g)
             f0 *= r0
             f1 *= r1
@@ -167,14 +221,16 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, c
 
 @numba.njit(cache=True, error_model='numpy')
 def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is_g, n_if, transmit_base,
-                  conductor_base, event_cap):
+                  conductor_base, event_cap, film, if_film):
     """Continue, in lane ``i`` of the state ``S``, the microsurface walk whose first bounce the
     vectorised event made (fields ``F_WK`` .. ``F_WIN``: the walk's interface, the ray's direction
     of travel and next hit, the side) until the ray leaves the microsurface, then play Russian
     roulette as the event does; returns the lane's new status (``ST_*``: its next action is the
     vectorised event, or its path ended and is booked at the next step). The event counted the
     walk, traversed the region and did its bookkeeping; each further bounce counts toward the cap.
-    ``xs`` is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``."""
+    ``xs`` is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``.
+    ``film`` None or True (the kernel's film variant); ``if_film`` the packed films
+    (:attr:`goniometer.stack.PackedStack.if_film`)."""
     dx = S[F_DX * LN + i]
     dy = S[F_DY * LN + i]
     dz = S[F_DZ * LN + i]
@@ -199,9 +255,9 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
     ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from(
         S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1, True,
         if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3], cond[4], cond[5], g_is_r, b_is_g,
-        eta, inv_eta, max(1, event_cap - events + 1), xs)
+        eta, inv_eta, max(1, event_cap - events + 1), xs, film, if_film[k], from_above)
     st = ST_ALIVE
-    if is_cond:
+    if is_cond or (False if film is None else if_film[k, FL_ON] != 0.0):
         w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
     if nb == 0:
         # still on the microsurface at the cap

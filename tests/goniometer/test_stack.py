@@ -100,3 +100,92 @@ def test_bad_material_files_name_file_layer_and_field(tmp_path, text, expected):
 def test_missing_file(tmp_path):
     with pytest.raises(StackError, match="cannot read"):
         load_toml(tmp_path / "nope.toml")
+
+
+# ---------------------------------------------------------------------- thin films
+
+from goniometer.stack import FL_DL0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON, Film  # noqa: E402
+
+_WL = (450.0, 550.0, 650.0)
+
+
+def _film_dict(**film):
+    return {"name": "f", "layers": [{"type": "interface", "roughness": 0.1, "ior": 1.5, "film": film},
+                                    {"type": "lambertian", "albedo": 0.5}]}
+
+
+def test_film_parses_and_keeps_identity():
+    st = stack_from_dict(_film_dict(thickness_nm=350, ior=1.33, extinction=[0.0, 0.01, 0.02]))
+    f = st.layers[0].film
+    assert f == Film(350.0, (1.33,) * 3, (0.0, 0.01, 0.02))
+    assert '"film":{"extinction":[0.0,0.01,0.02],"ior":[1.33,1.33,1.33],"thickness_nm":350.0}' in st.to_json()
+    assert Stack.from_json(st.to_json()) == st
+    # without a film the canonical JSON is as before the key existed
+    bare = stack_from_dict({"name": "f", "layers": [{"type": "interface", "roughness": 0.1, "ior": 1.5}]})
+    assert "film" not in bare.to_json()
+    assert stack_from_dict(_film_dict(thickness_nm=10, ior=[1.3, 1.4, 1.5])).layers[0].film.extinction == (0.0,) * 3
+
+
+def test_film_toml_round_trip(tmp_path):
+    st = stack_from_dict(_film_dict(thickness_nm=120.5, ior=[1.3, 1.4, 1.5], extinction=0.1))
+    p = tmp_path / "f.toml"
+    p.write_text(st.to_toml())
+    assert load_toml(p)[0] == st
+
+
+@pytest.mark.parametrize("film, needle", [
+    ({"thickness_nm": -1.0, "ior": 1.3}, "layers[0].film.thickness_nm: -1.0 is outside [0, inf)"),
+    ({"thickness_nm": float("inf"), "ior": 1.3}, "layers[0].film.thickness_nm: inf is outside [0, inf)"),
+    ({"thickness_nm": float("nan"), "ior": 1.3}, "layers[0].film.thickness_nm: nan is outside [0, inf)"),
+    ({"ior": 1.3}, "layers[0].film.thickness_nm: required"),
+    ({"thickness_nm": 100, "ior": 0.0}, "layers[0].film.ior: 0.0 must be > 0"),
+    ({"thickness_nm": 100, "ior": [1.3, -1.0, 1.3]}, "layers[0].film.ior: -1.0 must be > 0"),
+    ({"thickness_nm": 100, "ior": 1.3, "extinction": -0.1}, "layers[0].film.extinction: -0.1 is outside [0.0, inf)"),
+    ({"thickness_nm": 100, "ior": 1.3, "colour": 1}, "layers[0].film.colour: unknown key for a film"),
+    ({"thickness_nm": 100}, "layers[0].film.ior: required"),
+])
+def test_film_bad_input(film, needle):
+    with pytest.raises(StackError) as e:
+        stack_from_dict(_film_dict(**film))
+    assert needle in str(e.value), str(e.value)
+
+
+def test_film_only_on_interfaces_and_in_python():
+    d = {"name": "f", "layers": [{"type": "lambertian", "albedo": 0.5, "film": {"thickness_nm": 1, "ior": 1.3}}]}
+    with pytest.raises(StackError, match=r"layers\[0\].film: unknown key for a lambertian layer"):
+        stack_from_dict(d)
+    with pytest.raises(StackError, match=r"layers\[0\].film.thickness_nm: -5.0 is outside"):
+        Stack("f", (Interface(0.1, (1.5,) * 3, film=Film(-5.0, (1.3,) * 3)),))
+    with pytest.raises(StackError, match=r"layers\[0\].film.extinction"):
+        Stack("f", (Interface(0.1, (1.5,) * 3, film=Film(5.0, (1.3,) * 3, (0.0, -1.0, 0.0))),))
+
+
+def test_film_needs_a_spectral_run():
+    st = Stack("f", (Interface(0.1, (1.5,) * 3, film=Film(300.0, (1.33,) * 3)), Lambertian((0.5,) * 3)))
+    with pytest.raises(StackError) as e:
+        pack(st)
+    assert str(e.value) == ("layers[0].film: a thin film needs a spectral run (its colours come from interference "
+                            "at wavelengths; give --spectral)")
+    # a film of thickness 0 is absent: packed as the bare interface, also without wavelengths
+    zero = Stack("f", (Interface(0.1, (1.5,) * 3, film=Film(0.0, (1.33,) * 3)), Lambertian((0.5,) * 3)))
+    bare = Stack("f", (Interface(0.1, (1.5,) * 3), Lambertian((0.5,) * 3)))
+    a, b = pack(zero), pack(bare)
+    assert not a.has_film
+    for x, y in zip(a.as_tuple(), b.as_tuple()):
+        assert np.array_equal(x, y)
+
+
+def test_film_packed_columns():
+    st = Stack("f", (Interface(0.1, (1.5,) * 3, film=Film(300.0, (1.33, 1.34, 1.35), (0.0, 0.1, 0.2))),
+                     Medium((0.1,) * 3),
+                     Interface(0.2, (0.2, 0.3, 0.4), (3.0, 2.5, 2.0), film=Film(55.0, (1.46,) * 3))),
+               "metal", wavelengths_nm=_WL)
+    p = pack(st)
+    assert p.has_film
+    assert p.if_film[0, FL_ON] == 1.0 and p.if_film[1, FL_ON] == 1.0
+    assert np.allclose(p.if_film[0, FL_DL0:FL_DL0 + 3], 300.0 / np.asarray(_WL))
+    assert np.array_equal(p.if_film[0, FL_N0:FL_N0 + 3], (1.33, 1.34, 1.35))
+    assert p.if_film[0, FL_NA] == 1.0 and p.if_film[1, FL_NA] == 1.5
+    assert np.array_equal(p.if_film[0, FL_NB0:FL_NB0 + 3], (1.5,) * 3)
+    assert np.array_equal(p.if_film[1, FL_NB0:FL_NB0 + 3], (0.2, 0.3, 0.4))
+    assert np.array_equal(p.if_film[1, FL_KB0:FL_KB0 + 3], (3.0, 2.5, 2.0))

@@ -4,7 +4,8 @@
 cell by cell and in every energy term within their standard errors. Stacks cover every kind of
 event: rough dielectric and conductor interfaces, anisotropy, absorbing and scattering media
 (chromatic: spectral MIS; achromatic; with walks, a Lambertian base, a transmitting base),
-multiple-scattering walks, an index-matched interface, height-correlated masking."""
+multiple-scattering walks, an index-matched interface, height-correlated masking, thin films (on
+a dielectric met from above and below, on a conductor; single scattering and walks)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pytest
 
 from goniometer import tracer
 from goniometer.slices import boundary_tables, light_direction
-from goniometer.stack import Interface, Lambertian, Medium, Stack, pack
+from goniometer.stack import Film, Interface, Lambertian, Medium, Stack, pack
 from tests.conftest import Z_TOL, chi2_limit
 
 RAYS = 240_000
@@ -45,6 +46,17 @@ STACKS = {
     "ms-aniso-metal": Stack("x", (Interface(0.4, (1.5,) * 3, roughness_y=0.1, rotation_deg=30.0,
                                             multiple_scattering=True), Medium((0.1, 0.2, 0.4)),
                                   Interface(0.5, (1.1, 1.2, 1.3), (1.0, 0.5, 2.0), multiple_scattering=True)), "metal"),
+    # thin films: an absorbing one on a rough coat (met from above and below), a clear one on a
+    # multiple-scattering conductor
+    "film-metal": Stack("fm", (Interface(0.3, (1.5,) * 3, film=Film(400.0, (1.33, 1.38, 1.45), (0.0, 0.01, 0.03))),
+                               Medium((0.1, 0.2, 0.3)),
+                               Interface(0.4, (0.2, 0.9, 1.3), (3.5, 2.5, 2.0), film=Film(90.0, (1.46,) * 3),
+                                         multiple_scattering=True)), "metal", wavelengths_nm=(450.0, 550.0, 650.0)),
+    # a clear film on a walk (from above and below) over a soap-film-like index-matched bottom
+    "film-slab": Stack("fs", (Interface(0.4, (1.5,) * 3, film=Film(250.0, (1.9,) * 3), multiple_scattering=True),
+                              Medium((0.05, 0.1, 0.2)),
+                              Interface(0.3, (1.0,) * 3, film=Film(600.0, (1.33, 1.34, 1.35), (0.0, 0.0, 0.02)))),
+                       "slab", wavelengths_nm=(450.0, 550.0, 650.0)),
 }
 
 
