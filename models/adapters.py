@@ -170,6 +170,7 @@ class FunctionModel(Model):
 
     anisotropic = True
     scattering = True
+    films = True
 
     def __init__(self, spec: str, function: Callable[[np.ndarray, np.ndarray, Stack], Any]) -> None:
         self.name = spec
@@ -240,6 +241,7 @@ class MitsubaFileModel(Model):
     sides = ("brdf", "btdf")
     anisotropic = True
     scattering = True
+    films = True
 
     def __init__(self, spec: str, bsdf: Any) -> None:
         self.name = spec

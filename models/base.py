@@ -78,6 +78,8 @@ class Model(ABC):
     anisotropic: bool = False
     #: whether the model handles scattering media (``scattering_albedo > 0``)
     scattering: bool = False
+    #: whether the model handles thin films on interfaces (``Interface.film``, docs/spectral.md)
+    films: bool = False
     #: evaluated only when named (``--model NAME``), not among "every model that applies": for
     #: models whose cost would dominate a report (e.g. the stochastic pbrt-v4 rows)
     on_request: bool = False
@@ -95,6 +97,10 @@ class Model(ABC):
             return "isotropic interfaces only (this stack has an anisotropic roughness)"
         if not self.scattering:
             reason = scattering_reason(stack)
+            if reason is not None:
+                return reason
+        if not self.films:
+            reason = film_reason(stack)
             if reason is not None:
                 return reason
         return self.support_reason(stack)
@@ -135,6 +141,16 @@ def scattering_reason(stack: Stack) -> str | None:
         if isinstance(x, Medium) and x.scatters:
             return (f"purely absorbing media only (layers[{i}] is a scattering medium, "
                     f"scattering_albedo = {list(x.scattering_albedo)})")
+    return None
+
+
+def film_reason(stack: Stack) -> str | None:
+    """Why a model without thin films cannot represent ``stack`` (None if no interface carries a
+    film of thickness > 0): the check every such model shares (:meth:`Model.reason`)."""
+    for i, x in enumerate(stack.layers):
+        film = getattr(x, "film", None)
+        if isinstance(x, Interface) and film is not None and film.thickness_nm > 0.0:
+            return f"no thin films (layers[{i}] carries a film of {film.thickness_nm:g} nm)"
     return None
 
 

@@ -156,3 +156,17 @@ def test_gonio_models_says_who_supports_scattering(capsys):
         if name in d:
             assert (" scatter " in line) == d[name]["scattering"], line
     assert f"g >= {G_MIN}" in out
+
+
+def test_every_model_without_films_refuses_a_filmed_stack_with_the_shared_reason():
+    """Thin films (docs/material-format.md 2.4): a model that does not model them says so, rather
+    than evaluating the bare interface; the same stack without its film is not refused for it."""
+    from goniometer.stack import Film
+    filmed = Stack("filmed", (Interface(0.2, (1.5,) * 3, film=Film(300.0, (1.33,) * 3)), Lambertian((0.5,) * 3)),
+                   "plastic", wavelengths_nm=(450.0, 550.0, 650.0))
+    bare = Stack("bare", (Interface(0.2, (1.5,) * 3), Lambertian((0.5,) * 3)), "plastic")
+    for name, model in registry.all_models().items():
+        if model.films:
+            continue
+        assert model.reason(filmed) == "no thin films (layers[0] carries a film of 300 nm)", name
+        assert model.reason(bare) is None or "film" not in model.reason(bare), name
