@@ -231,17 +231,18 @@ def bench_rgl(rays_per_incident: int, repeats: int = 5) -> list[dict]:
 
 def bench_spectral(rays_per_incident: int, repeats: int = 3, bins: int = 30) -> list[dict]:
     """A spectral run (``bins`` wavelength bins, three hero wavelengths per path, docs/spectral.md)
-    against the RGB run of the same stack and the same number of paths, one thread, half 90 x 360,
+    of ``rays_per_incident`` paths per bin against the RGB run of the same stack and the same
+    number of paths (``bins / 3`` times ``rays_per_incident``), one thread, half 90 x 360,
     7 incident directions, whole simulate, alternated ``repeats`` times (median ratio of CPU time
     per path); and the noise floor per CPU-second ``1 / (floor^2 x CPU-s)`` of both, the spectral
-    run's taken in linear sRGB (``result.rgb()``, its standard errors an upper bound)."""
+    run's taken in linear sRGB (``result.rgb()``, its standard errors an upper bound), of the whole BRDF."""
     from goniometer.stack import stack_from_dict
     gold = stack_from_dict({"name": "metal/Au-a0_0.2", "category": "metal", "layers": [
         {"type": "interface", "roughness": 0.2, "conductor": "Au"}]})
     rows = []
     for name, stack in (("metal/M2-a0_0.05-a1_0.2", MATERIALS["metal/M2-a0_0.05-a1_0.2"]), (gold.name, gold)):
         launches = bins // 3
-        per_bin = max(1, rays_per_incident // launches)
+        per_bin = rays_per_incident   # a user's --rays: paths per bin (the spectral run traces bins / 3 times more)
         common = dict(incident_deg=INCIDENT, parametrization="half", threads=1, seed=1)
         s_sp = SimulationSettings(rays=per_bin, spectral=True, wavelength_bins=bins, **common)
         s_rgb = SimulationSettings(rays=per_bin * launches, **common)
@@ -256,7 +257,7 @@ def bench_spectral(rays_per_incident: int, repeats: int = 3, bins: int = 30) -> 
                 cpu[kind].append(time.process_time() - c0)
         ratios = sorted(a / b for a, b in zip(cpu["spectral"], cpu["rgb"]))
         n = per_bin * launches * len(INCIDENT)
-        f_sp, f_rgb = floor_of(res["spectral"].rgb()), floor_of(res["rgb"])
+        f_sp, f_rgb = total_floor_of(res["spectral"].rgb()), total_floor_of(res["rgb"])
         row = {"material": name, "kind": "spectral", "threads": 1, "paths": n, "wavelength_bins": bins,
                "spectral_paths_per_cpu_s": n / min(cpu["spectral"]), "rgb_paths_per_cpu_s": n / min(cpu["rgb"]),
                "spectral_vs_rgb_cpu_per_path": ratios[len(ratios) // 2], "spectral_vs_rgb_all": ratios,

@@ -122,6 +122,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             check_supported(stack)
     with usage_errors(StackError):
         per = _paths_per_incident(stack, settings)
+        if not settings.spectral:
+            from goniometer.stack import check_films
+            check_films(stack)
+            if stack.is_spectral:
+                print(f"note: {stack.name} has spectral data; an RGB run traces their RGB equivalents "
+                      f"(docs/spectral.md section 3); --spectral traces the spectra", file=sys.stderr)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
 
     total = per * len(settings.incident_deg)
@@ -183,7 +189,8 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     grid = base.rgl
     if args.rgl_grid is not None or grid is None:
         grid = grid_for(stack, *(parse_grid(args.rgl_grid) if args.rgl_grid is not None else (None, None, None)))
-    fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order")}
+    fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
+                                            "spectral", "wavelength_bins")}
     fields.update({k: v for k, v in over.items() if k != "parametrization"})
     if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):
         print(f"warning: {stack.name} is anisotropic but the RGL grid has one incident azimuth: the readers take "
@@ -196,6 +203,10 @@ def _print_summary(r) -> None:
     from goniometer.results import ENERGY_TERMS
     print(f"{r.rays_per_s:,.0f} rays/s with {r.threads} thread(s) ({r.rays_per_s / r.threads:,.0f} per thread); "
           f"compile/load {r.compile_s:.1f} s")
+    if r.settings.spectral:
+        print(f"spectral: {r.settings.wavelength_bins} wavelength bins ({r.paths_per_incident:,} paths per incident "
+              f"direction); energies in linear sRGB (D65) of the bins (per bin: gonio info --json)")
+        r = r.rgb()
     print(f"{'theta_l':>8} {'phi_l':>6}  {'reflected (R G B)':>26}  {'transmitted':>26}  {'absorbed':>26}  {'masking_loss':>26}")
     for m in range(len(r.theta_deg)):
         row = [f"{r.theta_deg[m]:8.2f}", f"{r.phi_deg[m]:6.1f}"]

@@ -333,8 +333,10 @@ def fit(reference: SimulationResult, kind: str, *, side: str = "brdf", starts: i
     ``weighting``: "paper" (eq. 29, grazing directions left out) or "eq4". ``max_nfev``:
     evaluation budget per start. ``errors``: also integrate the fitted model (s = 5) and compute
     eq. 4 errors. ``progress(start, cost)`` is called after each start. Raises
-    :class:`ModelError` for a BTDF request or a reference without BRDF slices.
+    :class:`ModelError` for a BTDF request or a reference without BRDF slices. A spectral reference
+    is fitted in linear sRGB (:meth:`SimulationResult.rgb`, docs/spectral.md).
     """
+    reference = reference.rgb()
     cls = model_class(kind)
     if side != "brdf":
         raise ModelError(f"{cls.name}: fitted models are BRDF models; cannot fit the {side.upper()}")

@@ -200,4 +200,4 @@ def open_reference(path: str | Path) -> Reference:
         result = store.read(path)
     except store.StoreError as e:
         raise RenderError(str(e)) from None
-    return slices_reference(result, str(path))
+    return slices_reference(result.rgb(), str(path))   # a spectral file is rendered in linear sRGB (docs/spectral.md)
