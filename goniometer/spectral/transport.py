@@ -83,13 +83,15 @@ def trace_spectral_incident(stack: Stack, settings: SimulationSettings, m: int,
         part = trace_incident(st, s, m, progress, buffers)
         if merged is None:
             merged = _empty(part, B)
-        take = list(range(len(bins)))
+        # the launch's channels as a strided view of the bin axis: bins (k, k + G, k + 2G), or one bin
+        dst = slice(bins[0], None, bins[1] - bins[0]) if len(bins) == 3 else slice(bins[0], bins[0] + 1)
+        n = len(bins)
         for name in ("brdf", "brdf_sq", "btdf", "btdf_sq"):
             a = getattr(part, name)
             if a is not None:
-                getattr(merged, name)[:, list(bins)] = a[:, take]
-        merged.energy[:, list(bins)] = part.energy[:, take]
-        merged.energy_sq[:, list(bins)] = part.energy_sq[:, take]
+                getattr(merged, name)[:, dst] = a[:, :n]
+        merged.energy[:, dst] = part.energy[:, :n]
+        merged.energy_sq[:, dst] = part.energy_sq[:, :n]
         merged.counts += part.counts
         merged.elapsed_s += part.elapsed_s
     assert merged is not None
