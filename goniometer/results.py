@@ -101,10 +101,10 @@ class SimulationResult:
     @property
     def paths_per_incident(self) -> int:
         """Paths traced per incident direction: ``rays``, times the launches of a spectral run
-        (:func:`goniometer.spectral.transport.launches`)."""
+        (:func:`goniometer.spectral.launches.launches`)."""
         if not self.settings.spectral:
             return self.settings.rays
-        from goniometer.spectral.transport import launches
+        from goniometer.spectral.launches import launches
         return self.settings.rays * len(launches(self.stack, self.settings))
 
     @property
@@ -117,7 +117,7 @@ class SimulationResult:
         ``docs/spectral.md`` section 4; an RGB run is returned as it is)."""
         if not self.settings.spectral:
             return self
-        from goniometer.spectral.transport import to_rgb
+        from goniometer.spectral.rgb import to_rgb
         return to_rgb(self)
 
 
@@ -296,7 +296,7 @@ def _launch_count(stack: Stack, settings: SimulationSettings) -> int:
     """Kernel launches per incident direction: 1, or a spectral run's launches (each of ``rays`` paths)."""
     if not settings.spectral:
         return 1
-    from goniometer.spectral.transport import launches
+    from goniometer.spectral.launches import launches
     return len(launches(stack, settings))
 
 

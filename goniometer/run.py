@@ -68,7 +68,7 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
 def _launches(stack: Stack, settings: SimulationSettings) -> int:
     if not settings.spectral:
         return 1
-    from goniometer.spectral.transport import launches
+    from goniometer.spectral.launches import launches
     return len(launches(stack, settings))
 
 

@@ -29,7 +29,7 @@ def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
     order (a spectral run: those of its launches). Two runs with the same key run the same
     compiled functions."""
     if settings.spectral:
-        from goniometer.spectral.transport import launch_stacks
+        from goniometer.spectral.launches import launch_stacks
         return tuple(sorted({run_variant(st, s) for _, st, s in launch_stacks(stack, settings)}, key=repr))
     flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
     return flags, settings.parametrization, settings.first_order
@@ -48,8 +48,8 @@ def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = No
     if stack is None:
         stack = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
     s = settings if settings is not None else SimulationSettings()
-    if s.spectral:   # each distinct variant of the run's launches (goniometer.spectral.transport)
-        from goniometer.spectral.transport import launch_stacks
+    if s.spectral:   # each distinct variant of the run's launches (goniometer.spectral.launches)
+        from goniometer.spectral.launches import launch_stacks
         seen: set = set()
         for _, st, ss in launch_stacks(stack, s):
             key = run_variant(st, ss)
@@ -224,9 +224,8 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     histograms for every direction. ``progress(rays)`` is told after every kernel call, each of
     one chunk per thread (so a bar moves within a direction); which chunks a call traces changes
     no bit of the result (each chunk fills its own histogram). A spectral run traces its launches
-    (:func:`goniometer.spectral.transport.trace_spectral_incident`)."""
+    (:func:`trace_spectral_incident`)."""
     if settings.spectral:
-        from goniometer.spectral.transport import trace_spectral_incident
         return trace_spectral_incident(stack, settings, m, progress, buffers)
     T = n_tasks(settings)
     per_call = _tasks_per_call(settings)
@@ -252,3 +251,42 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
             if lo < hi:
                 _add_task(acc, outs, lo, hi)
     return IncidentPart.from_sums(m, acc, settings.max_order, stack.transmits, time.perf_counter() - t0)
+
+
+def trace_spectral_incident(stack: Stack, settings: SimulationSettings, m: int,
+                            progress: Callable[[int], None] | None = None,
+                            buffers: tuple[np.ndarray, ...] | None = None) -> IncidentPart:
+    """Incident direction ``m`` of a spectral run: every launch traced
+    (:func:`trace_incident`, ``docs/spectral.md`` section 2) and its channels placed in their bins."""
+    B = settings.wavelength_bins
+    merged: IncidentPart | None = None
+    from goniometer.spectral.launches import launch_stacks
+    for bins, st, s in launch_stacks(stack, settings):
+        part = trace_incident(st, s, m, progress, buffers)
+        if merged is None:
+            merged = _empty_part(part, B)
+        # the launch's channels as a strided view of the bin axis: bins (k, k + G, k + 2G), or one bin
+        dst = slice(bins[0], None, bins[1] - bins[0]) if len(bins) == 3 else slice(bins[0], bins[0] + 1)
+        n = len(bins)
+        for name in ("brdf", "brdf_sq", "btdf", "btdf_sq"):
+            a = getattr(part, name)
+            if a is not None:
+                getattr(merged, name)[:, dst] = a[:, :n]
+        merged.energy[:, dst] = part.energy[:, :n]
+        merged.energy_sq[:, dst] = part.energy_sq[:, :n]
+        merged.counts += part.counts
+        merged.elapsed_s += part.elapsed_s
+    assert merged is not None
+    return merged
+
+
+def _empty_part(part: IncidentPart, B: int) -> IncidentPart:
+    def widen(a: np.ndarray | None, axis: int) -> np.ndarray | None:
+        if a is None:
+            return None
+        shape = list(a.shape)
+        shape[axis] = B
+        return np.zeros(shape, dtype=a.dtype)
+    return IncidentPart(part.index, widen(part.brdf, 1), widen(part.brdf_sq, 1), widen(part.btdf, 1),
+                        widen(part.btdf_sq, 1), widen(part.energy, 1), widen(part.energy_sq, 1),
+                        np.zeros_like(part.counts), 0.0)

@@ -78,7 +78,7 @@ def _paths_per_incident(stack, settings) -> int:
     spectral table that does not cover the run's bins)."""
     if not settings.spectral:
         return settings.rays
-    from goniometer.spectral.transport import launch_stacks
+    from goniometer.spectral.launches import launch_stacks
     return settings.rays * len(launch_stacks(stack, settings))
 
 

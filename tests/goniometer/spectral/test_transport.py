@@ -13,7 +13,7 @@ import goniometer as g
 from goniometer import results, store
 from goniometer.settings import SettingsError
 from goniometer.spectral import wavelength_bins
-from goniometer.spectral.transport import bin_groups, launch_seed, launches
+from goniometer.spectral.launches import bin_groups, launch_seed, launches
 from goniometer.stack import StackError, stack_from_dict
 from tests.conftest import Z_TOL, assert_cells_match, cell_chi2, chi2_limit
 
