@@ -28,7 +28,8 @@ ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
 #: the settings that make two runs of one stack the same run (``threads`` is not one of them:
 #: results are bit-identical whatever the thread count)
 RUN_KEYS = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
-            "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order", "rgl")
+            "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order", "rgl", "spectral",
+            "wavelength_bins")
 
 
 def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
@@ -37,7 +38,8 @@ def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any
     their bytes, ``docs/file-identity.md``)."""
     d = settings.to_dict()
     s = {k: d[k] for k in RUN_KEYS
-         if not (k == "first_order" and settings.first_order == "traced") and not (k == "rgl" and settings.rgl is None)}
+         if not (k == "first_order" and settings.first_order == "traced") and not (k == "rgl" and settings.rgl is None)
+         and k in d}   # an RGB run's dict has no spectral keys
     return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
 
 
@@ -92,8 +94,31 @@ class SimulationResult:
 
     @property
     def rays_per_s(self) -> float:
+        """Paths traced per second of tracing (a spectral run traces ``paths_per_incident``)."""
         total = float(np.sum(self.elapsed_s))
-        return self.settings.rays * len(self.theta_deg) / total if total > 0 else float("nan")
+        return self.paths_per_incident * len(self.theta_deg) / total if total > 0 else float("nan")
+
+    @property
+    def paths_per_incident(self) -> int:
+        """Paths traced per incident direction: ``rays``, times the launches of a spectral run
+        (:func:`goniometer.spectral.transport.launches`)."""
+        if not self.settings.spectral:
+            return self.settings.rays
+        from goniometer.spectral.transport import launches
+        return self.settings.rays * len(launches(self.stack, self.settings))
+
+    @property
+    def wavelengths_nm(self) -> np.ndarray | None:
+        """The wavelength-bin centres (nm) of a spectral run's channels; None for an RGB run."""
+        return self.settings.wavelengths_nm
+
+    def rgb(self) -> "SimulationResult":
+        """This result in linear sRGB (a spectral run through the colour pipeline of
+        ``docs/spectral.md`` section 4; an RGB run is returned as it is)."""
+        if not self.settings.spectral:
+            return self
+        from goniometer.spectral.transport import to_rgb
+        return to_rgb(self)
 
 
 @dataclass
@@ -176,10 +201,11 @@ def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.n
     M = len(omegas)
     K = sums[0].shape[0]
     nt, nph = grid.shape
-    value = np.zeros((M, 3, nt, nph))
-    stderr = np.zeros((M, 3, nt, nph))
-    stderr_internal = np.zeros((M, 3, nt, nph))
-    orders = np.zeros((M, K, 3, nt, nph))
+    C = sums[0].shape[1]
+    value = np.zeros((M, C, nt, nph))
+    stderr = np.zeros((M, C, nt, nph))
+    stderr_internal = np.zeros((M, C, nt, nph))
+    orders = np.zeros((M, K, C, nt, nph))
 
     def std_error(s1: np.ndarray, s2: np.ndarray, inv: np.ndarray) -> np.ndarray:
         # standard error of the mean of N per-ray contributions, divided by N Omega
@@ -259,11 +285,19 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
         roulette=np.array([p.energy[tracer.E_ROULETTE] for p in parts]) / n,
         capped=np.array([p.energy[tracer.E_CAPPED] for p in parts]) / n,
         capped_paths=np.array([p.counts[tracer.C_CAPPED] for p in parts]),
-        mean_events=np.array([p.counts[tracer.C_EVENTS] for p in parts]) / n,
+        mean_events=np.array([p.counts[tracer.C_EVENTS] for p in parts]) / (n * _launch_count(stack, settings)),
         elapsed_s=np.array([p.elapsed_s for p in parts]),
         threads=settings.n_threads, compile_s=compile_s,
         reflected_without_base=unbased, reflected_without_base_stderr=unbased_se,
     )
+
+
+def _launch_count(stack: Stack, settings: SimulationSettings) -> int:
+    """Kernel launches per incident direction: 1, or a spectral run's launches (each of ``rays`` paths)."""
+    if not settings.spectral:
+        return 1
+    from goniometer.spectral.transport import launches
+    return len(launches(stack, settings))
 
 
 def _mean_stderr(parts: list[IncidentPart], row: int, n: int) -> tuple[np.ndarray, np.ndarray]:

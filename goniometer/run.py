@@ -45,13 +45,17 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
     if parts and on_resume is not None:
         on_resume(len(parts))
     if progress is not None:
+        per = settings.rays * (_launches(stack, settings))
         for _ in parts:
-            progress(settings.rays)
+            progress(per)
     remaining = [k for k in range(M) if k not in parts]
     if client is None:
         buffers = incident_buffers(stack, settings) if remaining else None
         produced = ((k, trace_incident(stack, settings, k, progress, buffers)) for k in remaining)
     else:
+        if settings.spectral:
+            raise SettingsError("spectral: a spectral run traces locally (its launches are not Dask tasks yet); "
+                                "drop --scheduler")
         from goniometer.distributed import dask_incidents
         produced = dask_incidents(client, stack, settings, remaining, progress)
     for k, part in produced:
@@ -59,6 +63,13 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
             checkpoints.save(k, part)
         parts[k] = part
     return assemble(stack, settings, [parts[k] for k in range(M)], compile_s=compile_s)
+
+
+def _launches(stack: Stack, settings: SimulationSettings) -> int:
+    if not settings.spectral:
+        return 1
+    from goniometer.spectral.transport import launches
+    return len(launches(stack, settings))
 
 
 def simulate(stack: Stack, settings: SimulationSettings,
@@ -69,7 +80,7 @@ def simulate(stack: Stack, settings: SimulationSettings,
     Compile time of the kernel is measured apart (``compile_s``), not in ``elapsed_s``.
     """
     settings.validate()
-    return run_incidents(stack, settings, progress=progress, compile_s=warm_up())
+    return run_incidents(stack, settings, progress=progress, compile_s=warm_up(stack, settings))
 
 
 def simulate_resumable(stack: Stack, settings: SimulationSettings, checkpoints: "Checkpoints",

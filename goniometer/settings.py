@@ -60,6 +60,11 @@ class SimulationSettings:
     event_cap: int = EVENT_CAP
     first_order: str = "traced"
     rgl: RGLGrid | None = None
+    #: trace wavelengths instead of RGB channels (``docs/spectral.md``): every per-channel quantity
+    #: then has one entry per wavelength bin, and ``rays`` is the number of paths per bin
+    spectral: bool = False
+    #: equal bins over 360-830 nm of a spectral run (a multiple of 3: a path carries three)
+    wavelength_bins: int = 30
 
     def __post_init__(self) -> None:
         inc = tuple(float(x) for x in self.incident_deg)
@@ -106,6 +111,14 @@ class SimulationSettings:
         _int_in(self.event_cap, "event_cap", 1, 10**9)
         if self.first_order not in FIRST_ORDER:
             raise SettingsError(f"first_order: {self.first_order!r} is not one of {', '.join(FIRST_ORDER)}")
+        if not isinstance(self.spectral, (bool, np.bool_)):
+            raise SettingsError(f"spectral: {self.spectral!r} is not a boolean (true or false)")
+        _int_in(self.wavelength_bins, "wavelength_bins", 3, 471)
+        if self.wavelength_bins % 3:
+            raise SettingsError(f"wavelength_bins: {self.wavelength_bins} must be a multiple of 3 (each path "
+                                f"carries three wavelengths), e.g. {3 * max(1, round(self.wavelength_bins / 3))}")
+        if self.spectral and self.first_order == "integrated":
+            raise SettingsError("first_order: integrated is for RGB runs; a spectral run traces bounce order 1")
 
     def _validate_rgl(self) -> None:
         if self.parametrization != "rgl":
@@ -140,12 +153,30 @@ class SimulationSettings:
         """A copy with the given non-None fields replaced."""
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
 
+    @property
+    def wavelengths_nm(self) -> np.ndarray | None:
+        """The centres (nm) of the wavelength bins of a spectral run; None for an RGB run."""
+        if not self.spectral:
+            return None
+        from goniometer.spectral import wavelength_bins
+        return wavelength_bins(self.wavelength_bins)[0]
+
+    @property
+    def n_channels(self) -> int:
+        """Entries per per-channel quantity: 3 (R, G, B) or the wavelength bins."""
+        return self.wavelength_bins if self.spectral else 3
+
     def to_dict(self) -> dict[str, Any]:
         """Every field, JSON-ready (tuples as lists, the RGL grid as its dict); :meth:`from_dict`
-        reads it back."""
+        reads it back. The spectral fields are left out of an RGB run's dict (whose identity
+        predates them)."""
         def plain(v: Any) -> Any:
             return list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, RGLGrid) else v
-        return {f.name: plain(getattr(self, f.name)) for f in fields(self)}
+        out = {f.name: plain(getattr(self, f.name)) for f in fields(self)}
+        if not self.spectral:
+            out.pop("spectral")
+            out.pop("wavelength_bins")
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "SimulationSettings":
@@ -178,7 +209,7 @@ class SimulationSettings:
                 if not isinstance(value, list) or len(value) != 2:
                     raise SettingsError(f"{source}.resolution: must be [n_theta, n_phi]")
                 kw[key] = tuple(value)
-            elif key in ("rays", "seed", "max_order", "threads"):
+            elif key in ("rays", "seed", "max_order", "threads", "spectral", "wavelength_bins"):
                 kw[key] = value
             elif key in ("parametrization", "masking", "first_order"):
                 kw[key] = value
@@ -209,7 +240,8 @@ class SimulationSettings:
             grid = grid_for(stack, *spec)
         except RGLGridError as e:
             raise SettingsError(f"{source}.rgl_grid: {str(e).split(': ', 1)[-1]}") from None
-        fields = {k: getattr(plain, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order")}
+        fields = {k: getattr(plain, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
+                                                 "spectral", "wavelength_bins")}
         try:
             return cls.on_rgl_grid(grid, **fields)
         except SettingsError as e:

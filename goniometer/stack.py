@@ -143,9 +143,89 @@ class Stack:
     layers: tuple[Layer, ...]
     category: str = "other"
     wavelengths_nm: tuple[float, float, float] | None = None
+    #: spectral definitions of the layers' per-channel fields, ``(layer index, field, spectrum)``
+    #: with field one of :data:`SPECTRAL_FIELDS` and spectrum a ``goniometer.spectral`` object
+    #: (``at(wavelength_nm)``); the field itself then holds the RGB equivalent of the spectrum
+    #: (what an RGB run traces and the RGB models read, ``docs/spectral.md`` section 3)
+    spectra: tuple[tuple[int, str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         _validate_structure(self.layers, source="stack")
+
+    @property
+    def is_spectral(self) -> bool:
+        """True when some layer field is defined by a spectrum (not only by an RGB triple)."""
+        return bool(self.spectra)
+
+    def spectrum(self, layer: int, field: str) -> Any:
+        """The spectral definition of ``layers[layer].field``, or None (an RGB value)."""
+        for i, f, sp in self.spectra:
+            if i == layer and f == field:
+                return sp
+        return None
+
+    def field_values(self, layer: int, field: str, wavelength_nm: np.ndarray) -> np.ndarray:
+        """``layers[layer].field`` at ``wavelength_nm``: its spectrum, or its RGB value upsampled
+        (:func:`goniometer.spectral.upsample_rgb`, ``docs/spectral.md`` section 3)."""
+        from goniometer.spectral import upsample_rgb
+        sp = self.spectrum(layer, field)
+        if sp is not None:
+            return np.asarray(sp.at(wavelength_nm), dtype=np.float64)
+        x = self.layers[layer]
+        for part in field.split("."):
+            x = getattr(x, part)
+        return np.asarray(upsample_rgb(tuple(x), wavelength_nm), dtype=np.float64)
+
+    def dispersive(self, wavelength_nm: np.ndarray) -> bool:
+        """True when a dielectric interface's index differs between the wavelengths
+        ``wavelength_nm`` (such a stack is traced one wavelength per path, ``docs/spectral.md``)."""
+        for i, x in enumerate(self.layers):
+            if isinstance(x, Interface) and not x.is_conductor and self.spectrum(i, "ior") is not None:
+                v = self.field_values(i, "ior", wavelength_nm)
+                if np.any(v != v[0]):
+                    return True
+        return False
+
+    def at_wavelengths(self, wavelength_nm: tuple[float, float, float]) -> "Stack":
+        """The RGB-shaped stack whose three channels are the wavelengths ``wavelength_nm`` (nm):
+        every per-channel field evaluated there (spectra interpolated, RGB values upsampled), and
+        ``wavelengths_nm`` set. A dielectric interface needs one index for its three channels
+        (StackError otherwise: trace a dispersive stack one wavelength at a time)."""
+        w = np.asarray(wavelength_nm, dtype=np.float64)
+        if w.shape != (3,):
+            raise StackError(f"{self.name}: at_wavelengths needs three wavelengths, got {w.shape}")
+
+        def val(i: int, field: str) -> RGB:
+            v = self.field_values(i, field, w)
+            return (float(v[0]), float(v[1]), float(v[2]))
+
+        layers: list[Layer] = []
+        for i, x in enumerate(self.layers):
+            if isinstance(x, Interface):
+                ior, ext = val(i, "ior"), val(i, "extinction")
+                if not x.is_conductor and len(set(ior)) != 1:
+                    raise StackError(f"{self.name}: layers[{i}].ior: a dielectric interface takes one index for "
+                                     f"all channels; the wavelengths {list(w)} nm have {list(ior)}")
+                changes: dict[str, Any] = {"ior": ior, "extinction": ext}
+                film = getattr(x, "film", None)
+                if film is not None:
+                    changes["film"] = dataclasses.replace(film, ior=val(i, "film.ior"),
+                                                          extinction=val(i, "film.extinction"))
+                layers.append(dataclasses.replace(x, **changes))
+            elif isinstance(x, Medium):
+                layers.append(dataclasses.replace(x, optical_depth=val(i, "optical_depth"),
+                                                  scattering_albedo=val(i, "scattering_albedo")))
+            else:
+                layers.append(Lambertian(val(i, "albedo")))
+        return Stack(self.name, tuple(layers), self.category, (float(w[0]), float(w[1]), float(w[2])))
+
+    def check_covers(self, lo_nm: float, hi_nm: float) -> None:
+        """Raise StackError naming the first spectrum that does not cover [lo_nm, hi_nm]."""
+        for i, f, sp in self.spectra:
+            if not sp.covers(lo_nm, hi_nm):
+                raise StackError(f"{self.name}: layers[{i}].{f}: the table covers {sp.wavelength_nm[0]:g}-"
+                                 f"{sp.wavelength_nm[-1]:g} nm but the run's wavelength bins need {lo_nm:.1f}-"
+                                 f"{hi_nm:.1f} nm (extend the table or use fewer, wider bins)")
 
     # ------------------------------------------------------------------ derived
     @property
@@ -197,6 +277,12 @@ class Stack:
                 layers.append(d)
             else:
                 layers.append({"type": "lambertian", "albedo": list(x.albedo)})
+        for i, f, sp in self.spectra:   # a spectral definition replaces the RGB equivalent it implies
+            head, _, sub = f.partition(".")
+            if sub:
+                layers[i][head][sub] = sp.to_dict()
+            else:
+                layers[i][head] = sp.to_dict()
         return {"name": self.name, "category": self.category, "layers": layers}
 
     def with_multiple_scattering(self, on: bool = True) -> "Stack":
@@ -204,7 +290,7 @@ class Stack:
         --multiple-scattering``); the canonical JSON, hence the recorded stack, shows it."""
         layers = tuple(dataclasses.replace(x, multiple_scattering=on) if isinstance(x, Interface) else x
                        for x in self.layers)
-        return Stack(self.name, layers, self.category, self.wavelengths_nm)
+        return Stack(self.name, layers, self.category, self.wavelengths_nm, self.spectra)
 
     def to_json(self) -> str:
         """Canonical JSON: sorted keys, no whitespace, RGB lists, shortest float repr."""
@@ -368,14 +454,15 @@ def pack(stack: Stack) -> PackedStack:
 # ---------------------------------------------------------------------- loading
 
 _LAYER_KEYS = {
-    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg", "multiple_scattering", "film"},
+    "interface": {"type", "roughness", "ior", "extinction", "rotation_deg", "multiple_scattering", "film",
+                  "conductor"},
     "medium": {"type", "optical_depth", "scattering_albedo", "g"},
     "lambertian": {"type", "albedo"},
 }
 _FILM_KEYS = {"thickness_nm", "ior", "extinction"}
 _TOP_KEYS = {"name", "category", "layers", "simulation"}
 SIMULATION_KEYS = {"incident_deg", "rays", "parametrization", "resolution", "seed", "masking",
-                   "max_order", "threads", "first_order", "rgl_grid"}
+                   "max_order", "threads", "first_order", "rgl_grid", "spectral", "wavelength_bins"}
 
 
 def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:
@@ -432,9 +519,10 @@ def stack_from_dict(data: dict[str, Any], source: str = "stack", check_category:
     raw_layers = data.get("layers")
     if not isinstance(raw_layers, list) or not raw_layers:
         raise StackError(f"{source}: layers: required, a non-empty array of tables ([[layers]])")
-    layers = tuple(_layer_from_dict(d, i, source) for i, d in enumerate(raw_layers))
+    spectra: list[tuple[int, str, Any]] = []
+    layers = tuple(_layer_from_dict(d, i, source, spectra) for i, d in enumerate(raw_layers))
     _validate_structure(layers, source)
-    stack = Stack(name=name, layers=layers, category=category)
+    stack = Stack(name=name, layers=layers, category=category, spectra=tuple(spectra))
     if check_category:
         validate_category(stack, source)
         for i, (d, x) in enumerate(zip(raw_layers, layers)):
@@ -445,8 +533,11 @@ def stack_from_dict(data: dict[str, Any], source: str = "stack", check_category:
     return stack
 
 
-def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
+def _layer_from_dict(d: Any, i: int, source: str, spectra: list | None = None) -> Layer:
+    """One layer; the spectral definitions of its fields are appended to ``spectra`` as
+    ``(i, field, spectrum)``."""
     where = f"{source}: layers[{i}]"
+    found: list[tuple[str, Any]] = []
     if not isinstance(d, dict):
         raise StackError(f"{where}: must be a table")
     kind = d.get("type")
@@ -465,9 +556,14 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
                          f"(allowed: {', '.join(sorted(_LAYER_KEYS[kind]))})")
     if kind == "interface":
         rough, rough_y, rotation = _roughness(d, where)
-        ior = _rgb(d, "ior", where, positive=True)
-        ext = _rgb(d, "extinction", where, lo=0.0, default=0.0)
-        if max(ext) <= 0.0 and len(set(ior)) != 1:
+        if "conductor" in d:
+            d = _named_conductor(d, where)
+        ext = _rgb(d, "extinction", where, lo=0.0, default=0.0, spectra=found)
+        dielectric = max(ext) <= 0.0
+        ior = _rgb(d, "ior", where, positive=True, spectra=found, index=dielectric)
+        if spectra is not None:
+            spectra.extend((i, f, sp) for f, sp in found)
+        if dielectric and len(set(ior)) != 1:
             raise StackError(f"{where}.ior: a dielectric interface takes one index for all channels "
                              f"(got {list(ior)}); an RGB index needs extinction > 0 (a conductor)")
         ms = d.get("multiple_scattering", False)
@@ -477,11 +573,36 @@ def _layer_from_dict(d: Any, i: int, source: str) -> Layer:
         return Interface(roughness=rough, ior=ior, extinction=ext, roughness_y=rough_y, rotation_deg=rotation,
                          multiple_scattering=ms, film=film)
     if kind == "medium":
-        albedo = _rgb(d, "scattering_albedo", where, lo=0.0, hi=1.0, default=0.0)
+        albedo = _rgb(d, "scattering_albedo", where, lo=0.0, hi=1.0, default=0.0, spectra=found)
         g = _number(d["g"], f"{where}.g") if "g" in d else 0.0
         _check_g(g, f"{where}.g")
-        return Medium(optical_depth=_rgb(d, "optical_depth", where, lo=0.0), scattering_albedo=albedo, g=g)
-    return Lambertian(albedo=_rgb(d, "albedo", where, lo=0.0, hi=1.0))
+        tau = _rgb(d, "optical_depth", where, lo=0.0, spectra=found)
+        if spectra is not None:
+            spectra.extend((i, f, sp) for f, sp in found)
+        return Medium(optical_depth=tau, scattering_albedo=albedo, g=g)
+    albedo = _rgb(d, "albedo", where, lo=0.0, hi=1.0, spectra=found)
+    if spectra is not None:
+        spectra.extend((i, f, sp) for f, sp in found)
+    return Lambertian(albedo=albedo)
+
+
+def _named_conductor(d: dict, where: str) -> dict:
+    """``conductor = "Au"``: the interface table with the named measured ``ior`` and
+    ``extinction`` spectra (``goniometer.spectral.named_conductor``)."""
+    from goniometer.spectral import NAMED_CONDUCTORS, SpectrumError, named_conductor
+    name = d["conductor"]
+    clash = [k for k in ("ior", "extinction") if k in d]
+    if clash:
+        raise StackError(f"{where}.conductor: gives ior and extinction itself; remove {clash[0]}")
+    if not isinstance(name, str) or name not in NAMED_CONDUCTORS:
+        raise StackError(f"{where}.conductor: {name!r} is not a named conductor (known: {', '.join(NAMED_CONDUCTORS)})")
+    try:
+        eta, k = named_conductor(name, f"{where}.conductor")
+    except SpectrumError as e:
+        raise StackError(str(e)) from None
+    out = {key: v for key, v in d.items() if key != "conductor"}
+    out["ior"], out["extinction"] = eta, k
+    return out
 
 
 def _film(d: Any, where: str) -> Film:
@@ -576,13 +697,20 @@ def _check_g(g: float, where: str) -> None:
         raise StackError(f"{where}: {g!r} is outside (-1, 1) (the Henyey-Greenstein asymmetry)")
 
 
-def _rgb(d: dict, key: str, where: str, lo=None, hi=None, positive=False, default=None) -> RGB:
+def _rgb(d: dict, key: str, where: str, lo=None, hi=None, positive=False, default=None,
+         spectra: list | None = None, index: bool = False, field: str | None = None) -> RGB:
+    """An RGB value (a number or three), or, where ``spectra`` is given, also a spectral table
+    (``docs/spectral.md``): then ``(field or key, spectrum)`` is appended to ``spectra`` and the
+    spectrum's RGB equivalent returned (``index``: one value for the three channels, the
+    luminance-weighted mean, for a dielectric's index)."""
     if key not in d:
         if default is None:
             raise StackError(f"{where}.{key}: required")
         return (float(default),) * 3
     x = d[key]
     w = f"{where}.{key}"
+    if spectra is not None and (isinstance(x, dict) or _is_spectral_object(x)):
+        return _spectral_value(x, w, lo, hi, positive, spectra, field or key, index)
     if isinstance(x, list):
         if len(x) != 3:
             raise StackError(f"{w}: an RGB value needs 3 numbers, got {len(x)}")
@@ -592,6 +720,32 @@ def _rgb(d: dict, key: str, where: str, lo=None, hi=None, positive=False, defaul
     for v in vals:
         _check_range(v, w, lo, hi, positive)
     return vals  # type: ignore[return-value]
+
+
+def _is_spectral_object(x: Any) -> bool:
+    from goniometer.spectral import is_spectral
+    return is_spectral(x)
+
+
+def _spectral_value(x: Any, w: str, lo, hi, positive: bool, spectra: list, field: str, index: bool) -> RGB:
+    """A spectral table's spectrum (checked against the field's range at its nodes) appended to
+    ``spectra``; returns its RGB equivalent (``goniometer.spectral.rgb_equivalent``)."""
+    from goniometer.spectral import SpectrumError, from_toml, is_spectral, rgb_equivalent
+    try:
+        sp = x if is_spectral(x) else from_toml(x, w)
+    except SpectrumError as e:
+        raise StackError(str(e)) from None
+    nodes = np.asarray(sp.at(np.asarray(sp.wavelength_nm))) if hasattr(sp, "wavelength_nm") else None
+    if nodes is not None:
+        for v in nodes:
+            _check_range(float(v), f"{w}.value", lo, hi, positive)
+    rgb = rgb_equivalent(sp, index=index, lo=0.0 if lo is None else lo, hi=hi)
+    if index or positive:
+        for v in rgb:
+            if not v > 0.0:
+                raise StackError(f"{w}: the spectrum's RGB equivalent {list(rgb)} must be > 0")
+    spectra.append((field, sp))
+    return rgb
 
 
 def _validate_structure(layers: tuple[Layer, ...], source: str) -> None:

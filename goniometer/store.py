@@ -79,18 +79,23 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     sim.attrs["rays_per_s"] = r.rays_per_s
     sim.attrs["parametrization"] = s.parametrization
     sim.attrs["resolution"] = np.array(s.resolution, dtype=np.int64)
+    wl = r.wavelengths_nm
+    if s.spectral:   # docs/slices-format.md: the channel axis holds wavelength bins
+        sim.attrs["spectral"] = True
+        sim.attrs["wavelength_bins"] = s.wavelength_bins
+        sim.attrs["paths_per_incident"] = r.paths_per_incident
     sim.create_dataset("elapsed_per_incident_s", data=r.elapsed_s)
     sim.create_dataset("capped_paths", data=r.capped_paths)
     sim.create_dataset("mean_events", data=r.mean_events)
 
-    _write_slices(f, "brdf", r.brdf, r.theta_deg, r.phi_deg)
+    _write_slices(f, "brdf", r.brdf, r.theta_deg, r.phi_deg, wl)
     if s.rgl is not None:
         write_rgl_warp(f, s.rgl)
     if r.btdf is not None:
-        _write_slices(f, "btdf", r.btdf, r.theta_deg, r.phi_deg)
+        _write_slices(f, "btdf", r.btdf, r.theta_deg, r.phi_deg, wl)
 
     en = f.create_group("energy")
-    en.attrs["description"] = ("fractions of the incident flux per channel (R, G, B); "
+    en.attrs["description"] = (f"fractions of the incident flux per channel ({'wavelength bin' if wl is not None else 'R, G, B'}); "
                                "reflected + transmitted + absorbed + masking_loss + roulette + capped = 1")
     for name in ENERGY_TERMS:
         en.create_dataset(name, data=r.energy[name])
@@ -102,8 +107,8 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
         en.create_dataset("reflected_without_base_stderr", data=r.reflected_without_base_stderr)
 
     # last: named dimensions for every dataset of the two per-incident groups (xarray without phony dims)
-    attach_incident_dims(sim, r.theta_deg, r.phi_deg, describe=SIMULATION_ATTRS.get)
-    attach_incident_dims(en, r.theta_deg, r.phi_deg, describe=energy_attrs)
+    attach_incident_dims(sim, r.theta_deg, r.phi_deg, describe=SIMULATION_ATTRS.get, wavelengths_nm=wl)
+    attach_incident_dims(en, r.theta_deg, r.phi_deg, describe=energy_attrs, wavelengths_nm=wl)
 
 
 #: what /rgl holds: the warp's tables as the exported tensor file holds them (float32)
@@ -124,6 +129,17 @@ def write_rgl_warp(f: h5py.File, grid) -> None:
     for name, a in grid.tables().items():
         d = g.create_dataset(name, data=a, **(_COMPRESSION if a.ndim > 1 else {}))
         d.attrs["units"], d.attrs["description"] = RGL_TABLES[name]
+
+
+#: the channel scale of a spectral file: the wavelength-bin centres (``docs/spectral.md``)
+WAVELENGTH = "wavelength_nm"
+
+
+def _channel_scale(g: h5py.Group, wavelengths_nm: np.ndarray | None):
+    """The scale of the channel axis: ``channel`` (R, G, B) or ``wavelength_nm`` (bin centres)."""
+    if wavelengths_nm is None:
+        return _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+    return _scaled(g, WAVELENGTH, np.asarray(wavelengths_nm, dtype=np.float64), "nm", "wavelength-bin centre")
 
 
 def _scaled(g: h5py.Group, name: str, data, units: str | None = None, long_name: str | None = None):
@@ -198,22 +214,24 @@ def energy_attrs(name: str) -> dict[str, str]:
 
 
 def attach_incident_dims(g: h5py.Group, theta_deg: np.ndarray, phi_deg: np.ndarray,
-                         describe: Callable[[str], dict | None] | None = None) -> None:
+                         describe: Callable[[str], dict | None] | None = None,
+                         wavelengths_nm: np.ndarray | None = None) -> None:
     """Give every dataset of a per-incident group (``/energy``, ``/simulation``) named dimensions:
     shape (M,) gets ``incident``, shape (M, 3) gets ``incident, channel``; ``incident`` holds theta_l
     and the auxiliary coordinate ``incident_phi`` phi_l. Call it once every dataset is written; any
     dataset of another shape raises ValueError. ``describe(name)`` returns attributes to set."""
     data = [(name, d) for name, d in g.items() if isinstance(d, h5py.Dataset)]
     M = len(theta_deg)
+    C = len(CHANNELS) if wavelengths_nm is None else len(wavelengths_nm)
     for name, d in data:
-        if d.shape not in ((M,), (M, len(CHANNELS))):
-            raise ValueError(f"{g.name}/{name}: shape {d.shape} is neither (M,) nor (M, 3) with M = {M}")
+        if d.shape not in ((M,), (M, C)):
+            raise ValueError(f"{g.name}/{name}: shape {d.shape} is neither (M,) nor (M, {C}) with M = {M}")
     incident = _scaled(g, "incident", np.asarray(theta_deg, dtype=np.float64), "deg", _INCIDENT_LONG)
     _incident_phi(g, incident, phi_deg)
     channel = None
     for name, d in data:
         if d.ndim == 2 and channel is None:
-            channel = _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+            channel = _channel_scale(g, wavelengths_nm)
         d.dims[0].attach_scale(incident)
         if d.ndim == 2:
             d.dims[1].attach_scale(channel)
@@ -227,7 +245,7 @@ class SliceGroupWriter:
     scales: ``incident``, ``order`` (if K is given), ``channel``, ``theta``, ``phi`` and cell edges."""
 
     def __init__(self, parent: h5py.Group, name: str, grid: SliceGrid, theta_deg: np.ndarray, K: int | None = None,
-                 phi_deg: np.ndarray | None = None):
+                 phi_deg: np.ndarray | None = None, wavelengths_nm: np.ndarray | None = None):
         g = parent.create_group(name)
         self.group = g
         g.attrs["parametrization"] = grid.parametrization
@@ -238,7 +256,7 @@ class SliceGroupWriter:
         ph_name = "phi_v" if grid.parametrization == "classic" else "phi_h"
         self.scales = {
             "incident": _scaled(g, "incident", theta_deg, "deg", _INCIDENT_LONG),
-            "channel": _scaled(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
+            "channel": _channel_scale(g, wavelengths_nm),
         }
         if grid.parametrization == "rgl":
             # rows u_y, columns u_x: the nodes of the RGL format's stored values (docs/rgl-format.md)
@@ -292,8 +310,10 @@ MASK_DESCRIPTION = (
 _MASKED = " Meaningless where mask is False (see mask)."
 
 
-def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray, phi_deg: np.ndarray) -> None:
-    w = SliceGroupWriter(f, name, sd.grid, theta_deg, K=sd.orders.shape[1], phi_deg=phi_deg)
+def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray, phi_deg: np.ndarray,
+                  wavelengths_nm: np.ndarray | None = None) -> None:
+    w = SliceGroupWriter(f, name, sd.grid, theta_deg, K=sd.orders.shape[1], phi_deg=phi_deg,
+                         wavelengths_nm=wavelengths_nm)
     what = "BRDF" if name == "brdf" else "BTDF"
     rgl = sd.grid.parametrization == "rgl"
     unit = "1" if rgl else "1/sr"
@@ -377,9 +397,10 @@ def describe(path: str | Path) -> tuple[Stack, SimulationSettings]:
             M = len(settings.incident_deg)
             nt, nph = settings.resolution
             sides = ["brdf"] + (["btdf"] if stack.transmits else [])
+            C = settings.n_channels
             for side in sides:
-                for name, shape in (("value", (M, 3, nt, nph)), ("stderr", (M, 3, nt, nph)),
-                                    ("orders", (M, settings.max_order, 3, nt, nph)), ("mask", (M, nt, nph)),
+                for name, shape in (("value", (M, C, nt, nph)), ("stderr", (M, C, nt, nph)),
+                                    ("orders", (M, settings.max_order, C, nt, nph)), ("mask", (M, nt, nph)),
                                     ("proj_solid_angle", (M, nt, nph))):
                     key = f"{side}/{name}"
                     if key not in f or f[key].shape != shape:
@@ -425,6 +446,9 @@ def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
             d[key] = int(sim[key])
     if "first_order" in sim:
         d["first_order"] = str(sim["first_order"])
+    if bool(sim.get("spectral", False)):
+        d["spectral"] = True
+        d["wavelength_bins"] = int(sim["wavelength_bins"])
     if d["parametrization"] == "rgl":
         if "rgl" not in f or "grid" not in f["rgl"].attrs:
             raise StoreError(f"{p}: an RGL-grid file without /rgl (its warp)")
@@ -446,14 +470,15 @@ def _read(f: h5py.File, p: Path) -> SimulationResult:
     en = f["energy"]
     M = len(theta)
     energy = {k: en[k][()] for k in ENERGY_TERMS}
-    energy_se = {k: en[f"{k}_stderr"][()] if f"{k}_stderr" in en else np.full((M, 3), np.nan) for k in ENERGY_TERMS}
+    C = settings.n_channels
+    energy_se = {k: en[f"{k}_stderr"][()] if f"{k}_stderr" in en else np.full((M, C), np.nan) for k in ENERGY_TERMS}
     elapsed = f["simulation/elapsed_per_incident_s"][()] if "simulation/elapsed_per_incident_s" in f \
         else np.full(M, float(sim["elapsed_s"]) / M)
     return SimulationResult(
         stack=stack, settings=settings, theta_deg=theta, phi_deg=phi, brdf=brdf, btdf=btdf,
         energy=energy, energy_stderr=energy_se,
-        roulette=en["roulette"][()] if "roulette" in en else np.zeros((M, 3)),
-        capped=en["capped"][()] if "capped" in en else np.zeros((M, 3)),
+        roulette=en["roulette"][()] if "roulette" in en else np.zeros((M, C)),
+        capped=en["capped"][()] if "capped" in en else np.zeros((M, C)),
         capped_paths=f["simulation/capped_paths"][()] if "simulation/capped_paths" in f else np.zeros(M, np.int64),
         mean_events=f["simulation/mean_events"][()] if "simulation/mean_events" in f else np.full(M, np.nan),
         elapsed_s=elapsed, threads=int(sim["threads"]), compile_s=float(sim.get("compile_s", 0.0)),

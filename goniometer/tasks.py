@@ -26,7 +26,11 @@ from goniometer.stack import Stack, pack
 def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
     """What decides which compiled code a local run of ``stack`` under ``settings`` needs: the
     kernel's variant arguments (:func:`goniometer.tracer.kernel_flags`), the grid and the first
-    order. Two runs with the same key run the same compiled functions."""
+    order (a spectral run: those of its launches). Two runs with the same key run the same
+    compiled functions."""
+    if settings.spectral:
+        from goniometer.spectral.transport import launch_stacks
+        return tuple(sorted({run_variant(st, s) for _, st, s in launch_stacks(stack, settings)}, key=repr))
     flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
     return flags, settings.parametrization, settings.first_order
 
@@ -44,6 +48,15 @@ def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = No
     if stack is None:
         stack = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
     s = settings if settings is not None else SimulationSettings()
+    if s.spectral:   # each distinct variant of the run's launches (goniometer.spectral.transport)
+        from goniometer.spectral.transport import launch_stacks
+        seen: set = set()
+        for _, st, ss in launch_stacks(stack, s):
+            key = run_variant(st, ss)
+            if key not in seen:
+                seen.add(key)
+                warm_up(st, ss)
+        return time.perf_counter() - t0
     # the RGL grid runs the classic grid's compiled code (the grid is a value, not a variant); its
     # own numba functions are those of its tables
     tiny = SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4), chunk_rays=8, threads=1,
@@ -210,7 +223,11 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     ``buffers`` (from :func:`incident_buffers`) saves allocating and faulting in the per-chunk
     histograms for every direction. ``progress(rays)`` is told after every kernel call, each of
     one chunk per thread (so a bar moves within a direction); which chunks a call traces changes
-    no bit of the result (each chunk fills its own histogram)."""
+    no bit of the result (each chunk fills its own histogram). A spectral run traces its launches
+    (:func:`goniometer.spectral.transport.trace_spectral_incident`)."""
+    if settings.spectral:
+        from goniometer.spectral.transport import trace_spectral_incident
+        return trace_spectral_incident(stack, settings, m, progress, buffers)
     T = n_tasks(settings)
     per_call = _tasks_per_call(settings)
     acc = Sums.zeros(stack, settings)

@@ -87,9 +87,16 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     ``ggx1-fit``, ``ggx2-fit``) are fitted to this file's BRDF when named (they take seconds to
     minutes) and listed as skipped otherwise. ``isotropize="mean"`` lets isotropic models evaluate
     an anisotropic stack through :func:`isotropized` (recorded in ``approximations``); by default
-    they skip it. ``progress(name)`` is called before each model.
+    they skip it. ``progress(name)`` is called before each model. A spectral reference is judged
+    in linear sRGB (:meth:`SimulationResult.rgb`, ``docs/spectral.md`` section 4) with the models
+    reading the material's RGB equivalent (noted in ``reference_note``).
     """
     require_slices(reference)
+    spectral_note = None
+    if reference.settings.spectral:
+        spectral_note = (f"spectral reference ({reference.settings.wavelength_bins} wavelength bins) judged in linear "
+                         f"sRGB (D65, CIE 1931); the models read the material's RGB equivalent (docs/spectral.md)")
+        reference = reference.rgb()
     stack = reference.stack
     side = comparison_side(stack)
     if (side == "brdf" and reference.brdf is None) or (side == "btdf" and reference.btdf is None):
@@ -102,6 +109,8 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join([*available, *fitted])}; "
                              f"or python:MODULE:NAME, mitsuba:FILE.xml|.json)")
     result = Evaluation(stack.name, stack.category, side)
+    if spectral_note is not None:
+        result.reference_note = spectral_note
     sd = reference.brdf if side == "brdf" else reference.btdf
     # a measurement has no bounce orders: "internal" then compares the whole BRDF too
     measured = "measured" in reference.extra

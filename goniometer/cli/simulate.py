@@ -55,6 +55,12 @@ def register(sub) -> None:
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "the file's recorded stack shows it")
+    p.add_argument("--spectral", action="store_true", default=None,
+                   help="trace wavelengths instead of RGB channels: every per-channel quantity gets one entry per "
+                        "wavelength bin over 360-830 nm, --rays paths per bin (docs/spectral.md) "
+                        f"(default: {FROM_FILE}RGB)")
+    p.add_argument("--wavelength-bins", dest="wavelength_bins", type=whole_number, metavar="N",
+                   help=f"wavelength bins of a spectral run, a multiple of 3 (default: {FROM_FILE}30, 15.7 nm each)")
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
     add_overwrite(p)
@@ -65,6 +71,15 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_info)
 
+
+
+def _paths_per_incident(stack, settings) -> int:
+    """Paths per incident direction: ``rays``, times a spectral run's launches (StackError for a
+    spectral table that does not cover the run's bins)."""
+    if not settings.spectral:
+        return settings.rays
+    from goniometer.spectral.transport import launch_stacks
+    return settings.rays * len(launch_stacks(stack, settings))
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -91,7 +106,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         over["incident_phi_deg"] = tuple(phis) if phis is not None else tuple(0.0 for _ in thetas)
     if args.resolution is not None:
         over["resolution"] = resolution(args.resolution)
-    for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order", "first_order"):
+    for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order", "first_order", "spectral",
+                "wavelength_bins"):
         value = getattr(args, key)
         if value is not None:
             over[key] = value
@@ -104,12 +120,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             settings = base.with_overrides(**over)
         if settings.first_order == "integrated":
             check_supported(stack)
+    with usage_errors(StackError):
+        per = _paths_per_incident(stack, settings)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
 
-    total = settings.rays * len(settings.incident_deg)
+    total = per * len(settings.incident_deg)
+    spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {per // settings.rays} launch(es) "
+                f"of {settings.rays:,} paths" if settings.spectral else "")
     print(f"simulating {stack.name} ({stack.category}): {len(settings.incident_deg)} incident direction(s) x "
-          f"{settings.rays:,} rays, {settings.parametrization} {settings.resolution[0]}x{settings.resolution[1]}, "
-          f"{settings.n_threads} thread(s)", file=sys.stderr)
+          f"{settings.rays:,} rays{spectral}, {settings.parametrization} {settings.resolution[0]}x"
+          f"{settings.resolution[1]}, {settings.n_threads} thread(s)", file=sys.stderr)
     with sigint_latch() as interrupts:
         with interrupts.deferred():
             compile_s = compile_kernels(lambda: warm_up(stack, settings))
@@ -121,7 +141,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         progress = ResumeAware(bar, interrupts.check)
 
         def on_resume(n: int) -> None:
-            progress.resumed(n * settings.rays)
+            progress.resumed(n * per)
             bar.write(f"resuming: {n} of {len(settings.incident_deg)} incident direction(s) already traced "
                       f"(checkpoints in {checkpoints.directory}; --restart to discard them)", file=sys.stderr)
 
@@ -193,8 +213,9 @@ def info_dict(path: Path) -> dict[str, Any]:
     """The JSON summary printed by ``gonio info --json``."""
     from goniometer.results import ENERGY_TERMS
     from goniometer import store
-    r = store.read(path)
-    s = r.settings
+    spectral = store.read(path)
+    r = spectral.rgb()   # a spectral file's energies are shown in linear sRGB; "spectral" lists the bins
+    s = spectral.settings
     d: dict[str, Any] = {
         "file": str(path),
         "material": {"name": r.stack.name, "category": r.stack.category, "base": r.stack.base,
@@ -203,15 +224,22 @@ def info_dict(path: Path) -> dict[str, Any]:
             "incident_deg": list(s.incident_deg), "incident_phi_deg": list(s.incident_phi_deg),
             "rays": s.rays, "parametrization": s.parametrization, "resolution": list(s.resolution),
             "seed": s.seed, "masking": s.masking, "max_order": s.max_order, "chunk_rays": s.chunk_rays,
-            "first_order": s.first_order,
+            "first_order": s.first_order, "spectral": s.spectral,
         },
         "sides": ["brdf"] + (["btdf"] if r.btdf is not None else []),
         "energy": [],
         "performance": {"threads": r.threads, "elapsed_s": float(np.sum(r.elapsed_s)),
-                        "rays_per_s": r.rays_per_s, "rays_per_s_per_thread": r.rays_per_s / r.threads,
+                        "rays_per_s": spectral.rays_per_s, "rays_per_s_per_thread": spectral.rays_per_s / r.threads,
                         "compile_s": r.compile_s},
         "capped_paths": int(np.sum(r.capped_paths)),
     }
+    if s.spectral:
+        wl = spectral.wavelengths_nm
+        d["spectral"] = {"wavelength_bins": s.wavelength_bins, "wavelength_nm": [float(x) for x in wl],
+                         "paths_per_incident": spectral.paths_per_incident,
+                         "energy_per_bin": [{k: [float(x) for x in spectral.energy[k][m]] for k in ENERGY_TERMS}
+                                            for m in range(len(spectral.theta_deg))],
+                         "energy_channels": "linear sRGB (D65) of the bins, docs/spectral.md section 4"}
     for m in range(len(r.theta_deg)):
         e = {"theta_deg": float(r.theta_deg[m]), "phi_deg": float(r.phi_deg[m])}
         for k in ENERGY_TERMS:
@@ -247,6 +275,11 @@ def cmd_info(args: argparse.Namespace) -> int:
           f"slices: {', '.join(d['sides'])}")
     if s["first_order"] == "integrated":
         print("  bounce order 1 integrated over the cells, not traced (its standard error is 0)")
+    if "spectral" in d:
+        sp = d["spectral"]
+        print(f"  spectral: {sp['wavelength_bins']} wavelength bins, {sp['wavelength_nm'][0]:.1f}-"
+              f"{sp['wavelength_nm'][-1]:.1f} nm (centres), {sp['paths_per_incident']:,} paths per incident "
+              f"direction; energies below in linear sRGB (D65)")
     print(f"  {p['rays_per_s']:,.0f} rays/s on {p['threads']} thread(s) ({p['elapsed_s']:.1f} s)")
     print(f"  {'theta_l':>7} {'phi_l':>6}  {'reflected (R G B)':>24}  {'transmitted':>24}  {'absorbed':>24}  {'masking_loss':>24}")
     for e in d["energy"]:

@@ -13,10 +13,12 @@ their area-weighted mean. At normal incidence an isotropic material's rows (u_y)
 set: each holds their mean. Nodes whose dual cell lies wholly below the horizon get the mean of their
 filled neighbours (the readers interpolate into them).
 
-Colour: the RGB file holds the run's channels. Until the project traces spectra (the spectral
-issue), the spectral file's ``spectra`` are the RGB values upsampled piecewise linearly through
-B at 465 nm, G at 550 nm and R at 610 nm, constant beyond (a grey stays flat, values stay within
-their channels' range), on 360-830 nm in 10 nm steps.
+Colour: from an RGB run, the RGB file holds the run's channels and the spectral file's ``spectra``
+are the RGB values upsampled piecewise linearly through B at 465 nm, G at 550 nm and R at 610 nm,
+constant beyond (a grey stays flat, values stay within their channels' range), on 360-830 nm in
+10 nm steps. From a spectral run (``docs/spectral.md``) the spectral file holds the traced spectra
+at the run's bin centres, and the RGB file their linear sRGB (D65), negative values (outside the
+sRGB gamut) clipped to 0; ``luminance`` is then the CIE Y of the bins.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ from goniometer.rgl.grid import VALID_SUB, RGLGrid
 from goniometer.rgl.tensor import TensorFile, read_tensor, write_tensor
 from goniometer.rgl.warp import bilinear
 
-__all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "fields_from_values",
+__all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "fields_from_spectra",
+           "fields_from_values",
            "rgb_to_spectrum", "stored_values"]
 
 #: the spectral file's wavelengths (the visible range pbrt-v4 samples, 360-830 nm)
@@ -127,7 +130,7 @@ def stored_values(grid: RGLGrid, value: np.ndarray) -> np.ndarray:
     at -180 deg."""
     n_t = len(grid.theta_i_deg)
     n_sim = len(grid.simulated_phi_deg())
-    out = np.empty((len(grid.phi_i_deg), n_t, 3, grid.n, grid.n))
+    out = np.empty((len(grid.phi_i_deg), n_t, value.shape[1], grid.n, grid.n))
     for m in range(value.shape[0]):
         area, _ = grid.cell_geometry(m)
         inv = _inverse_correction(grid, m)
@@ -170,33 +173,67 @@ def bsdf_fields(result, spectral: bool = False, description: str | None = None) 
         raise ExportError(f"{result.stack.name}: the stack is anisotropic but the file records one incident "
                           f"azimuth, which the readers take as an isotropic material; simulate with "
                           f"--rgl-grid N_THETA_IxN_PHI_IxN, N_PHI_I >= 3 (azimuths over [-180, 180])")
+    s = result.settings
+    traced = s.spectral
     if description is None:
-        s = result.settings
+        colour = ((f"spectra traced at {s.wavelength_bins} wavelength bins" if spectral else
+                   f"linear sRGB (D65) of spectra traced at {s.wavelength_bins} wavelength bins") if traced else
+                  ("spectra upsampled from RGB (B 465, G 550, R 610 nm, piecewise linear)" if spectral
+                   else "linear RGB"))
         description = (f"{result.stack.name}: simulated by goniometer {goniometer.__version__} "
-                       f"({s.rays:,} rays per incident direction, seed {s.seed}, {s.masking} masking); "
-                       f"stack {result.stack.to_json()}; warp NDF {json.dumps(grid.to_dict())}; "
-                       + ("spectra upsampled from RGB (B 465, G 550, R 610 nm, piecewise linear)" if spectral
-                          else "linear RGB"))
+                       f"({s.rays:,} rays per incident direction{' and wavelength bin' if traced else ''}, seed "
+                       f"{s.seed}, {s.masking} masking); stack {result.stack.to_json()}; warp NDF "
+                       f"{json.dumps(grid.to_dict())}; " + colour)
+    if traced:
+        return fields_from_spectra(grid, result.brdf.value, s.wavelength_bins, description, spectral)
     return fields_from_values(grid, result.brdf.value, description, spectral)
+
+
+def fields_from_spectra(grid: RGLGrid, value: np.ndarray, bins: int, description: str,
+                        spectral: bool = True) -> dict[str, np.ndarray]:
+    """The tensor file's fields from a spectral run's estimates ``value`` (M, bins, n, n): the
+    traced spectra at the bin centres (``spectral``), or their linear sRGB clipped to >= 0."""
+    from goniometer.spectral import rgb_weights, wavelength_bins, xyz_weights
+    centres, edges = wavelength_bins(bins)
+    S = stored_values(grid, value)                       # (Nphi, Ntheta, bins, n, n)
+    y = xyz_weights(edges)[:, 1]
+    lum = _luminance(np.tensordot(S, y, axes=([2], [0])))
+    fields = _common_fields(grid, description, lum)
+    if spectral:
+        fields["spectra"] = S.astype(np.float32)
+        fields["wavelengths"] = centres.astype(np.float32)
+    else:
+        rgb = np.moveaxis(np.tensordot(S, rgb_weights(edges), axes=([2], [0])), -1, 2)
+        fields["rgb"] = np.maximum(rgb, 0.0).astype(np.float32)
+    return fields
+
+
+def _luminance(lum: np.ndarray) -> np.ndarray:
+    """The ``luminance`` field (importance sampling only): floored at 1e-4 of each slice's peak."""
+    for idx in np.ndindex(lum.shape[:2]):
+        sl = lum[idx]
+        top = float(sl.max())
+        lum[idx] = np.maximum(sl, 1e-4 * top) if top > 0 else 1.0
+    return lum.astype(np.float32)
+
+
+def _common_fields(grid: RGLGrid, description: str, lum: np.ndarray) -> dict[str, np.ndarray]:
+    tab = grid.tables()
+    return {
+        "description": np.frombuffer(description.encode("utf-8"), dtype=np.uint8),
+        "jacobian": np.array([1], dtype=np.uint8),
+        "theta_i": tab["theta_i"], "phi_i": tab["phi_i"],
+        "ndf": tab["ndf"], "sigma": tab["sigma"], "vndf": tab["vndf"],
+        "luminance": lum,
+    }
 
 
 def fields_from_values(grid: RGLGrid, value: np.ndarray, description: str, spectral: bool = False) -> dict[str, np.ndarray]:
     """The tensor file's fields from estimates ``value`` (M, 3, n, n) on ``grid`` (see
     :func:`stored_values`)."""
-    tab = grid.tables()
     S = stored_values(grid, value).astype(np.float32)  # (Nphi, Ntheta, 3, n, n)
-    lum = np.tensordot(S.astype(np.float64), LUMINANCE, axes=([2], [0]))
-    for idx in np.ndindex(lum.shape[:2]):
-        sl = lum[idx]
-        top = float(sl.max())
-        lum[idx] = np.maximum(sl, 1e-4 * top) if top > 0 else 1.0
-    fields: dict[str, np.ndarray] = {
-        "description": np.frombuffer(description.encode("utf-8"), dtype=np.uint8),
-        "jacobian": np.array([1], dtype=np.uint8),
-        "theta_i": tab["theta_i"], "phi_i": tab["phi_i"],
-        "ndf": tab["ndf"], "sigma": tab["sigma"], "vndf": tab["vndf"],
-        "luminance": lum.astype(np.float32),
-    }
+    lum = _luminance(np.tensordot(S.astype(np.float64), LUMINANCE, axes=([2], [0])))
+    fields = _common_fields(grid, description, lum)
     if spectral:
         spec = rgb_to_spectrum(np.moveaxis(S.astype(np.float64), 2, -1))      # (..., n, n, L)
         fields["spectra"] = np.ascontiguousarray(np.moveaxis(spec, -1, 2)).astype(np.float32)

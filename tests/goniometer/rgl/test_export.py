@@ -58,16 +58,18 @@ def _eval(bsdf, wi, wo) -> np.ndarray:
     return out
 
 
-def _expected_estimates(grid, ref, sub: int = 6) -> np.ndarray:
+def _expected_estimates(grid, ref, sub: int = 6, evaluate=None, channels: int = 3) -> np.ndarray:
     """What the recording estimates at each node, from roughconductor: the dual cell's integral of
-    f cos / p over u (midpoint rule, ``sub`` x ``sub`` points), divided by the cell's measure."""
+    f cos / p over u (midpoint rule, ``sub`` x ``sub`` points), divided by the cell's measure.
+    ``evaluate(bsdf, wi, wo) -> (N, channels)`` (default :func:`_eval`, RGB)."""
+    evaluate = _eval if evaluate is None else evaluate
     n = grid.n
     edges = np.clip((np.arange(n + 1) - 0.5) / (n - 1), 0.0, 1.0)
     width = np.diff(edges)
     pts = edges[:-1, None] + width[:, None] * (np.arange(sub) + 0.5)[None, :] / sub
     ux = np.broadcast_to(pts[None, :, None, :], (n, n, sub, sub))
     uy = np.broadcast_to(pts[:, None, :, None], (n, n, sub, sub))
-    out = np.zeros((len(grid.theta_i_deg), 3, n, n))
+    out = np.zeros((len(grid.theta_i_deg), channels, n, n))
     for m in range(len(grid.theta_i_deg)):
         warp = grid.warp(m)
         x, y = warp.sample(ux, uy)
@@ -76,9 +78,9 @@ def _expected_estimates(grid, ref, sub: int = 6) -> np.ndarray:
         theta_m = 0.5 * math.pi * x * x
         p = warp.pdf(x, y) / (2 * math.pi ** 2 * x * np.sin(theta_m) * 4 * np.maximum(h @ l, 1e-300))
         ok = (v[..., 2] > 0) & (p > 0)
-        fc = np.zeros(v.shape[:-1] + (3,))
+        fc = np.zeros(v.shape[:-1] + (channels,))
         idx = np.argwhere(ok)
-        vals = _eval(ref, np.broadcast_to(l, (len(idx), 3)), v[ok])
+        vals = evaluate(ref, np.broadcast_to(l, (len(idx), 3)), v[ok])
         fc[ok] = vals / p[ok][:, None]
         area = width[:, None] * width[None, :]
         out[m] = np.moveaxis(fc.mean(axis=(2, 3)), -1, 0) * area / np.where(grid.cell_geometry(m)[0] > 0,
