@@ -38,6 +38,10 @@ def _built_in_models() -> list[Model]:
     from models.production import (GGXKullaConty, MitsubaPrincipled, MitsubaRoughPlastic, OpenPBRCoat,
                                    StandardSurfaceCoat)
     found += [OpenPBRCoat(), StandardSurfaceCoat(), GGXKullaConty(), MitsubaRoughPlastic(), MitsubaPrincipled()]
+    # thin-film iridescence (docs/spectral.md "Models", docs/iridescence-models.md)
+    from models.iridescence import BelcourIridescence
+    from models.production.openpbr_thin_film import OpenPBRThinFilm
+    found += [BelcourIridescence(), OpenPBRThinFilm()]
     # pbrt-v4's LayeredBxDF estimator (docs/pbrt-layered.md)
     from models.pbrt_layered import built_in_models as pbrt_layered
     found += pbrt_layered()

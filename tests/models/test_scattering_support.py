@@ -29,10 +29,12 @@ ISOTROPIC = Stack("appendix-e-g0", (Interface(0.0, (1.0,) * 3), Medium((0.4, 0.4
 ABSORBING = Stack("absorbing", (Interface(0.1, (1.5,) * 3), Medium((0.4, 0.4, 0.0), (0.0, 0.0, 0.9), 0.6),
                                 Lambertian((0.5,) * 3)), "plastic")
 
-BELCOUR = [n for n in registry.all_models() if n.startswith("belcour")]
+#: Belcour 2018's adding-doubling rows (belcour-iridescence is Belcour & Barla 2017: a single filmed
+#: interface, refusing media like the other analytic models)
+BELCOUR = [n for n in registry.all_models() if n.startswith("belcour") and n != "belcour-iridescence"]
 #: pbrt-v4's layered BSDF rows walk through HG media of any g (tests/models/test_pbrt_layered.py)
 PBRT = [n for n in registry.all_models() if n.startswith("pbrt-layered")]
-OTHERS = [n for n in registry.all_models() if not n.startswith("belcour") and n not in PBRT]
+OTHERS = [n for n in registry.all_models() if n not in BELCOUR and n not in PBRT]
 
 
 def _sigma_hg(g: float) -> float:
