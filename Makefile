@@ -53,10 +53,15 @@ demo: $(STAMP)
 	$(GONIO) export $(DEMO)/metal-rgl.h5 --format rgl --out $(DEMO)/metal_rgb.bsdf --overwrite
 	$(GONIO) export $(DEMO)/metal-rgl.h5 --format rgl --out $(DEMO)/metal_spec.bsdf --spectral --overwrite
 	@echo
+	@# spectral light (docs/spectral.md): measured gold in 30 wavelength bins, and a thin film
+	$(GONIO) simulate configs/examples/gold-spectral.toml --out $(DEMO)/gold-spectral.h5 --rays 20000 --overwrite
+	$(GONIO) simulate configs/examples/soap-film.toml --out $(DEMO)/soap-film.h5 --rays 20000 --incident 0,45 --overwrite
+	$(GONIO) render $(DEMO)/soap-film.h5 --out $(DEMO)/soap-film.png --light-angle 45 --size 256 --overwrite
+	@echo
 	$(GONIO) database simulate $(DATABASE) --out $(DEMO)/bati2019 --quality demo --only '*2-a0_0.2*'
 	$(GONIO) report $(DEMO)/bati2019 --out $(DEMO)/bati2019-report --overwrite
 	@echo
-	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5 and $(DEMO)/bati2019/"
+	@echo "demo files: $(DEMO)/plastic.h5 $(DEMO)/metal.h5 $(DEMO)/slab.h5, spectral $(DEMO)/gold-spectral.h5 $(DEMO)/soap-film.h5, and $(DEMO)/bati2019/"
 	@echo "the metal for Mitsuba 3 and pbrt-v4 (docs/rgl-format.md): $(abspath $(DEMO))/metal_rgb.bsdf (Mitsuba RGB), $(abspath $(DEMO))/metal_spec.bsdf (pbrt-v4, Mitsuba spectral)"
 	@echo "HTML report: $(abspath $(DEMO))/bati2019-report/index.html"
 
