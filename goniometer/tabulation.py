@@ -48,7 +48,13 @@ class TabulationError(ValueError):
 
 
 def check_tabulable(stack: Stack) -> None:
-    """Raise :class:`TabulationError` unless the stack's BRDF is isotropic (what the MERL grid holds)."""
+    """Raise :class:`TabulationError` unless the stack's BRDF is isotropic (what the MERL grid holds)
+    and has no thin film (a tabulation is an RGB run; a film needs wavelengths, docs/spectral.md)."""
+    for k, x in enumerate(stack.layers):
+        film = getattr(x, "film", None)
+        if film is not None and film.thickness_nm > 0.0:
+            raise TabulationError(f"{stack.name}: layers[{k}].film: a tabulation traces RGB (the MERL grid is RGB) "
+                                  f"and a thin film needs a spectral run; simulate slices with --spectral instead")
     for k, x in enumerate(stack.interfaces):
         if x.is_anisotropic:
             ax, ay = x.alpha_xy

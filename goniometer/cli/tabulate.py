@@ -58,6 +58,9 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
         settings = TabulationSettings(seed=base.seed, masking=base.masking).with_overrides(
             rays=args.rays, seed=args.seed, threads=args.threads)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
+    if stack.is_spectral:
+        print(f"note: {stack.name} has spectral data; a tabulation (RGB, the MERL grid) traces their RGB equivalents "
+              f"(docs/spectral.md section 3)", file=sys.stderr)
 
     print(f"tabulating {stack.name} ({stack.category}): {settings.rays:,} rays over the hemisphere "
           f"(cos-weighted), MERL grid 90x90x180, {settings.n_threads} thread(s)", file=sys.stderr)
