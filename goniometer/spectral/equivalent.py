@@ -16,16 +16,18 @@ from functools import lru_cache
 
 import numpy as np
 
+from goniometer.spectral.colorimetry import rgb_weights, xyz_weights
+from goniometer.spectral.spectrum import RANGE_NM
+
 __all__ = ["rgb_equivalent"]
 
 
 @lru_cache(maxsize=1)
 def _fine() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from goniometer import spectral
-    lo, hi = spectral.RANGE_NM
+    lo, hi = RANGE_NM
     edges = np.arange(lo, hi + 0.5, 1.0)
     centres = 0.5 * (edges[1:] + edges[:-1])
-    return centres, spectral.rgb_weights(edges), spectral.xyz_weights(edges)[:, 1]
+    return centres, rgb_weights(edges), xyz_weights(edges)[:, 1]
 
 
 def rgb_equivalent(spectrum, index: bool = False, lo: float = 0.0, hi: float | None = None) -> tuple[float, float, float]:
