@@ -61,12 +61,31 @@ __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_wal
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
            "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
            "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
-           "kernel_flags", "DEVICES", "Launch", "prepare", "launch", "no_exit_records"]
+           "kernel_flags", "DEVICES", "DeviceError", "check_device", "Launch", "prepare", "launch", "no_exit_records"]
 
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
 #: the devices a run may trace on (``SimulationSettings.device``; ``docs/gpu.md``)
 DEVICES = ("cpu", "cuda")
+
+
+class DeviceError(ValueError):
+    """A device a run cannot trace on (the message is one line, ``docs/gpu.md``)."""
+
+
+def check_device(device: str) -> None:
+    """Raise :class:`DeviceError` when ``device`` cannot trace here: ``"cuda"`` needs numba-cuda and
+    a visible CUDA GPU, or numba-cuda's simulator (``NUMBA_ENABLE_CUDASIM=1``, for tests)."""
+    if device not in DEVICES:
+        raise DeviceError(f"device: {device!r} is not one of {', '.join(DEVICES)}")
+    if device == "cpu":
+        return
+    import importlib.util
+    if importlib.util.find_spec("numba_cuda") is None:
+        raise DeviceError("device: cuda needs numba-cuda (pip install 'goniometer[cuda]')")
+    from numba import config, cuda
+    if not config.ENABLE_CUDASIM and not cuda.is_available():
+        raise DeviceError("device: cuda: no CUDA GPU is visible (numba.cuda.is_available() is False)")
 
 
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
@@ -161,6 +180,7 @@ def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = Non
     if exits is None:
         exits = no_exit_records(outs[0].shape[0])
     if run.device == "cuda":
+        check_device(run.device)
         from goniometer.kernel import cuda
         cuda.trace_batch(run, first_chunk, outs, exits)
         return
