@@ -29,7 +29,7 @@ ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
 #: results are bit-identical whatever the thread count)
 RUN_KEYS = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
             "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order", "rgl", "spectral",
-            "wavelength_bins")
+            "wavelength_bins", "device")
 
 
 def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
@@ -39,7 +39,7 @@ def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any
     d = settings.to_dict()
     s = {k: d[k] for k in RUN_KEYS
          if not (k == "first_order" and settings.first_order == "traced") and not (k == "rgl" and settings.rgl is None)
-         and k in d}   # an RGB run's dict has no spectral keys
+         and k in d}   # an RGB run's dict has no spectral keys, a CPU run's no device
     return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
 
 

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 
 from goniometer.rgl.grid import RGLGrid
-from goniometer.tracer import EVENT_CAP
+from goniometer.tracer import DEVICES, EVENT_CAP
 
 DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
 #: cell grids: theta/phi of v, of the half vector, or the RGL format's sample space (docs/rgl-format.md)
@@ -65,6 +65,10 @@ class SimulationSettings:
     spectral: bool = False
     #: equal bins over 360-830 nm of a spectral run (a multiple of 3: a path carries three)
     wavelength_bins: int = 30
+    #: where the paths are traced: "cpu" (the numba lane kernel) or "cuda" (an NVIDIA GPU through
+    #: numba-cuda, ``docs/gpu.md``; the same transport, other summation: the same run statistically,
+    #: not in bits)
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         inc = tuple(float(x) for x in self.incident_deg)
@@ -117,6 +121,8 @@ class SimulationSettings:
         if self.wavelength_bins % 3:
             raise SettingsError(f"wavelength_bins: {self.wavelength_bins} must be a multiple of 3 (each path "
                                 f"carries three wavelengths), e.g. {3 * max(1, round(self.wavelength_bins / 3))}")
+        if self.device not in DEVICES:
+            raise SettingsError(f"device: {self.device!r} is not one of {', '.join(DEVICES)}")
         if self.spectral and self.first_order == "integrated":
             raise SettingsError("first_order: integrated is for RGB runs; a spectral run traces bounce order 1")
 
@@ -168,14 +174,16 @@ class SimulationSettings:
 
     def to_dict(self) -> dict[str, Any]:
         """Every field, JSON-ready (tuples as lists, the RGL grid as its dict); :meth:`from_dict`
-        reads it back. The spectral fields are left out of an RGB run's dict (whose identity
-        predates them)."""
+        reads it back. The spectral fields are left out of an RGB run's dict, the device out of a
+        CPU run's (whose identities predate them)."""
         def plain(v: Any) -> Any:
             return list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, RGLGrid) else v
         out = {f.name: plain(getattr(self, f.name)) for f in fields(self)}
         if not self.spectral:
             out.pop("spectral")
             out.pop("wavelength_bins")
+        if self.device == "cpu":   # (the dicts of CPU runs predate the field: their identity stays)
+            out.pop("device")
         return out
 
     @classmethod

@@ -25,7 +25,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, ClassVar, Union
 
 import numpy as np
 
@@ -346,15 +346,21 @@ class PackedStack:
     if_ms: np.ndarray
     if_film: np.ndarray
 
+    #: the order in which every kernel takes the packed arrays (the CPU kernels' leading arguments,
+    #: the CUDA kernel's too: one order in one place, beside the event's table,
+    #: :func:`goniometer.kernel.layout.stack_table`)
+    KERNEL_FIELDS: ClassVar[tuple[str, ...]] = ("if_alpha", "if_rot", "if_ms", "if_film", "region_eta", "region_tau",
+                                                "region_albedo", "region_g", "cond", "rho", "base_kind")
+
     @property
     def has_film(self) -> bool:
         """True when some interface carries a film (of thickness > 0)."""
         return bool(np.any(self.if_film[:, FL_ON] != 0.0))
 
     def as_tuple(self) -> tuple:
-        """The stack arguments of :func:`goniometer.tracer.trace_batch`, in order."""
-        return (self.if_alpha, self.if_rot, self.if_ms, self.if_film, self.region_eta, self.region_tau,
-                self.region_albedo, self.region_g, self.cond, self.rho, self.base_kind)
+        """The stack arguments of the kernels (:func:`goniometer.tracer.trace_batch`), in
+        :data:`KERNEL_FIELDS` order."""
+        return tuple(getattr(self, f) for f in self.KERNEL_FIELDS)
 
 
 #: columns of ``PackedStack.if_film`` per interface: 1.0 where a film is present; the film's thickness

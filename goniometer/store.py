@@ -79,6 +79,8 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     sim.attrs["rays_per_s"] = r.rays_per_s
     sim.attrs["parametrization"] = s.parametrization
     sim.attrs["resolution"] = np.array(s.resolution, dtype=np.int64)
+    if s.device != "cpu":   # docs/gpu.md: absent on a CPU run's file (whose bytes predate the field)
+        sim.attrs["device"] = s.device
     wl = r.wavelengths_nm
     if s.spectral:   # docs/slices-format.md: the channel axis holds wavelength bins
         sim.attrs["spectral"] = True
@@ -446,6 +448,8 @@ def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
             d[key] = int(sim[key])
     if "first_order" in sim:
         d["first_order"] = str(sim["first_order"])
+    if "device" in sim:
+        d["device"] = str(sim["device"])
     if bool(sim.get("spectral", False)):
         d["spectral"] = True
         d["wavelength_bins"] = int(sim["wavelength_bins"])

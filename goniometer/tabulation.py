@@ -218,21 +218,18 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     counts = np.empty((B, tracer.N_COUNTS), dtype=np.int64)
     exit_cell = np.empty((B, cr), dtype=np.int64)
     exit_w = np.empty((B, cr, 3))
-    tables = boundary_tables("classic", 1, 1)
+    run = tracer.prepare(p, (0.0, 0.0, 1.0), settings.rays, cr, settings.seed, TAB_STREAM, tracer.P_TABULATE, 1, 1,
+                         boundary_tables("classic", 1, 1), 1, settings.event_cap,
+                         height_correlated=settings.masking == "height-correlated", tabulate=True)
     last_save = time.monotonic()
     try:
         while state.next_chunk < n_chunks:
             t0 = time.perf_counter()
             first = state.next_chunk
             nb = min(B, n_chunks - first)
-            tracer.trace_batch(*p.as_tuple(), 0.0, 0.0, 1.0, settings.rays, cr, first, settings.seed, TAB_STREAM,
-                               tracer.P_TABULATE, 1, 1, *tables, 1, settings.event_cap, False,
-                               *tracer.kernel_flags(p, settings.masking == "height-correlated", True),
-                               brdf[:nb], btdf[:nb], energy[:nb],
-                               energy_sq[:nb], counts[:nb],
-                               exit_cell[:nb], exit_w[:nb])
-            n_valid = np.array([max(0, min(cr, settings.rays - (first + b) * cr)) for b in range(nb)],
-                               dtype=np.int64)
+            tracer.launch(run, first, (brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb]),
+                          (exit_cell[:nb], exit_w[:nb]))
+            n_valid = run.chunk_sizes(first, nb)
             _commit(exit_cell[:nb], exit_w[:nb], n_valid, energy[:nb], energy_sq[:nb], counts[:nb], state.sums,
                     state.sums_sq, state.hits, state.energy, state.energy_sq, state.counts, state.chunk)
             state.elapsed_s += time.perf_counter() - t0

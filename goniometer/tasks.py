@@ -25,14 +25,15 @@ from goniometer.stack import Stack, pack
 
 def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
     """What decides which compiled code a local run of ``stack`` under ``settings`` needs: the
-    kernel's variant arguments (:func:`goniometer.tracer.kernel_flags`), the grid and the first
-    order (a spectral run: those of its launches). Two runs with the same key run the same
-    compiled functions."""
+    kernel's variant arguments (:func:`goniometer.tracer.kernel_flags`), the grid, the first
+    order and the device (a spectral run: those of its launches). Two runs with the same key run
+    the same compiled functions."""
     if settings.spectral:
         from goniometer.spectral.launches import launch_stacks
         return tuple(sorted({run_variant(st, s) for _, st, s in launch_stacks(stack, settings)}, key=repr))
     flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
-    return flags, settings.parametrization, settings.first_order
+    key = (flags, settings.parametrization, settings.first_order)
+    return key if settings.device == "cpu" else key + (settings.device,)
 
 
 def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = None) -> float:
@@ -61,7 +62,7 @@ def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = No
     # own numba functions are those of its tables
     tiny = SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4), chunk_rays=8, threads=1,
                               parametrization=s.parametrization if s.rgl is None else "classic", masking=s.masking,
-                              max_order=s.max_order, first_order=s.first_order, event_cap=s.event_cap)
+                              max_order=s.max_order, first_order=s.first_order, event_cap=s.event_cap, device=s.device)
     assemble(stack, tiny, [trace_incident(stack, tiny, 0)])
     if s.rgl is not None:
         s.rgl.tables()
@@ -96,9 +97,8 @@ def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[n
 
 
 def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Empty per-path exit records for ``n`` chunks of slices (:func:`goniometer.tracer.trace_chunk`
-    writes them only for a tabulation)."""
-    return np.empty((n, 0), dtype=np.int64), np.empty((n, 0, 3))
+    """Empty per-path exit records for ``n`` chunks of slices (:func:`goniometer.tracer.no_exit_records`)."""
+    return tracer.no_exit_records(n)
 
 
 def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
@@ -173,29 +173,25 @@ def _chunk_range(settings: SimulationSettings, first_task: int, count: int) -> t
     return first_chunk, max(0, min(count * cpt, n_chunks_total - first_chunk))
 
 
-def _kernel_inputs(stack: Stack, settings: SimulationSettings, m: int) -> tuple:
-    """The kernel's arguments before the chunk range, and after it, for incident direction ``m``:
-    worked out once per direction."""
-    p = pack(stack)
+def _kernel_inputs(stack: Stack, settings: SimulationSettings, m: int) -> tracer.Launch:
+    """The kernel launch of incident direction ``m`` (:func:`goniometer.tracer.prepare`): worked
+    out once per direction."""
     l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
     nt, nph = settings.resolution
     tables = settings.rgl.kernel_tables(m) if settings.rgl is not None else boundary_tables(settings.parametrization,
                                                                                               nt, nph)
-    head = (*p.as_tuple(), l[0], l[1], l[2], settings.rays, settings.chunk_rays)
-    tail = (settings.seed, m, PARAMETRIZATIONS[settings.parametrization], nt, nph, *tables, settings.max_order,
-            settings.event_cap, settings.first_order == "integrated",
-            *tracer.kernel_flags(p, settings.masking == "height-correlated", False))
-    return head, tail
+    return tracer.prepare(pack(stack), l, settings.rays, settings.chunk_rays, settings.seed, m,
+                          PARAMETRIZATIONS[settings.parametrization], nt, nph, tables, settings.max_order,
+                          settings.event_cap, settings.first_order == "integrated",
+                          height_correlated=settings.masking == "height-correlated", device=settings.device)
 
 
-def _run_kernel(inputs: tuple, settings: SimulationSettings, first_chunk: int, outs: tuple[np.ndarray, ...],
+def _run_kernel(run: tracer.Launch, settings: SimulationSettings, first_chunk: int, outs: tuple[np.ndarray, ...],
                 parallel: bool) -> None:
     """Trace chunks ``first_chunk .. first_chunk + len(outs[0]) - 1`` into ``outs``."""
-    head, tail = inputs
-    if parallel:
+    if parallel and run.device == "cpu":
         numba.set_num_threads(settings.n_threads)
-    kernel = tracer.trace_batch if parallel else tracer.trace_batch_serial
-    kernel(*head, first_chunk, *tail, *outs, *no_exit_records(outs[0].shape[0]))
+    tracer.launch(run, first_chunk, outs, parallel=parallel)
 
 
 def task_rays(settings: SimulationSettings, task: int) -> int:

@@ -36,6 +36,8 @@ nor the number of threads changes a result. Kernel inputs are flat arrays (see
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 
@@ -51,62 +53,141 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       TAU_SCATTER, relative_indices, stack_table, tau_modes)
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import continue_walk, free_flight, microsurface_walk
+from goniometer.kernel.variants import KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS, StackFacts, stack_facts, variant_flags
 from goniometer.rng import chunk_key, stream_state
-from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
+from goniometer.stack import PackedStack
 
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
            "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
            "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
-           "kernel_flags"]
+           "kernel_flags", "DEVICES", "DeviceError", "check_device", "Launch", "prepare", "launch", "no_exit_records"]
 
 #: default hard cap on the number of events of one path (reported if ever reached)
 EVENT_CAP = 10_000
-#: ``kernel`` of :func:`kernel_flags`: the kernel commands use (the lane kernel, :func:`trace_chunk`,
-#: for every stack), the lane kernel, or the per-path kernel
-#: (:func:`goniometer.kernel.paths.trace_paths`: the second implementation the tests check the
-#: lane kernel against, docs/kernel.md)
-KERNEL_AUTO = 0
-KERNEL_LANES = 1
-KERNEL_PATHS = 2
+#: the devices a run may trace on (``SimulationSettings.device``; ``docs/gpu.md``)
+DEVICES = ("cpu", "cuda")
 
+
+class DeviceError(ValueError):
+    """A device a run cannot trace on (the message is one line, ``docs/gpu.md``)."""
+
+
+def check_device(device: str) -> None:
+    """Raise :class:`DeviceError` when ``device`` cannot trace here: ``"cuda"`` needs numba-cuda and
+    a visible CUDA GPU, or numba-cuda's simulator (``NUMBA_ENABLE_CUDASIM=1``, for tests)."""
+    if device not in DEVICES:
+        raise DeviceError(f"device: {device!r} is not one of {', '.join(DEVICES)}")
+    if device == "cpu":
+        return
+    import importlib.util
+    if importlib.util.find_spec("numba_cuda") is None:
+        raise DeviceError("device: cuda needs numba-cuda (pip install 'goniometer[cuda]')")
+    from numba import config, cuda
+    if not config.ENABLE_CUDASIM and not cuda.is_available():
+        raise DeviceError("device: cuda: no CUDA GPU is visible (numba.cuda.is_available() is False)")
 
 
 def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
     """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film)``. ``kernel``:
-    ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or
-    ``KERNEL_PATHS``. numba dispatches on None versus bool, so each variant is compiled (and
-    cached) only when some stack needs it."""
-    if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
-        raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
-    p = packed
-    n_if = p.region_eta.shape[0] - 1
-    # the masking setting concerns single-scattering interfaces only (a walk is height-correlated
-    # by construction): without one, both settings trace the same variant, hence the same bits
-    height_correlated = height_correlated and n_if > 0 and not bool(np.all(p.if_ms[:n_if]))
-    lanes = kernel != KERNEL_PATHS
+    ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film)``
+    (:func:`goniometer.kernel.variants.variant_flags` of the stack's facts). ``kernel``:
+    ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or ``KERNEL_PATHS`` (the per-path kernel,
+    :func:`goniometer.kernel.paths.trace_paths`: the second implementation the tests check the lane
+    kernel against, docs/kernel.md). numba dispatches on None versus bool, so each variant is
+    compiled (and cached) only when some stack needs it."""
+    return variant_flags(stack_facts(packed), height_correlated, tabulate, kernel)
 
-    def flag(x: bool):
-        return True if x else None
 
-    if not lanes:
-        # the per-path kernel has no variants but the masking's (one compiled kernel per masking)
-        return None, flag(height_correlated), None, None, None, None, None, None, None, None, None
-    aniso = bool(np.any(p.if_alpha[:, 0] != p.if_alpha[:, 1]) or np.any(p.if_rot[:, 1] != 0.0))
-    cond = p.base_kind == BASE_CONDUCTOR
-    c = p.cond
-    ms = bool(np.any(p.if_ms[:n_if])) if n_if > 0 else False
-    scattering = bool(np.any(tau_modes(p.region_tau, p.region_albedo) >= TAU_SCATTER))
-    g_is_r = cond and c[1] == c[0] and c[4] == c[3]
-    b_is_g = cond and c[2] == c[1] and c[5] == c[4]
-    if height_correlated:
-        # the rarer masking gets fewer, more general variants (each is a compile of its own): the
-        # tangent-frame rotation (exact for an isotropic stack) and three conductor channels
-        aniso = True
-        g_is_r = b_is_g = False
-    return (True, flag(height_correlated), flag(tabulate), flag(scattering), flag(p.base_kind == BASE_LAMBERTIAN),
-            flag(cond), flag(g_is_r), flag(b_is_g), flag(aniso), flag(ms), flag(p.has_film))
+# ---------------------------------------------------------------------- the launch seam
+
+@dataclass(frozen=True, eq=False)
+class Launch:
+    """A run's kernel call, prepared once (:func:`prepare`) and launched per batch of chunks
+    (:func:`launch`; ``docs/gpu.md``, the seam): the stack's facts and its packed arrays (in
+    :data:`goniometer.stack.PackedStack.KERNEL_FIELDS` order), the variant, the light direction,
+    the chunk arithmetic's numbers, the grid and its boundary tables, and the device.
+
+    ``stream`` is the incident index of the random keys (a tabulation's own stream); ``flags``
+    the variant (:func:`kernel_flags`); ``tables`` the grid's boundary tables
+    (:func:`goniometer.slices.boundary_tables`, or an RGL grid's kernel tables)."""
+
+    facts: StackFacts
+    flags: tuple
+    light: tuple
+    n_rays: int
+    chunk_rays: int
+    seed: int
+    stream: int
+    param: int
+    n_theta: int
+    n_phi: int
+    tables: tuple
+    max_order: int
+    event_cap: int
+    skip_first: bool
+    device: str = "cpu"
+
+    @property
+    def stack_args(self) -> tuple:
+        """The packed stack's arrays, in the kernels' order."""
+        return self.facts.packed.as_tuple()
+
+    @property
+    def n_chunks(self) -> int:
+        """Chunks of the run's ``n_rays`` (chunk ``c``: rays ``c * chunk_rays`` up to
+        ``min((c + 1) * chunk_rays, n_rays)``, as :func:`trace_slot` reads them)."""
+        return -(-self.n_rays // self.chunk_rays)
+
+    def chunk_sizes(self, first_chunk: int, count: int) -> np.ndarray:
+        """Rays of chunks ``first_chunk .. first_chunk + count - 1`` (0 past the last)."""
+        c = np.arange(first_chunk, first_chunk + count, dtype=np.int64)
+        return np.clip(self.n_rays - c * self.chunk_rays, 0, self.chunk_rays)
+
+
+def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int, stream: int, param: int,
+            n_theta: int, n_phi: int, tables: tuple, max_order: int, event_cap: int, skip_first: bool = False,
+            height_correlated: bool = False, tabulate: bool = False, kernel: int = KERNEL_AUTO,
+            device: str = "cpu") -> Launch:
+    """The :class:`Launch` of a run: the stack's facts and the variant worked out once.
+    ``device``: one of :data:`DEVICES` (``"cuda"``: :mod:`goniometer.kernel.cuda`, one kernel for
+    every stack; ``kernel`` then must be ``KERNEL_AUTO``)."""
+    if device not in DEVICES:
+        raise ValueError(f"device: {device!r} is not one of {', '.join(DEVICES)}")
+    if device != "cpu" and kernel != KERNEL_AUTO:
+        raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
+    facts = stack_facts(packed)
+    flags = variant_flags(facts, height_correlated, tabulate, kernel)
+    return Launch(facts, flags, (float(light[0]), float(light[1]), float(light[2])), int(n_rays), int(chunk_rays),
+                  int(seed), int(stream), int(param), int(n_theta), int(n_phi), tuple(tables), int(max_order),
+                  int(event_cap), bool(skip_first), device)
+
+
+def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Empty per-path exit records for ``n`` chunks of slices (:func:`trace_chunk` writes them only
+    for a tabulation)."""
+    return np.empty((n, 0), dtype=np.int64), np.empty((n, 0, 3))
+
+
+def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = None, parallel: bool = True) -> None:
+    """Trace chunks ``first_chunk .. first_chunk + B - 1`` of ``run`` into ``outs`` = (brdf, btdf,
+    energy, energy_sq, counts), each with a leading dimension B (one slot per chunk, zeroed here;
+    the layouts of :func:`trace_chunk`); ``exits`` = (exit_cell, exit_w) per path for a
+    tabulation (None: none). On the CPU ``parallel`` runs the chunks on numba's threads
+    (:func:`trace_batch`; the caller sets their number), otherwise one after the other
+    (:func:`trace_batch_serial`): the same bits. A ``"cuda"`` run traces on the GPU
+    (:func:`goniometer.kernel.cuda.trace_batch`)."""
+    if exits is None:
+        exits = no_exit_records(outs[0].shape[0])
+    if run.device == "cuda":
+        check_device(run.device)
+        from goniometer.kernel import cuda
+        cuda.trace_batch(run, first_chunk, outs, exits)
+        return
+    kernel = trace_batch if parallel else trace_batch_serial
+    kernel(*run.stack_args, *run.light, run.n_rays, run.chunk_rays, first_chunk, run.seed, run.stream, run.param,
+           run.n_theta, run.n_phi, *run.tables, run.max_order, run.event_cap, run.skip_first, *run.flags, *outs,
+           *exits)
 
 
 @numba.njit(cache=True, error_model='numpy')

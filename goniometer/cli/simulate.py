@@ -44,6 +44,10 @@ def register(sub) -> None:
                    help=f"cells per slice, e.g. 90x360 (default: {FROM_FILE}{d['resolution']})")
     p.add_argument("--seed", type=whole_number, help=f"random seed (default: {FROM_FILE}{d['seed']})")
     p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
+    p.add_argument("--device", choices=("cpu", "cuda"),
+                   help="where the paths are traced: cpu (numba threads) or cuda (an NVIDIA GPU through numba-cuda, "
+                        "pip install 'goniometer[cuda]'; the same transport, other bits: docs/gpu.md) "
+                        f"(default: {FROM_FILE}cpu)")
     p.add_argument("--masking", choices=("separable", "height-correlated"),
                    help=f"microfacet masking-shadowing (default: {FROM_FILE}{d['masking']})")
     p.add_argument("--max-order", dest="max_order", type=whole_number,
@@ -107,7 +111,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.resolution is not None:
         over["resolution"] = resolution(args.resolution)
     for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order", "first_order", "spectral",
-                "wavelength_bins"):
+                "wavelength_bins", "device"):
         value = getattr(args, key)
         if value is not None:
             over[key] = value
@@ -120,6 +124,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             settings = base.with_overrides(**over)
         if settings.first_order == "integrated":
             check_supported(stack)
+    from goniometer.tracer import DeviceError, check_device
+    with usage_errors(DeviceError):
+        check_device(settings.device)
     with usage_errors(StackError):
         per = _paths_per_incident(stack, settings)
         if not settings.spectral:
@@ -190,7 +197,7 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     if args.rgl_grid is not None or grid is None:
         grid = grid_for(stack, *(parse_grid(args.rgl_grid) if args.rgl_grid is not None else (None, None, None)))
     fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
-                                            "spectral", "wavelength_bins")}
+                                            "spectral", "wavelength_bins", "device")}
     fields.update({k: v for k, v in over.items() if k != "parametrization"})
     if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):
         print(f"warning: {stack.name} is anisotropic but the RGL grid has one incident azimuth: the readers take "
