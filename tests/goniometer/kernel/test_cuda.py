@@ -63,7 +63,6 @@ def test_cuda_without_a_gpu_is_one_line(tmp_path):
     assert not (tmp_path / "m.h5").exists()
 
 
-@pytest.mark.slow
 @pytest.mark.skipif(not HAS_NUMBA_CUDA, reason="numba-cuda is not installed")
 def test_the_cuda_kernel_in_the_simulator_traces_its_twins_paths():
     """Under the simulator (tiny grids, a few thousand paths): the kernel's integer sums are its CPU
@@ -71,7 +70,7 @@ def test_the_cuda_kernel_in_the_simulator_traces_its_twins_paths():
     every ray's unit weight is accounted for; a metal (height-correlated masking), a scattering
     medium under walks over a Lambertian base, filmed walks over a transmitting base."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", PYTHONPATH=str(ROOT))
-    r = subprocess.run([sys.executable, str(ROOT / "tests/goniometer/kernel/cuda_sim_check.py"), "1500"],
+    r = subprocess.run([sys.executable, str(ROOT / "tests/goniometer/kernel/cuda_sim_check.py"), "1000"],
                        env=env, capture_output=True, text=True, cwd=ROOT, timeout=900)
     assert r.returncode == 0 and "ALL OK" in r.stdout, r.stdout + r.stderr
 
@@ -97,8 +96,8 @@ def _twin(stack, seed, height_correlated=False):
     return out
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(two.STACKS))
+@pytest.mark.parametrize("name", [n if n == "metal" else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in sorted(two.STACKS)])
 def test_the_cuda_transport_agrees_with_the_lane_kernel(name):
     """The CUDA kernel's transport (its CPU twin, 240 000 paths) against the lane kernel on every
     two-kernel test stack: chi-square per cell and every energy term within standard errors."""
