@@ -95,3 +95,34 @@ def refused(capsys, argv, *needles) -> str:
     for n in needles:
         assert str(n) in err[0], (n, err[0])
     return err[0]
+
+
+#: physics checks that repeat a regular test's claim on a costlier case (a further kernel variant
+#: to compile, a deeper walk), run by ``make test-slow`` (``-m slow``) rather than by every
+#: ``make test``; each claim keeps a case in the regular suite (named after the arrow)
+SLOW_CASES = {
+    "tests/goniometer/test_cli.py::test_ctrl_c_leaves_no_partial_file[compiling]":
+        "a fresh compile under Ctrl-C -> [tracing] stays",
+    "tests/goniometer/test_multiple_scattering.py::test_multiple_scattering_brdf_is_reciprocal":
+        "reciprocity of walks -> the white furnaces and first-bounce checks stay",
+    "tests/goniometer/test_multiple_scattering.py::test_first_bounce_is_single_scattering[dielectric]":
+        "-> [conductor] and [dielectric-inverted] stay",
+    "tests/goniometer/test_multiple_scattering.py::test_white_furnace_dielectric[aniso]":
+        "-> [a0.5], [a1], [eta0.6], [slab] stay",
+    "tests/goniometer/test_first_order.py::test_multiple_scattering_top_integrates_its_one_bounce_walks[coat-over-cloud]":
+        "-> the other stacks of the test stay",
+    "tests/goniometer/kernel/test_two_kernels.py::test_tabulations_agree_between_kernels[scattering-ms-plastic]":
+        "-> the other tabulation stacks stay",
+    "tests/goniometer/kernel/test_two_kernels.py::test_lane_and_path_kernels_agree[ms-aniso-metal]":
+        "-> [ms-slab], [aniso-plastic] and the other stacks stay",
+    "tests/benchmarks/test_reference_kernel.py::test_reference_kernel_agrees_with_simulator[metal]":
+        "-> [plastic] stays",
+    "tests/goniometer/test_reached_base.py::test_light_that_turns_around_in_the_medium_matches_a_black_base_run":
+        "-> test_everything_a_black_base_reflects_never_reached_it stays",
+}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.nodeid in SLOW_CASES:
+            item.add_marker(pytest.mark.slow)
