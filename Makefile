@@ -29,9 +29,8 @@ $(STAMP): pyproject.toml examples/plugin-model/pyproject.toml
 
 setup: $(STAMP)
 
-# two workers, whole files per worker (module fixtures built once); numba's on-disk cache is shared
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow
