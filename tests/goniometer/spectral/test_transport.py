@@ -167,3 +167,23 @@ def test_a_table_that_does_not_cover_the_bins_is_refused():
         {"type": "lambertian", "albedo": {"wavelength_nm": [400, 700], "value": [0.2, 0.8]}}]})
     with pytest.raises(StackError, match=r"layers\[1\].albedo: the table covers 400-700 nm"):
         g.simulate(stack, _settings(rays=100))
+
+
+def test_a_resumed_spectral_run_has_the_bits_of_an_uninterrupted_one(tmp_path):
+    """Checkpoints hold a spectral incident direction's bins (docs/spectral.md, docs/outputs.md):
+    a run that finds one direction checkpointed traces only the other and ends with the same bits."""
+    from goniometer.checkpoint import Checkpoints
+    from goniometer.results import run_description
+    from goniometer.run import run_incidents
+    stack = stack_from_dict(GOLD)
+    s = _settings(rays=4000, resolution=(4, 8))
+    whole = run_incidents(stack, s)
+    ck = Checkpoints(tmp_path / "ck", run_description(stack, s))
+    run_incidents(stack, s, checkpoints=ck)              # saves both directions
+    (tmp_path / "ck" / "m01.npz").unlink()               # as if interrupted after the first
+    resumed = []
+    again = run_incidents(stack, s, checkpoints=ck, on_resume=resumed.append)
+    assert resumed == [1]
+    for a, b in ((whole.brdf.value, again.brdf.value), (whole.brdf.stderr, again.brdf.stderr),
+                 (whole.energy["reflected"], again.energy["reflected"])):
+        assert np.array_equal(a, b)
