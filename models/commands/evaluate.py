@@ -74,7 +74,8 @@ def cmd_models(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({n: {"description": m.description, "sides": list(m.sides), "fitted": n in FITTED,
                               "anisotropic": bool(m.anisotropic), "scattering": bool(m.scattering),
-                              "source": source[n]}
+                              "films": bool(getattr(m, "films", False)),
+                              "on_request": bool(getattr(m, "on_request", False)), "source": source[n]}
                           for n, m in models.items()}, indent=2))
         return 0
     width = max(len(n) for n in models)
@@ -91,6 +92,12 @@ def cmd_models(args: argparse.Namespace) -> int:
           "goniometer.models; --model also takes python:MODULE:NAME and mitsuba:FILE.xml|.json, docs/models.md)")
     print("(aniso: evaluates anisotropic stacks; the others skip them unless --isotropize mean)")
     print("(scatter: accepts scattering media (scattering_albedo > 0); the belcour-* models need g >= 0.1)")
+    films = [n for n, m in models.items() if getattr(m, "films", False) and n not in FITTED]
+    if films:
+        print(f"(thin films on interfaces: {', '.join(films)}; the others skip filmed stacks, docs/spectral.md)")
+    asked = [n for n, m in models.items() if getattr(m, "on_request", False)]
+    if asked:
+        print(f"(evaluated only when named with --model: {', '.join(asked)})")
     print("(fitted models are fitted to a file on request: gonio fit FILE.h5 --model hp15|ggx1|ggx2, "
           "or gonio evaluate FILE.h5 --model hp15-fit)")
     return 0
