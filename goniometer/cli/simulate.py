@@ -212,13 +212,34 @@ def _print_summary(r) -> None:
           f"compile/load {r.compile_s:.1f} s")
     if r.settings.spectral:
         print(f"spectral: {r.settings.wavelength_bins} wavelength bins ({r.paths_per_incident:,} paths per incident "
-              f"direction); energies in linear sRGB (D65) of the bins (per bin: gonio info --json)")
-        r = r.rgb()
+              f"direction); energies as the CIE Y (D65) of the bins and their range over the bins (per bin: "
+              f"gonio info --json)")
+        _print_spectral_energies(r)
+        return
     print(f"{'theta_l':>8} {'phi_l':>6}  {'reflected (R G B)':>26}  {'transmitted':>26}  {'absorbed':>26}  {'masking_loss':>26}")
     for m in range(len(r.theta_deg)):
         row = [f"{r.theta_deg[m]:8.2f}", f"{r.phi_deg[m]:6.1f}"]
         for k in ENERGY_TERMS:
             row.append(" ".join(f"{x:8.5f}" for x in r.energy[k][m]))
+        print("  ".join(row))
+    if np.any(r.capped_paths):
+        print(f"warning: {int(np.sum(r.capped_paths))} path(s) reached the event cap of {r.settings.event_cap}; "
+              f"their weight is in /energy/capped")
+
+
+def _print_spectral_energies(r) -> None:
+    """Per incident direction and energy term: the fraction's CIE Y (D65 weights of the bins, a
+    luminance: within [0, 1] as every bin is) and its smallest and largest bin."""
+    from goniometer.results import ENERGY_TERMS
+    from goniometer.spectral import wavelength_bins, xyz_weights
+    y = xyz_weights(wavelength_bins(r.settings.wavelength_bins)[1])[:, 1]
+    y = y / y.sum()
+    print(f"{'theta_l':>8} {'phi_l':>6}  " + "  ".join(f"{k + ' Y [min, max]':>26}" for k in ENERGY_TERMS))
+    for m in range(len(r.theta_deg)):
+        row = [f"{r.theta_deg[m]:8.2f}", f"{r.phi_deg[m]:6.1f}"]
+        for k in ENERGY_TERMS:
+            e = r.energy[k][m]
+            row.append(f"{float(e @ y):8.5f} [{e.min():7.5f}, {e.max():7.5f}]")
         print("  ".join(row))
     if np.any(r.capped_paths):
         print(f"warning: {int(np.sum(r.capped_paths))} path(s) reached the event cap of {r.settings.event_cap}; "
@@ -297,7 +318,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         sp = d["spectral"]
         print(f"  spectral: {sp['wavelength_bins']} wavelength bins, {sp['wavelength_nm'][0]:.1f}-"
               f"{sp['wavelength_nm'][-1]:.1f} nm (centres), {sp['paths_per_incident']:,} paths per incident "
-              f"direction; energies below in linear sRGB (D65)")
+              f"direction; energies below in linear sRGB (D65), whose components fall below 0 or above 1 for "
+              f"colours outside the sRGB gamut (per bin: --json, spectral.energy_per_bin)")
     print(f"  {p['rays_per_s']:,.0f} rays/s on {p['threads']} thread(s) ({p['elapsed_s']:.1f} s)")
     print(f"  {'theta_l':>7} {'phi_l':>6}  {'reflected (R G B)':>24}  {'transmitted':>24}  {'absorbed':>24}  {'masking_loss':>24}")
     for e in d["energy"]:
