@@ -54,7 +54,7 @@ demo: $(STAMP)
 	@echo
 	@# spectral light (docs/spectral.md): measured gold in 30 wavelength bins, and a thin film
 	$(GONIO) simulate configs/examples/gold-spectral.toml --out $(DEMO)/gold-spectral.h5 --rays 20000 --overwrite
-	$(GONIO) simulate configs/examples/soap-film.toml --out $(DEMO)/soap-film.h5 --rays 20000 --incident 0,45 --overwrite
+	$(GONIO) simulate configs/examples/soap-film.toml --out $(DEMO)/soap-film.h5 --rays 50000 --incident 0,20,40,60,80 --overwrite
 	$(GONIO) render $(DEMO)/soap-film.h5 --out $(DEMO)/soap-film.png --light-angle 45 --size 256 --overwrite
 	@echo
 	$(GONIO) database simulate $(DATABASE) --out $(DEMO)/bati2019 --quality demo --only '*2-a0_0.2*'
