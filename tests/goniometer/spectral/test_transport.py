@@ -142,7 +142,10 @@ def test_rgb_of_a_constant_index_dielectric_equals_the_rgb_run():
         assert ok.sum() > 100 and np.mean(z * z) < 1.0 + 4.0 * math.sqrt(2.0 / ok.sum()), (side, ok.sum(), np.mean(z * z))
     for k in ("reflected", "transmitted"):
         d = spec.energy[k] - rgb.energy[k]
-        assert np.all(np.abs(d) < Z_TOL * np.hypot(spec.energy_stderr[k], rgb.energy_stderr[k]) + 1e-4), (k, d)
+        # beside both noises, the colour pipeline's white residual: a constant spectrum c maps to c
+        # within 1.7e-4 c (docs/spectral.md section 4)
+        slack = 1.7e-4 * np.abs(rgb.energy[k])
+        assert np.all(np.abs(d) < Z_TOL * np.hypot(spec.energy_stderr[k], rgb.energy_stderr[k]) + slack), (k, d)
 
 
 def test_energy_is_conserved_per_bin(gold_run):
