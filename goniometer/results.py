@@ -265,8 +265,7 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     masks = [g[1] for g in geometry]
     first = None
     if settings.first_order == "integrated":
-        first = [first_order_fractions(stack, settings.parametrization, nt, nph, light_direction(t, p),
-                                       settings.masking)
+        first = [_first_order(stack, settings, light_direction(t, p))
                  for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
     brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n, first)
     btdf = None
@@ -290,6 +289,21 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
         threads=settings.n_threads, compile_s=compile_s,
         reflected_without_base=unbased, reflected_without_base_stderr=unbased_se,
     )
+
+
+def _first_order(stack: Stack, settings: SimulationSettings, light: np.ndarray) -> np.ndarray:
+    """Bounce order 1 integrated (:func:`goniometer.first_order.first_order_fractions`) for one
+    incident direction, (C, n_theta, n_phi): per RGB channel, or per wavelength bin of a spectral
+    run from the three-channel stack of the launch that traced the bin (``docs/spectral.md`` §2)."""
+    nt, nph = settings.resolution
+    if not settings.spectral:
+        return first_order_fractions(stack, settings.parametrization, nt, nph, light, settings.masking)
+    from goniometer.spectral.launches import launch_stacks
+    out = np.zeros((settings.wavelength_bins, nt, nph))
+    for bins, st, _ in launch_stacks(stack, settings):
+        out[list(bins)] = first_order_fractions(st, settings.parametrization, nt, nph, light,
+                                                settings.masking)[:len(bins)]
+    return out
 
 
 def _launch_count(stack: Stack, settings: SimulationSettings) -> int:

@@ -123,8 +123,6 @@ class SimulationSettings:
                                 f"carries three wavelengths), e.g. {3 * max(1, round(self.wavelength_bins / 3))}")
         if self.device not in DEVICES:
             raise SettingsError(f"device: {self.device!r} is not one of {', '.join(DEVICES)}")
-        if self.spectral and self.first_order == "integrated":
-            raise SettingsError("first_order: integrated is for RGB runs; a spectral run traces bounce order 1")
 
     def _validate_rgl(self) -> None:
         if self.parametrization != "rgl":
