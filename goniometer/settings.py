@@ -31,8 +31,28 @@ class SettingsError(ValueError):
     """Invalid simulation settings; the message names the field and the allowed range."""
 
 
+class _Channels:
+    """The channel axis of a run's per-channel quantities (fields ``spectral`` and ``wavelength_bins``)."""
+
+    spectral: bool
+    wavelength_bins: int
+
+    @property
+    def wavelengths_nm(self) -> np.ndarray | None:
+        """The centres (nm) of the wavelength bins of a spectral run; None for an RGB run."""
+        if not self.spectral:
+            return None
+        from goniometer.spectral import wavelength_bins
+        return wavelength_bins(self.wavelength_bins)[0]
+
+    @property
+    def n_channels(self) -> int:
+        """Entries per per-channel quantity: 3 (R, G, B) or the wavelength bins."""
+        return self.wavelength_bins if self.spectral else 3
+
+
 @dataclass(frozen=True)
-class SimulationSettings:
+class SimulationSettings(_Channels):
     """What to simulate. ``rays`` is per incident direction.
 
     ``incident_deg`` are elevations theta_l in [0, 90); ``incident_phi_deg`` azimuths in
@@ -157,19 +177,6 @@ class SimulationSettings:
         """A copy with the given non-None fields replaced."""
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
 
-    @property
-    def wavelengths_nm(self) -> np.ndarray | None:
-        """The centres (nm) of the wavelength bins of a spectral run; None for an RGB run."""
-        if not self.spectral:
-            return None
-        from goniometer.spectral import wavelength_bins
-        return wavelength_bins(self.wavelength_bins)[0]
-
-    @property
-    def n_channels(self) -> int:
-        """Entries per per-channel quantity: 3 (R, G, B) or the wavelength bins."""
-        return self.wavelength_bins if self.spectral else 3
-
     def to_dict(self) -> dict[str, Any]:
         """Every field, JSON-ready (tuples as lists, the RGL grid as its dict); :meth:`from_dict`
         reads it back. The spectral fields are left out of an RGB run's dict, the device out of a
@@ -275,7 +282,7 @@ TABULATE_RAYS = 200_000_000
 
 
 @dataclass(frozen=True)
-class TabulationSettings:
+class TabulationSettings(_Channels):
     """What to tabulate (``docs/tabulated-format.md``): ``rays`` paths in all, each with its own
     incident direction. ``seed`` and ``chunk_rays`` (rays per random stream) make the determinism
     contract: the same pair gives the same bits whatever ``threads``. Fields mean what they mean
@@ -287,13 +294,18 @@ class TabulationSettings:
     threads: int | None = None
     chunk_rays: int = 1 << 16
     event_cap: int = EVENT_CAP
+    #: a spectral tabulation (``docs/spectral.md`` section 1): ``rays`` paths per wavelength bin
+    spectral: bool = False
+    wavelength_bins: int = 30
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         self.validate()
 
     def validate(self) -> None:
         SimulationSettings(incident_deg=(0.0,), rays=self.rays, seed=self.seed, masking=self.masking,
-                           threads=self.threads, chunk_rays=self.chunk_rays, event_cap=self.event_cap)
+                           threads=self.threads, chunk_rays=self.chunk_rays, event_cap=self.event_cap,
+                           spectral=self.spectral, wavelength_bins=self.wavelength_bins, device=self.device)
 
     @property
     def n_threads(self) -> int:

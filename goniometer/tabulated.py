@@ -33,6 +33,8 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "TabulatedBRDF", "TabulatedError", "from_
 FORMAT = "goniometer.tabulated"
 FORMAT_VERSION = 1
 CHANNELS = ("R", "G", "B")
+#: the channel scale of a spectral tabulation (as in a slices file, ``docs/spectral.md``)
+WAVELENGTH = "wavelength_nm"
 #: energy terms of a tabulation: the four of a slices file and the part of ``reflected`` that never
 #: reached the base
 TAB_ENERGY_TERMS = ENERGY_TERMS + ("reflected_without_base",)
@@ -57,9 +59,11 @@ class TabulatedError(ValueError):
 class TabulatedBRDF:
     """An isotropic BRDF tabulated on the MERL grid (``docs/tabulated-format.md``).
 
-    ``value``/``stderr``: (3, 90, 90, 180) in 1/sr, no cosine, indexed (channel, theta_h,
-    theta_d, phi_d); ``hits`` and ``measure`` (sr^2): (90, 90, 180). Energy terms are (3,)
-    fractions of the flux of uniform diffuse illumination (incident directions ``cos theta / pi``).
+    ``value``/``stderr``: (C, 90, 90, 180) in 1/sr, no cosine, indexed (channel, theta_h,
+    theta_d, phi_d), C = 3 (R, G, B) or a spectral tabulation's wavelength bins
+    (:attr:`wavelengths_nm`); ``hits`` and ``measure`` (sr^2): (90, 90, 180), ``hits`` counting
+    the paths of every launch. Energy terms are (C,) fractions of the flux of uniform diffuse
+    illumination (incident directions ``cos theta / pi``).
     """
 
     stack: Stack
@@ -77,6 +81,8 @@ class TabulatedBRDF:
     elapsed_s: float
     threads: int
     compile_s: float = 0.0
+    #: kernel launches of ``settings.rays`` paths each: 1, or a spectral tabulation's (``docs/spectral.md``)
+    launches: int = 1
 
     @property
     def has_data(self) -> np.ndarray:
@@ -85,10 +91,48 @@ class TabulatedBRDF:
 
     @property
     def rays_per_s(self) -> float:
-        return self.settings.rays / self.elapsed_s if self.elapsed_s > 0 else float("nan")
+        """Paths traced per second (a spectral tabulation traces ``rays`` per launch)."""
+        return self.paths / self.elapsed_s if self.elapsed_s > 0 else float("nan")
+
+    @property
+    def paths(self) -> int:
+        """Paths traced in all."""
+        return self.settings.rays * self.launches
+
+    @property
+    def wavelengths_nm(self) -> np.ndarray | None:
+        """The wavelength-bin centres (nm) of a spectral tabulation's channel axis; None for RGB."""
+        return self.settings.wavelengths_nm
+
+    def rgb(self) -> "TabulatedBRDF":
+        """This tabulation in linear sRGB (a spectral one through the colour pipeline of
+        ``docs/spectral.md`` section 4, standard errors by its stated upper bound; an RGB one is
+        returned as it is). The stack is the material's RGB equivalent; the settings say RGB."""
+        if not self.settings.spectral:
+            return self
+        from dataclasses import replace
+
+        from goniometer.spectral import combined_stderr, rgb_weights, wavelength_bins
+        from goniometer.spectral.launches import bin_groups
+        s = self.settings
+        W = rgb_weights(wavelength_bins(s.wavelength_bins)[1])      # (B, 3)
+        groups = bin_groups(self.stack, s)
+
+        def lin(a: np.ndarray) -> np.ndarray:
+            return np.moveaxis(np.tensordot(np.moveaxis(a, 0, -1), W, axes=([-1], [0])), -1, 0)
+
+        def se(a: np.ndarray) -> np.ndarray:
+            return combined_stderr(a, W, groups, axis=0)
+
+        return replace(self, stack=Stack(self.stack.name, self.stack.layers, self.stack.category),
+                       settings=replace(s, spectral=False), value=lin(self.value), stderr=se(self.stderr),
+                       energy={k: lin(v) for k, v in self.energy.items()},
+                       energy_stderr={k: se(v) for k, v in self.energy_stderr.items()},
+                       roulette=lin(self.roulette), capped=lin(self.capped))
 
     def eval(self, l: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The BRDF ``f(l, v)``, RGB in 1/sr without the cosine, shape ``(..., 3)``.
+        """The BRDF ``f(l, v)`` per channel (RGB, or per wavelength bin) in 1/sr without the
+        cosine, shape ``(..., C)``.
 
         ``l`` and ``v``: (..., 3) directions (normalised here) pointing away from the surface,
         broadcast together. The value is that of the cell holding the pair (nearest cell, no
@@ -96,8 +140,9 @@ class TabulatedBRDF:
         left through (the estimate there; :attr:`has_data` tells them apart).
         """
         cells = halfdiff.cell_indices(l, v)
-        flat = self.value.reshape(3, halfdiff.N_CELLS)
-        out = np.zeros(cells.shape + (3,))
+        C = self.value.shape[0]
+        flat = self.value.reshape(C, halfdiff.N_CELLS)
+        out = np.zeros(cells.shape + (C,))
         ok = cells >= 0
         out[ok] = flat[:, cells[ok]].T
         return out
@@ -105,10 +150,13 @@ class TabulatedBRDF:
 
 def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums_sq: np.ndarray,
               hits: np.ndarray, energy: np.ndarray, energy_sq: np.ndarray, counts: np.ndarray,
-              elapsed_s: float, threads: int, compile_s: float = 0.0) -> TabulatedBRDF:
-    """Estimates from the raw sums of a tabulation: ``sums``/``sums_sq`` (N_CELLS, 3) exit weights
-    and their squares per flat MERL cell, ``hits`` (N_CELLS,), and the kernel's energy sums."""
+              elapsed_s: float, threads: int, compile_s: float = 0.0, launches: int = 1) -> TabulatedBRDF:
+    """Estimates from the raw sums of a tabulation: ``sums``/``sums_sq`` (N_CELLS, C) exit weights
+    and their squares per flat MERL cell, ``hits`` (N_CELLS,), and the kernel's energy sums; every
+    channel was estimated from ``settings.rays`` paths (a spectral run: ``launches`` launches of
+    ``rays`` paths, whose counters are summed)."""
     n = settings.rays
+    C = sums.shape[1]
     mu = np.asarray(halfdiff.cell_measure()).reshape(-1)
     scale = np.divide(np.pi, n * mu, out=np.zeros_like(mu), where=mu > 0)[:, None]
     value = sums * scale
@@ -116,7 +164,7 @@ def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums
     stderr = np.sqrt(var * n) * scale
 
     def planes(x: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(x.T).reshape((3,) + halfdiff.SHAPE)
+        return np.ascontiguousarray(x.T).reshape((C,) + halfdiff.SHAPE)
 
     en: dict[str, np.ndarray] = {}
     en_se: dict[str, np.ndarray] = {}
@@ -130,8 +178,8 @@ def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums
         hits=hits.reshape(halfdiff.SHAPE).astype(np.int64), measure=np.array(halfdiff.cell_measure()),
         energy=en, energy_stderr=en_se, roulette=energy[tracer.E_ROULETTE] / n,
         capped=energy[tracer.E_CAPPED] / n, capped_paths=int(counts[tracer.C_CAPPED]),
-        mean_events=float(counts[tracer.C_EVENTS]) / n, elapsed_s=elapsed_s, threads=threads,
-        compile_s=compile_s)
+        mean_events=float(counts[tracer.C_EVENTS]) / (n * launches), elapsed_s=elapsed_s, threads=threads,
+        compile_s=compile_s, launches=launches)
 
 
 # ---------------------------------------------------------------------- writing
@@ -157,6 +205,13 @@ def _scale(g: h5py.Group, name: str, data, units: str | None, long_name: str) ->
     return d
 
 
+def _channel_scale(g: h5py.Group, t: TabulatedBRDF) -> h5py.Dataset:
+    """The scale of the channel axis: ``channel`` (R, G, B) or ``wavelength_nm`` (bin centres, nm)."""
+    if t.settings.spectral:
+        return _scale(g, WAVELENGTH, np.asarray(t.wavelengths_nm, dtype=np.float64), "nm", "wavelength-bin centre")
+    return _scale(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+
+
 def _write(f: h5py.File, t: TabulatedBRDF) -> None:
     s = t.settings
     sim = f.create_group("simulation")
@@ -172,6 +227,13 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
     sim.attrs["capped_paths"] = t.capped_paths
     sim.attrs["mean_events"] = t.mean_events
     sim.attrs["incident_density"] = "cos(theta_l) / pi over the upper hemisphere, one direction per path"
+    if s.spectral:   # docs/tabulated-format.md: the channel axis holds wavelength bins
+        sim.attrs["spectral"] = True
+        sim.attrs["wavelength_bins"] = s.wavelength_bins
+        sim.attrs["launches"] = t.launches
+        sim.attrs["paths"] = t.paths
+    if s.device != "cpu":
+        sim.attrs["device"] = s.device
 
     g = f.create_group("brdf")
     g.attrs["grid"] = "merl"
@@ -179,7 +241,7 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
     g.attrs["folds"] = "isotropy (phi_h dropped); reciprocity (phi_d and phi_d + 180 deg share a cell)"
     g.attrs["estimator"] = "value = pi * (sum of exit weights in the cell) / (rays * measure)"
     scales = {
-        "channel": _scale(g, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel"),
+        "channel": _channel_scale(g, t),
         "theta_h": _scale(g, "theta_h", halfdiff.theta_h_centers_deg(), "deg",
                           "cell centre theta_h (square-root mapped rows)"),
         "theta_d": _scale(g, "theta_d", halfdiff.theta_d_centers_deg(), "deg", "cell centre theta_d"),
@@ -201,10 +263,11 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
         d.attrs["description"] = _DESCRIPTION[name]
 
     en = f.create_group("energy")
-    en.attrs["description"] = ("fractions of the flux of uniform diffuse illumination per channel (R, G, B); "
+    en.attrs["description"] = ("fractions of the flux of uniform diffuse illumination per channel "
+                               f"({'wavelength bin' if s.spectral else 'R, G, B'}); "
                                "reflected + transmitted + absorbed + masking_loss + roulette + capped = 1; "
                                "reflected_without_base is a part of reflected")
-    channel = _scale(en, "channel", np.array(CHANNELS, dtype=h5py.string_dtype()), None, "colour channel")
+    channel = _channel_scale(en, t)
     for name, data, long_name in (
             *((k, t.energy[k], f"{k.replace('_', ' ')} fraction") for k in TAB_ENERGY_TERMS),
             *((f"{k}_stderr", t.energy_stderr[k], f"standard error of {k}") for k in TAB_ENERGY_TERMS),
@@ -249,14 +312,18 @@ def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
     except (StackError, json.JSONDecodeError) as e:
         raise TabulatedError(f"{p}: /material/config is not a valid stack ({e})") from None
     sim = f["simulation"].attrs
+    spectral = bool(sim.get("spectral", False))
     try:
         settings = TabulationSettings(rays=int(sim["rays"]), seed=int(sim["seed"]), masking=str(sim["masking"]),
-                                      chunk_rays=int(sim["chunk_rays"]), event_cap=int(sim["event_cap"]))
+                                      chunk_rays=int(sim["chunk_rays"]), event_cap=int(sim["event_cap"]),
+                                      spectral=spectral, wavelength_bins=int(sim.get("wavelength_bins", 30)),
+                                      device=str(sim.get("device", "cpu")))
     except SettingsError as e:
         raise TabulatedError(f"{p}: /simulation: {e}") from None
     g = f["brdf"]
     cells = halfdiff.SHAPE
-    for name, shape in (("value", (3,) + cells), ("stderr", (3,) + cells), ("hits", cells), ("measure", cells)):
+    C = settings.n_channels
+    for name, shape in (("value", (C,) + cells), ("stderr", (C,) + cells), ("hits", cells), ("measure", cells)):
         if name not in g or g[name].shape != shape:
             raise TabulatedError(f"{p}: /brdf/{name} is missing or not of shape {shape}")
     en = f["energy"]
@@ -266,4 +333,4 @@ def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
         energy={k: en[k][()] for k in TAB_ENERGY_TERMS}, energy_stderr={k: en[f"{k}_stderr"][()] for k in TAB_ENERGY_TERMS},
         roulette=en["roulette"][()], capped=en["capped"][()], capped_paths=int(sim["capped_paths"]),
         mean_events=float(sim["mean_events"]), elapsed_s=float(sim["elapsed_s"]), threads=int(sim["threads"]),
-        compile_s=float(sim.get("compile_s", 0.0)))
+        compile_s=float(sim.get("compile_s", 0.0)), launches=int(sim.get("launches", 1)))

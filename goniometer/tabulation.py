@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -33,7 +34,7 @@ from goniometer.slices import boundary_tables
 from goniometer.stack import Stack, pack
 from goniometer.tabulated import TabulatedBRDF, from_sums
 
-__all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabulable", "tabulate",
+__all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabulable", "launches", "tabulate",
            "tabulation_description", "warm_up"]
 
 #: the "incident index" of a tabulation's random streams (slices use 0 .. M - 1): a tabulation and
@@ -47,14 +48,16 @@ class TabulationError(ValueError):
     """A stack or run that cannot be tabulated (the message says why)."""
 
 
-def check_tabulable(stack: Stack) -> None:
+def check_tabulable(stack: Stack, settings: TabulationSettings | None = None) -> None:
     """Raise :class:`TabulationError` unless the stack's BRDF is isotropic (what the MERL grid holds)
-    and has no thin film (a tabulation is an RGB run; a film needs wavelengths, docs/spectral.md)."""
+    and, for an RGB tabulation (``settings`` None or not spectral), has no thin film (a film needs
+    wavelengths, docs/spectral.md)."""
+    spectral = settings is not None and settings.spectral
     for k, x in enumerate(stack.layers):
         film = getattr(x, "film", None)
-        if film is not None and film.thickness_nm > 0.0:
-            raise TabulationError(f"{stack.name}: layers[{k}].film: a tabulation traces RGB (the MERL grid is RGB) "
-                                  f"and a thin film needs a spectral run; simulate slices with --spectral instead")
+        if film is not None and film.thickness_nm > 0.0 and not spectral:
+            raise TabulationError(f"{stack.name}: layers[{k}].film: a thin film needs wavelengths; tabulate with "
+                                  f"--spectral (an RGB tabulation cannot carry it)")
     for k, x in enumerate(stack.interfaces):
         if x.is_anisotropic:
             ax, ay = x.alpha_xy
@@ -65,21 +68,27 @@ def check_tabulable(stack: Stack) -> None:
 
 def tabulation_description(stack: Stack, settings: TabulationSettings) -> dict:
     """What makes two tabulations the same run (``threads`` excluded), JSON-ready."""
-    return {"kind": "tabulation", "stack": json.loads(stack.to_json()),
-            "settings": {"rays": settings.rays, "seed": settings.seed, "masking": settings.masking,
-                         "chunk_rays": settings.chunk_rays, "event_cap": settings.event_cap}}
+    run = {"rays": settings.rays, "seed": settings.seed, "masking": settings.masking,
+           "chunk_rays": settings.chunk_rays, "event_cap": settings.event_cap}
+    if settings.spectral:   # (the keys of RGB and CPU runs predate these fields: their identity stays)
+        run.update(spectral=True, wavelength_bins=settings.wavelength_bins)
+    if settings.device != "cpu":
+        run["device"] = settings.device
+    return {"kind": "tabulation", "stack": json.loads(stack.to_json()), "settings": run}
 
 
 class _State:
     """The raw sums after ``next_chunk`` chunks."""
 
-    def __init__(self) -> None:
-        self.chunk = np.zeros(1, dtype=np.int64)  # [next chunk], updated with the sums (see _commit)
-        self.sums = np.zeros((halfdiff.N_CELLS, 3))
-        self.sums_sq = np.zeros((halfdiff.N_CELLS, 3))
+    def __init__(self, n_channels: int = 3) -> None:
+        # [next chunk], updated with the sums (see _commit); a spectral run's chunks are numbered
+        # launch after launch (chunk c of launch g is g * chunks per launch + c)
+        self.chunk = np.zeros(1, dtype=np.int64)
+        self.sums = np.zeros((halfdiff.N_CELLS, n_channels))
+        self.sums_sq = np.zeros((halfdiff.N_CELLS, n_channels))
         self.hits = np.zeros(halfdiff.N_CELLS, dtype=np.int64)
-        self.energy = np.zeros((tracer.N_ENERGY, 3))
-        self.energy_sq = np.zeros((tracer.N_ENERGY_SQ, 3))
+        self.energy = np.zeros((tracer.N_ENERGY, n_channels))
+        self.energy_sq = np.zeros((tracer.N_ENERGY_SQ, n_channels))
         self.counts = np.zeros(tracer.N_COUNTS, dtype=np.int64)
         self.elapsed_s = 0.0
 
@@ -94,8 +103,8 @@ class _State:
                          elapsed_s=self.elapsed_s)
 
     @classmethod
-    def load(cls, path: Path) -> "_State":
-        s = cls()
+    def load(cls, path: Path, n_channels: int) -> "_State":
+        s = cls(n_channels)
         with np.load(path) as z:
             nz = z["cells"]
             s.chunk[0] = int(z["next_chunk"])
@@ -123,7 +132,7 @@ class TabulationCheckpoint:
         except (OSError, ValueError):
             return False
 
-    def load(self) -> _State | None:
+    def load(self, n_channels: int = 3) -> _State | None:
         """The saved state of this run, or None (a checkpoint of another run or code is deleted)."""
         if not self.directory.is_dir():
             return None
@@ -131,7 +140,7 @@ class TabulationCheckpoint:
             self.clear()
             return None
         try:
-            return _State.load(self.directory / "state.npz")
+            return _State.load(self.directory / "state.npz", n_channels)
         except (OSError, ValueError, KeyError):
             return None
 
@@ -151,20 +160,23 @@ def _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq
             acc_counts, chunk):
     """Add a batch of chunks to the state: the exit records to the cell sums (chunk by chunk, path
     by path), the energy sums chunk by chunk, and advance ``chunk[0]`` past the batch. One compiled
-    call, so a Ctrl-C (handled by Python between calls) never sees half of it."""
+    call, so a Ctrl-C (handled by Python between calls) never sees half of it. The accumulators'
+    channels (views of a spectral run's bins: 3, or 1 for a launch of one wavelength) take the
+    kernel's first channels."""
+    nc = sums.shape[1]
     for b in range(exit_cell.shape[0]):
         for r in range(energy.shape[1]):
-            for k in range(3):
+            for k in range(nc):
                 acc_energy[r, k] += energy[b, r, k]
         for r in range(energy_sq.shape[1]):
-            for k in range(3):
+            for k in range(nc):
                 acc_energy_sq[r, k] += energy_sq[b, r, k]
         for r in range(counts.shape[1]):
             acc_counts[r] += counts[b, r]
         for r in range(n_valid[b]):
             c = exit_cell[b, r]
             if c >= 0:
-                for k in range(3):
+                for k in range(nc):
                     w = exit_w[b, r, k]
                     sums[c, k] += w
                     sums_sq[c, k] += w * w
@@ -173,16 +185,32 @@ def _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq
 
 
 def warm_up(stack: Stack | None = None, settings: TabulationSettings | None = None) -> float:
-    """Compile (or load from the on-disk cache) the tabulation kernel variant ``stack`` needs under
-    ``settings``' masking and the accumulation, by tabulating 8 rays; returns the seconds spent.
+    """Compile (or load from the on-disk cache) the tabulation kernel variants ``stack`` needs under
+    ``settings`` (masking, device, a spectral run's launches) and the accumulation, by tabulating 8
+    rays; returns the seconds spent.
     Without arguments: a Lambertian stack, separable masking."""
     from goniometer.stack import Lambertian
     t0 = time.perf_counter()
     if stack is None:
         stack = Stack("warm-up", (Lambertian((0.5,) * 3),))
-    masking = settings.masking if settings is not None else "separable"
-    tabulate(stack, TabulationSettings(rays=8, chunk_rays=8, threads=1, masking=masking))
+    settings = settings if settings is not None else TabulationSettings(rays=8)
+    tabulate(stack, replace(settings, rays=8, chunk_rays=8, threads=1))
     return time.perf_counter() - t0
+
+
+def launches(stack: Stack, settings: TabulationSettings) -> list[tuple[tuple[int, ...], Stack, int]]:
+    """(channels of the state, three-channel stack, seed) of every kernel launch: one launch of the
+    stack for an RGB tabulation; a spectral one's launches of
+    :func:`goniometer.spectral.launches.launch_stacks` (``docs/spectral.md`` section 2)."""
+    if not settings.spectral:
+        return [((0, 1, 2), stack, settings.seed)]
+    from goniometer.spectral.launches import launch_stacks
+    return [(bins, st, s.seed) for bins, st, s in launch_stacks(stack, settings)]
+
+
+def _channels(bins: tuple[int, ...]) -> slice:
+    """The launch's bins as a slice of the channel axis: ``(k, k + G, k + 2G)`` or one bin."""
+    return slice(bins[0], None, bins[1] - bins[0]) if len(bins) == 3 else slice(bins[0], bins[0] + 1)
 
 
 def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: TabulationCheckpoint | None = None,
@@ -193,24 +221,30 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     the file is written); ``on_resume(rays)`` is told how many rays were loaded. ``progress(rays)``
     is called after every batch. A KeyboardInterrupt (from ``progress`` or a signal handler)
     saves the checkpoint, then propagates; once every chunk is traced the checkpoint is saved too,
-    so that an interrupt while the caller writes the file loses nothing."""
-    check_tabulable(stack)
+    so that an interrupt while the caller writes the file loses nothing.
+
+    A spectral tabulation (``settings.spectral``) traces ``settings.rays`` paths per launch, each
+    launch's three channels landing in its wavelength bins (``docs/spectral.md`` section 2); its
+    chunks are numbered launch after launch, so that it resumes like an RGB one."""
+    check_tabulable(stack, settings)
     settings.validate()
-    state = checkpoint.load() if checkpoint is not None else None
+    runs = launches(stack, settings)
+    state = checkpoint.load(settings.n_channels) if checkpoint is not None else None
     if state is None:
-        state = _State()
+        state = _State(settings.n_channels)
     cr = settings.chunk_rays
-    n_chunks = -(-settings.rays // cr)
-    done_rays = min(state.next_chunk * cr, settings.rays)
+    per_launch = -(-settings.rays // cr)
+    n_chunks = per_launch * len(runs)
+    done_rays = _rays_in(state.next_chunk, per_launch, settings.rays, cr)
     if done_rays:
         if on_resume is not None:
             on_resume(done_rays)
         if progress is not None:
             progress(done_rays)
-    p = pack(stack)
     threads = settings.n_threads
-    numba.set_num_threads(threads)
-    B = min(2 * threads, n_chunks)
+    if settings.device == "cpu":
+        numba.set_num_threads(threads)
+    B = min(2 * threads, per_launch)
     brdf = np.empty((B, 1, 1, 3, 3))
     btdf = np.empty((B, 1, 1, 3, 3))
     energy = np.empty((B, tracer.N_ENERGY, 3))
@@ -218,33 +252,47 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     counts = np.empty((B, tracer.N_COUNTS), dtype=np.int64)
     exit_cell = np.empty((B, cr), dtype=np.int64)
     exit_w = np.empty((B, cr, 3))
-    run = tracer.prepare(p, (0.0, 0.0, 1.0), settings.rays, cr, settings.seed, TAB_STREAM, tracer.P_TABULATE, 1, 1,
-                         boundary_tables("classic", 1, 1), 1, settings.event_cap,
-                         height_correlated=settings.masking == "height-correlated", tabulate=True)
     last_save = time.monotonic()
     try:
         while state.next_chunk < n_chunks:
-            t0 = time.perf_counter()
-            first = state.next_chunk
-            nb = min(B, n_chunks - first)
-            tracer.launch(run, first, (brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb]),
-                          (exit_cell[:nb], exit_w[:nb]))
-            n_valid = run.chunk_sizes(first, nb)
-            _commit(exit_cell[:nb], exit_w[:nb], n_valid, energy[:nb], energy_sq[:nb], counts[:nb], state.sums,
-                    state.sums_sq, state.hits, state.energy, state.energy_sq, state.counts, state.chunk)
-            state.elapsed_s += time.perf_counter() - t0
-            if checkpoint is not None and time.monotonic() - last_save > CHECKPOINT_EVERY_S \
-                    and state.next_chunk < n_chunks:
-                checkpoint.save(state)
-                last_save = time.monotonic()
-            if progress is not None:
-                progress(int(n_valid.sum()))
-        if checkpoint is not None and n_chunks > 0 and state.next_chunk * cr > done_rays:
+            g, first = divmod(state.next_chunk, per_launch)
+            bins, st, seed = runs[g]
+            run = tracer.prepare(pack(st), (0.0, 0.0, 1.0), settings.rays, cr, seed, TAB_STREAM, tracer.P_TABULATE,
+                                 1, 1, boundary_tables("classic", 1, 1), 1, settings.event_cap,
+                                 height_correlated=settings.masking == "height-correlated", tabulate=True,
+                                 device=settings.device)
+            ch = _channels(bins)
+            sums, sums_sq = state.sums[:, ch], state.sums_sq[:, ch]
+            acc_energy, acc_energy_sq = state.energy[:, ch], state.energy_sq[:, ch]
+            while first < per_launch:
+                t0 = time.perf_counter()
+                nb = min(B, per_launch - first)
+                tracer.launch(run, first, (brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb]),
+                              (exit_cell[:nb], exit_w[:nb]))
+                n_valid = run.chunk_sizes(first, nb)
+                _commit(exit_cell[:nb], exit_w[:nb], n_valid, energy[:nb], energy_sq[:nb], counts[:nb], sums,
+                        sums_sq, state.hits, acc_energy, acc_energy_sq, state.counts, state.chunk)
+                first += nb
+                state.elapsed_s += time.perf_counter() - t0
+                if checkpoint is not None and time.monotonic() - last_save > CHECKPOINT_EVERY_S \
+                        and state.next_chunk < n_chunks:
+                    checkpoint.save(state)
+                    last_save = time.monotonic()
+                if progress is not None:
+                    progress(int(n_valid.sum()))
+        if checkpoint is not None and n_chunks > 0 and \
+                _rays_in(state.next_chunk, per_launch, settings.rays, cr) > done_rays:
             checkpoint.save(state)
         return from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy, state.energy_sq,
-                         state.counts, state.elapsed_s, threads, compile_s)
+                         state.counts, state.elapsed_s, threads, compile_s, launches=len(runs))
     except KeyboardInterrupt:
         # the state is always whole chunks (_commit is one compiled call): keep it
         if checkpoint is not None and state.next_chunk > 0:
             checkpoint.save(state)
         raise
+
+
+def _rays_in(chunks: int, per_launch: int, rays: int, chunk_rays: int) -> int:
+    """Paths traced by the first ``chunks`` chunks of a run of launches of ``rays`` paths each."""
+    g, c = divmod(chunks, per_launch)
+    return g * rays + min(c * chunk_rays, rays)

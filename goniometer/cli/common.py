@@ -44,6 +44,29 @@ def add_overwrite(parser) -> None:
     parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
+#: the default a material file's ``[simulation]`` table sets, in help texts
+FROM_FILE = "the file's [simulation] table, else "
+
+
+def add_device(parser) -> None:
+    """Add ``--device`` (docs/gpu.md) to a command's parser (default: the material file's, else cpu)."""
+    parser.add_argument("--device", choices=("cpu", "cuda"),
+                        help="where the paths are traced: cpu (numba threads) or cuda (an NVIDIA GPU through "
+                             "numba-cuda, pip install 'goniometer[cuda]'; the same transport, other bits: "
+                             f"docs/gpu.md) (default: {FROM_FILE}cpu)")
+
+
+def add_spectral(parser) -> None:
+    """Add ``--spectral`` and ``--wavelength-bins`` (docs/spectral.md) to a command's parser."""
+    parser.add_argument("--spectral", action="store_true", default=None,
+                        help="trace wavelengths instead of RGB channels: every per-channel quantity gets one entry "
+                             "per wavelength bin over 360-830 nm, --rays paths per bin (docs/spectral.md) "
+                             f"(default: {FROM_FILE}RGB)")
+    parser.add_argument("--wavelength-bins", dest="wavelength_bins", type=whole_number, metavar="N",
+                        help=f"wavelength bins of a spectral run, a multiple of 3 (default: {FROM_FILE}30, "
+                             f"15.7 nm each)")
+
+
 def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--out", directory: bool = False,
                 marker: str | None = None):
     """:func:`goniometer.outputs.check_output` with its refusal as a :class:`UsageError`; returns the

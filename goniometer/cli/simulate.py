@@ -10,12 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, add_overwrite, compile_kernels, incident_list,
-                                   output_path, progress_bar, resolution, sigint_latch, usage_errors, whole_number)
+from goniometer.cli.common import (FROM_FILE, THREADS_HELP, ResumeAware, UsageError, add_device, add_overwrite,
+                                   add_spectral, compile_kernels, incident_list, output_path, progress_bar, resolution,
+                                   sigint_latch, usage_errors, whole_number)
 
-
-#: the help's phrase for a setting the material file may give
-FROM_FILE = "the file's [simulation] table, else "
 #: the defaults of SimulationSettings as the help prints them (written out so that ``gonio --help``
 #: need not import numba; tests/goniometer/test_cli_edges.py checks them against SimulationSettings())
 SETTINGS_DEFAULTS = {"rays": "1,000,000", "incident_deg": "0,15,30,45,60,70,80", "parametrization": "classic",
@@ -44,10 +42,7 @@ def register(sub) -> None:
                    help=f"cells per slice, e.g. 90x360 (default: {FROM_FILE}{d['resolution']})")
     p.add_argument("--seed", type=whole_number, help=f"random seed (default: {FROM_FILE}{d['seed']})")
     p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
-    p.add_argument("--device", choices=("cpu", "cuda"),
-                   help="where the paths are traced: cpu (numba threads) or cuda (an NVIDIA GPU through numba-cuda, "
-                        "pip install 'goniometer[cuda]'; the same transport, other bits: docs/gpu.md) "
-                        f"(default: {FROM_FILE}cpu)")
+    add_device(p)
     p.add_argument("--masking", choices=("separable", "height-correlated"),
                    help=f"microfacet masking-shadowing (default: {FROM_FILE}{d['masking']})")
     p.add_argument("--max-order", dest="max_order", type=whole_number,
@@ -59,12 +54,7 @@ def register(sub) -> None:
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "the file's recorded stack shows it")
-    p.add_argument("--spectral", action="store_true", default=None,
-                   help="trace wavelengths instead of RGB channels: every per-channel quantity gets one entry per "
-                        "wavelength bin over 360-830 nm, --rays paths per bin (docs/spectral.md) "
-                        f"(default: {FROM_FILE}RGB)")
-    p.add_argument("--wavelength-bins", dest="wavelength_bins", type=whole_number, metavar="N",
-                   help=f"wavelength bins of a spectral run, a multiple of 3 (default: {FROM_FILE}30, 15.7 nm each)")
+    add_spectral(p)
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
     add_overwrite(p)
@@ -405,20 +395,28 @@ def _info_tabulated(args: argparse.Namespace) -> int:
     from goniometer.results import ENERGY_TERMS
     from goniometer.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
-        t = read_tabulated(args.file)
-    s = t.settings
+        spectral = read_tabulated(args.file)
+    t = spectral.rgb()   # a spectral file's energies are shown in linear sRGB; "spectral" lists the bins
+    s = spectral.settings
     n_data = int(np.count_nonzero(t.hits))
     d: dict[str, Any] = {
         "file": str(args.file), "format": "goniometer.tabulated",
         "material": {"name": t.stack.name, "category": t.stack.category, "base": t.stack.base,
                      "config": json.loads(t.stack.to_json())},
-        "settings": {"rays": s.rays, "seed": s.seed, "masking": s.masking, "chunk_rays": s.chunk_rays},
+        "settings": {"rays": s.rays, "seed": s.seed, "masking": s.masking, "chunk_rays": s.chunk_rays,
+                     "spectral": s.spectral, "device": s.device},
         "grid": {"name": "merl", "shape": list(t.hits.shape), "cells_with_data": n_data},
         "energy": {k: [float(x) for x in v] for k, v in t.energy.items()},
         "performance": {"threads": t.threads, "elapsed_s": t.elapsed_s, "rays_per_s": t.rays_per_s,
                         "compile_s": t.compile_s},
         "capped_paths": t.capped_paths, "mean_events": t.mean_events,
     }
+    if s.spectral:
+        d["spectral"] = {"wavelength_bins": s.wavelength_bins,
+                         "wavelength_nm": [float(x) for x in spectral.wavelengths_nm],
+                         "paths": spectral.paths, "launches": spectral.launches,
+                         "energy_per_bin": {k: [float(x) for x in v] for k, v in spectral.energy.items()},
+                         "energy_channels": "linear sRGB (D65) of the bins, docs/spectral.md section 4"}
     if args.json:
         print(json.dumps(d, indent=2))
         return 0
@@ -428,7 +426,11 @@ def _info_tabulated(args: argparse.Namespace) -> int:
     print(f"  {s.rays:,} rays (cosine-weighted incident directions), seed {s.seed}, {s.masking} masking; "
           f"cells with data: {n_data:,} of {t.hits.size:,}")
     print(f"  {t.rays_per_s:,.0f} rays/s on {t.threads} thread(s) ({t.elapsed_s:.1f} s)")
-    print("  energy under uniform diffuse light (R G B):")
+    if s.spectral:
+        wl = spectral.wavelengths_nm
+        print(f"  spectral: {s.wavelength_bins} wavelength bins, {wl[0]:.1f}-{wl[-1]:.1f} nm (centres), "
+              f"{spectral.paths:,} paths in {spectral.launches} launch(es)")
+    print(f"  energy under uniform diffuse light ({'linear sRGB of the bins' if s.spectral else 'R G B'}):")
     for k in ENERGY_TERMS:
         print(f"    {k:13s} " + " ".join(f"{x:7.4f}" for x in t.energy[k]))
     if t.capped_paths:

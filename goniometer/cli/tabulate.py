@@ -8,8 +8,8 @@ import sys
 
 import numpy as np
 
-from goniometer.cli.common import (ResumeAware, UsageError, add_overwrite, compile_kernels, output_path, progress_bar,
-                                   sigint_latch, usage_errors, whole_number)
+from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_overwrite, add_spectral, compile_kernels,
+                                   output_path, progress_bar, sigint_latch, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -19,9 +19,12 @@ def register(sub) -> None:
     p.add_argument("config", metavar="CONFIG.toml")
     p.add_argument("--out", required=True, metavar="FILE.h5",
                    help="the tabulated file to write (required; docs/tabulated-format.md)")
-    p.add_argument("--rays", type=whole_number, help=f"paths in all, each with its own incident direction (default {TABULATE_RAYS:,})")
+    p.add_argument("--rays", type=whole_number, help=f"paths in all, each with its own incident direction; a spectral "
+                                                     f"tabulation: per wavelength bin (default {TABULATE_RAYS:,})")
     p.add_argument("--seed", type=whole_number, help="random seed (default: the material file's, else 1)")
     p.add_argument("--threads", type=whole_number, help="numba threads (default: all cores); the file does not depend on it")
+    add_device(p)
+    add_spectral(p)
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoint an interrupted run of the same command left (.FILE.h5.partial)")
     add_overwrite(p)
@@ -48,34 +51,43 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.settings import SettingsError, SimulationSettings, TabulationSettings
     from goniometer.stack import StackError, load_toml
     from goniometer.tabulated import write_tabulated
-    from goniometer.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable, tabulate,
-                                       tabulation_description, warm_up)
+    from goniometer.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable, launches as _launches,
+                                       tabulate, tabulation_description, warm_up)
 
+    from goniometer.tracer import DeviceError, check_device
     with usage_errors(StackError, SettingsError, TabulationError, store.StoreError):
         stack, table = load_toml(args.config)
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
-        check_tabulable(stack)
-        settings = TabulationSettings(seed=base.seed, masking=base.masking).with_overrides(
-            rays=args.rays, seed=args.seed, threads=args.threads)
+        settings = TabulationSettings(seed=base.seed, masking=base.masking, spectral=base.spectral,
+                                      wavelength_bins=base.wavelength_bins, device=base.device).with_overrides(
+            rays=args.rays, seed=args.seed, threads=args.threads, spectral=args.spectral,
+            wavelength_bins=args.wavelength_bins, device=args.device)
+        check_tabulable(stack, settings)
+        paths = settings.rays * len(_launches(stack, settings))
+    with usage_errors(DeviceError):
+        check_device(settings.device)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
-    if stack.is_spectral:
-        print(f"note: {stack.name} has spectral data; a tabulation (RGB, the MERL grid) traces their RGB equivalents "
-              f"(docs/spectral.md section 3)", file=sys.stderr)
+    if stack.is_spectral and not settings.spectral:
+        print(f"note: {stack.name} has spectral data; an RGB tabulation traces their RGB equivalents "
+              f"(docs/spectral.md section 3); --spectral traces the spectra", file=sys.stderr)
 
+    spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {paths // settings.rays} launch(es) "
+                f"of {settings.rays:,} paths" if settings.spectral else "")
     print(f"tabulating {stack.name} ({stack.category}): {settings.rays:,} rays over the hemisphere "
-          f"(cos-weighted), MERL grid 90x90x180, {settings.n_threads} thread(s)", file=sys.stderr)
+          f"(cos-weighted){spectral}, MERL grid 90x90x180, "
+          f"{'CUDA' if settings.device == 'cuda' else f'{settings.n_threads} thread(s)'}", file=sys.stderr)
     with sigint_latch() as interrupts:
         with interrupts.deferred():
             compile_s = compile_kernels(lambda: warm_up(stack, settings))
         checkpoint = TabulationCheckpoint(checkpoint_dir(out), tabulation_description(stack, settings))
         if args.restart:
             checkpoint.clear()
-        bar = progress_bar(settings.rays, stack.name)
+        bar = progress_bar(paths, stack.name)
         progress = ResumeAware(bar, interrupts.check)
 
         def on_resume(rays: int) -> None:
             progress.resumed(rays)
-            bar.write(f"resuming: {rays:,} of {settings.rays:,} rays already traced (checkpoint in "
+            bar.write(f"resuming: {rays:,} of {paths:,} rays already traced (checkpoint in "
                       f"{checkpoint.directory}; --restart to discard it)", file=sys.stderr)
 
         try:
@@ -101,9 +113,14 @@ def _print_summary(t) -> None:
     n_data = int(np.count_nonzero(t.hits))
     print(f"{t.rays_per_s:,.0f} rays/s with {t.threads} thread(s); compile/load {t.compile_s:.1f} s")
     print(f"cells with data: {n_data:,} of {t.hits.size:,}")
-    print("energy under uniform diffuse light (R G B):")
+    if t.settings.spectral:
+        print(f"spectral: {t.settings.wavelength_bins} wavelength bins ({t.paths:,} paths in {t.launches} launch(es)); "
+              f"energy in linear sRGB (D65) of the bins:")
+    else:
+        print("energy under uniform diffuse light (R G B):")
+    rgb = t.rgb()
     for k in ENERGY_TERMS:
-        print(f"  {k:13s} " + " ".join(f"{x:8.5f}" for x in t.energy[k]))
+        print(f"  {k:13s} " + " ".join(f"{x:8.5f}" for x in rgb.energy[k]))
     if t.capped_paths:
         print(f"warning: {t.capped_paths} path(s) reached the event cap of {t.settings.event_cap}; "
               f"their weight is in /energy/capped")
@@ -119,7 +136,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     with usage_errors(TabulatedError):
         tab = read_tabulated(args.file)
     out = output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
-    write_merl(out, tab)
+    if tab.settings.spectral:
+        print(f"note: {args.file} is spectral; a MERL file is RGB: writing its linear sRGB (D65, docs/spectral.md "
+              f"section 4)", file=sys.stderr)
+    write_merl(out, tab.rgb())
     n = int(np.count_nonzero(tab.hits))
     print(f"wrote {out} (MERL .binary, 90x90x180; {n:,} cells with data, {tab.hits.size - n:,} marked negative)")
     return 0

@@ -178,7 +178,7 @@ def tabulated_reference(path: str | Path) -> Reference:
         raise RenderError(f"{path}: a tabulated BRDF file ({TABULATED_FORMAT}), but this installation has no "
                           f"reader for it (goniometer.tabulated); render a slices file instead") from None
     try:
-        table = read_tabulated(path)
+        table = read_tabulated(path).rgb()   # a spectral table in linear sRGB (docs/spectral.md section 4)
     except TabulatedError as e:
         raise RenderError(str(e)) from None
     stack = table.stack

@@ -59,8 +59,47 @@ def check(name, rays, cr, hc=False):
     print(name, "ok", e[tracer.E_REFLECTED] / rays, got[4].sum(0), flush=True)
 
 
+def check_tabulation(name, rays, cr):
+    """A tabulation launch (exits per path as MERL cells) against the twin's records, then a whole
+    spectral tabulation through goniometer.tabulation with device="cuda" (energies add up)."""
+    import dataclasses
+
+    from goniometer.settings import TabulationSettings
+    from goniometer.tabulation import TAB_STREAM, tabulate
+    stack = STACKS[name]
+    p = pack(stack)
+    nb = -(-rays // cr)
+    tables = boundary_tables("classic", 1, 1)
+    run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, 5, TAB_STREAM, tracer.P_TABULATE, 1, 1, tables, 1,
+                         tracer.EVENT_CAP, tabulate=True, device="cuda")
+    o = (np.empty((nb, 1, 1, 3, 3)), np.empty((nb, 1, 1, 3, 3)), np.empty((nb, tracer.N_ENERGY, 3)),
+         np.empty((nb, tracer.N_ENERGY_SQ, 3)), np.empty((nb, tracer.N_COUNTS), dtype=np.int64))
+    cells, w = np.empty((nb, cr), dtype=np.int64), np.empty((nb, cr, 3))
+    tracer.launch(run, 0, o, (cells, w))
+    f = run.facts
+    for b in range(nb):
+        n = min(cr, rays - b * cr)
+        want_c, want_w = np.full(n, -1, dtype=np.int64), np.zeros((n, 3))
+        scratch = tuple(np.zeros(x.shape[1:], dtype=x.dtype) for x in o)
+        trace_keyed_chunk(*(getattr(p, k) for k in ("if_alpha", "if_rot", "if_ms", "if_film", "region_tau",
+                                                    "region_albedo", "region_g", "cond", "rho", "base_kind")),
+                          f.tau_mode, f.eta_dn, f.eta_up, 0.0, 0.0, 1.0, n, 5, TAB_STREAM, b, tracer.P_TABULATE, 1, 1,
+                          *tables, 1, tracer.EVENT_CAP, False, False, *scratch, want_c, want_w)
+        assert np.array_equal(cells[b, :n], want_c), (name, b)
+        assert np.allclose(w[b, :n], want_w, rtol=1e-15, atol=0.0), (name, b)
+        assert np.array_equal(o[4][b], scratch[4]), (name, b)
+    assert np.count_nonzero(cells >= 0) > 0
+    s = TabulationSettings(rays=rays, chunk_rays=cr, threads=1, device="cuda", spectral=True, wavelength_bins=3)
+    tab = tabulate(stack, s)
+    total = sum(tab.energy[k] for k in ("reflected", "transmitted", "absorbed", "masking_loss"))
+    assert np.allclose(total + tab.roulette + tab.capped, 1.0, atol=1e-6), (name, total)
+    assert tab.hits.sum() > 0 and dataclasses.replace(s, device="cpu") != s
+    print(name, "tabulation ok", tab.energy["reflected"], flush=True)
+
+
 if __name__ == "__main__":
     rays = int(sys.argv[1]) if len(sys.argv) > 1 else 1500
     for name in sys.argv[2:] or ["metal", "scattering-ms-plastic", "film-slab"]:
         check(name, rays, 1024, hc=name == "metal")
+    check_tabulation("film-slab", 300, 128)
     print("ALL OK")
