@@ -1,8 +1,11 @@
 """Running a run's tasks on a Dask distributed cluster (the optional ``distributed`` extra).
 
-Each (incident, task) unit runs :func:`goniometer.tasks.trace_tasks` on a worker without numba
-threads; task results are summed per incident direction in task order, exactly as a local run
-sums them, so the result is bit-identical to a local run's.
+Each (incident, task) unit -- (incident, launch, task) in a spectral run (``docs/spectral.md``
+section 2) -- runs :func:`goniometer.tasks.trace_tasks` on a worker without numba threads; task
+results are summed per incident direction (per launch) in task order, exactly as a local run sums
+them, and a spectral run's launches are merged into their bins by the local run's
+:func:`goniometer.tasks.merge_launches`, so the result is bit-identical to a local run's
+(``docs/database-format.md`` section 4).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import Any, Callable, Iterator
 from goniometer.settings import SimulationSettings
 from goniometer.stack import Stack
 from goniometer.results import IncidentPart, Sums
-from goniometer.tasks import n_tasks, task_rays, trace_tasks
+from goniometer.tasks import merge_launches, n_tasks, task_rays, trace_tasks
 
 
 class ClusterError(ValueError):
@@ -33,49 +36,74 @@ def dask_client(address: str):
         raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
 
 
-def run_task(stack_json: str, settings: SimulationSettings, m: int, task: int) -> Sums:
-    """One (incident, task) unit of work, as run on a Dask worker (no numba threads)."""
-    return trace_tasks(Stack.from_json(stack_json), settings, m, task, 1, parallel=False)[0]
+def run_task(stack_json: str, settings: SimulationSettings, m: int, task: int, launch: int | None = None) -> Sums:
+    """One (incident, task) unit of work, as run on a Dask worker (no numba threads). ``launch``:
+    in a spectral run, the launch whose task it is; the worker rebuilds that launch's stack and
+    settings from the spectral ones (:func:`goniometer.spectral.launches.launch_stacks`, the
+    local run's own)."""
+    stack = Stack.from_json(stack_json)
+    if launch is not None:
+        from goniometer.spectral.launches import launch_stacks
+        _, stack, settings = launch_stacks(stack, settings)[launch]
+    return trace_tasks(stack, settings, m, task, 1, parallel=False)[0]
 
 
 def dask_incidents(client: Any, stack: Stack, settings: SimulationSettings, incidents: list[int],
                    progress: Callable[[int], None] | None, window: int | None = None
                    ) -> Iterator[tuple[int, IncidentPart]]:
     """Run the tasks of ``incidents`` on the cluster, keeping at most ``window`` in flight, and
-    yield each incident's :class:`IncidentPart` (tasks summed in task order) as it completes."""
+    yield each incident's :class:`IncidentPart` (tasks summed in task order; a spectral run's
+    launches, each summed so, merged into bins in launch order) as it completes. An incident's
+    ``elapsed_s`` is the wall time from its first submitted task to its last result (in a spectral
+    run, split over its launches at the times their last results arrive)."""
     if window is None:
         workers = max(1, sum(client.nthreads().values()))
         window = 4 * workers
     stack_json = stack.to_json()
-    specs = [(k, t) for k in incidents for t in range(n_tasks(settings))]
+    if settings.spectral:
+        from goniometer.spectral.launches import launch_stacks
+        runs: list[tuple[tuple[int, ...], Stack, SimulationSettings]] = launch_stacks(stack, settings)
+    else:
+        runs = [((), stack, settings)]
+    # units in (incident, launch, task) order: the order results are consumed and summed in
+    specs = [(k, g, t) for k in incidents for g, (_, _, s) in enumerate(runs) for t in range(n_tasks(s))]
     inflight: deque = deque()
     it = iter(specs)
     acc: dict[int, Sums] = {}
-    started: dict[int, float] = {}
-    last_task = {k: n_tasks(settings) - 1 for k in incidents}
+    launched: dict[int, list[tuple[tuple[int, ...], IncidentPart]]] = {}  # a spectral run's finished launches
+    since: dict[int, float] = {}
 
     def submit_next() -> bool:
         spec = next(it, None)
         if spec is None:
             return False
-        k, t = spec
-        started.setdefault(k, time.perf_counter())
-        inflight.append((k, t, client.submit(run_task, stack_json, settings, k, t, pure=False)))
+        k, g, t = spec
+        since.setdefault(k, time.perf_counter())
+        launch = g if settings.spectral else None
+        inflight.append((k, g, t, client.submit(run_task, stack_json, settings, k, t, launch, pure=False)))
         return True
 
     for _ in range(window):
         if not submit_next():
             break
     while inflight:
-        k, t, fut = inflight.popleft()
+        k, g, t, fut = inflight.popleft()
         sums = fut.result()
         fut.release()
+        bins, st, s = runs[g]
         if k not in acc:
-            acc[k] = Sums.zeros(stack, settings)
-        acc[k].add(sums)  # tasks arrive here in (incident, task) order
+            acc[k] = Sums.zeros(st, s)
+        acc[k].add(sums)  # tasks arrive here in (incident, launch, task) order
         if progress is not None:
-            progress(task_rays(settings, t))
+            progress(task_rays(s, t))
         submit_next()
-        if t == last_task[k]:
-            yield k, IncidentPart.from_sums(k, acc.pop(k), settings.max_order, stack.transmits,
-                                            time.perf_counter() - started[k])
+        if t == n_tasks(s) - 1:
+            now = time.perf_counter()
+            part = IncidentPart.from_sums(k, acc.pop(k), s.max_order, st.transmits, now - since[k])
+            since[k] = now
+            if not settings.spectral:
+                yield k, part
+                continue
+            launched.setdefault(k, []).append((bins, part))
+            if g == len(runs) - 1:
+                yield k, merge_launches(launched.pop(k), settings.wavelength_bins)

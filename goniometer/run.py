@@ -32,7 +32,8 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
     ``checkpoints``: finished directions found there are loaded instead of traced
     (``on_resume(n)`` is told how many), and every newly finished one is saved there; the caller
     clears them once the result is safely written. ``client`` (a ``distributed.Client``) runs the
-    tasks on a Dask cluster instead of local numba threads; the result is bit-identical.
+    tasks on a Dask cluster instead of local numba threads (a spectral run's too, one unit per
+    launch and task: ``docs/spectral.md`` section 2); the result is bit-identical.
     ``progress(rays)`` is called as rays finish (directions loaded from checkpoints count too).
     The kernel is compiled on first use unless the caller has done it (:func:`warm_up`, whose
     time it passes as ``compile_s``).
@@ -53,9 +54,6 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
         buffers = incident_buffers(stack, settings) if remaining else None
         produced = ((k, trace_incident(stack, settings, k, progress, buffers)) for k in remaining)
     else:
-        if settings.spectral:
-            raise SettingsError("spectral: a spectral run traces locally (its launches are not Dask tasks yet); "
-                                "drop --scheduler")
         from goniometer.distributed import dask_incidents
         produced = dask_incidents(client, stack, settings, remaining, progress)
     for k, part in produced:

@@ -11,7 +11,7 @@ batch of chunks, whatever the number of rays.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Callable, Iterable
 
 import numba
 import numpy as np
@@ -253,12 +253,20 @@ def trace_spectral_incident(stack: Stack, settings: SimulationSettings, m: int,
                             progress: Callable[[int], None] | None = None,
                             buffers: tuple[np.ndarray, ...] | None = None) -> IncidentPart:
     """Incident direction ``m`` of a spectral run: every launch traced
-    (:func:`trace_incident`, ``docs/spectral.md`` section 2) and its channels placed in their bins."""
-    B = settings.wavelength_bins
-    merged: IncidentPart | None = None
+    (:func:`trace_incident`, ``docs/spectral.md`` section 2) and its channels placed in their bins
+    (:func:`merge_launches`)."""
     from goniometer.spectral.launches import launch_stacks
-    for bins, st, s in launch_stacks(stack, settings):
-        part = trace_incident(st, s, m, progress, buffers)
+    return merge_launches(((bins, trace_incident(st, s, m, progress, buffers))
+                           for bins, st, s in launch_stacks(stack, settings)), settings.wavelength_bins)
+
+
+def merge_launches(launched: Iterable[tuple[tuple[int, ...], IncidentPart]], B: int) -> IncidentPart:
+    """One incident direction of a spectral run of ``B`` bins from its launches' parts, given as
+    (bins, three-channel part) in launch order (``docs/spectral.md`` section 2): each launch's
+    channels written into its bins, counts and ``elapsed_s`` summed. Local runs and Dask runs
+    (:func:`goniometer.distributed.dask_incidents`) both merge here, so their bits agree."""
+    merged: IncidentPart | None = None
+    for bins, part in launched:
         if merged is None:
             merged = _empty_part(part, B)
         # the launch's channels as a strided view of the bin axis: bins (k, k + G, k + 2G), or one bin
@@ -272,7 +280,8 @@ def trace_spectral_incident(stack: Stack, settings: SimulationSettings, m: int,
         merged.energy_sq[:, dst] = part.energy_sq[:, :n]
         merged.counts += part.counts
         merged.elapsed_s += part.elapsed_s
-    assert merged is not None
+    if merged is None:
+        raise ValueError("merge_launches: a spectral incident direction needs at least one launch")
     return merged
 
 
