@@ -54,55 +54,15 @@ LN = LANES
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
-def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
-         lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
-         aniso, ms, film):
-    """One step for all lanes of ``S`` (see the module docstring).
-
-    The last ten arguments are None or True and select what is compiled (numba compiles a None
-    argument's specialisation without the other branch; LLVM vectorises the loops of every
-    specialisation):
-
-    * ``height_correlated``: None, separable masking ``G1(o)``; True, height-correlated
-      ``G2 / G1(i)`` (the transmission's Beta function from
-      :func:`goniometer.optics.smith_g2_height_correlated`, which vectorises);
-    * ``tabulate``: None, every path starts along ``-l``; True, each draws its light direction
-      (cosine-weighted, its draw 0);
-    * ``media``: True when some region scatters: the event of a lane in such a region begins with a
-      free flight from the lane's height; a collision (Henyey-Greenstein scattering) is the event's
-      outcome, a flight that reaches the region's boundary goes on to what lies there;
-    * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
-    * ``g_is_r``, ``b_is_g``: True when the conductor's green channel has the red one's complex
-      index, resp. blue the green one's (their Fresnel values are computed once);
-    * ``aniso``: True when some interface is anisotropic (tangent-frame rotations);
-    * ``ms``: True when some interface scatters multiply: the event on it is the first bounce of
-      its microsurface walk (the height of the hit, the visible normal, Fresnel, and whether the
-      ray then leaves the microsurface); a walk that goes on is continued by a per-lane step
-      (:func:`goniometer.kernel.steps.continue_walk`), and only lanes whose next action is the
-      event take it (without, every lane takes it);
-    * ``film``: True when some interface carries a thin film (the table's film block): on such an
-      interface the microfacet's reflectance and transmittance are the film's per channel
-      (:func:`goniometer.optics.film_rt_channel`); a dielectric reflects with probability
-      ``P = sum R_c / sum (R_c + T_c)`` and the weights take ``R_c / P`` or ``T_c / (1 - P)``, a
-      conductor reflects with the weights times ``R_c`` (``docs/material-format.md``, thin films).
-
-    The loop bodies are written out here, as an inlined function taking the state array would
-    keep reference counting in the loop and stop LLVM."""
+def renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new):
+    """Stage A of :func:`step`: for every lane of ``S``, add the path it ended at the previous step
+    (reflected, transmitted, absorbed by roulette or capped; the per-lane pass has deposited its
+    exit) to the lane's sums, and give the lane its next path (lane ``i`` traces paths ``i, i +
+    LANES, ...`` of the chunk), whose first region and event count are ``r_new``, ``e_new``.
+    ``tabulate`` None: a new path starts along ``-l``; True: it draws its light direction
+    (cosine-weighted, its draw 0). A loop LLVM vectorises, as stage B's."""
     prefer_wide_vectors()
-    # the stack table on this function's stack (gathers that provably do not alias S)
-    T = stack_block()
-    # 64-bit draws per event: two, a third for a walk's first bounce, one for a free flight
-    n_draws = 2 + (0 if ms is None else 1) + (0 if media is None else 1)
-    # an index-matched top interface that is not the base: a new path's first event, crossing it
-    # unchanged (no random number; an event at the top: bounce order 1), is made when the lane
-    # takes the path, and its first step goes on below
-    enter = n_if >= 1 and table[T_MATCHED] != 0.0 and base_k != 0 and event_cap > 1
-    r_new = 1 if enter else 0
-    e_new = 1 if enter else 0
-    for q in range(table.shape[0]):
-        T[q] = table[q]
     for i in range(LN):
-        # ---------------- stage A: book the path the lane ended, give the lane its next path
         st = np.int64(S[F_STATUS * LN + i])
         # (a lane without paths left keeps its last path's index, >= n_rays: nothing to book)
         p = np.int64(S[F_PATH * LN + i])
@@ -245,6 +205,58 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         S[F_SEEDED * LN + i] = 0.0 if ended else S[F_SEEDED * LN + i]
         S[F_WK * LN + i] = 0.0 if ended else S[F_WK * LN + i]
         S[F_MULTI * LN + i] = 0.0 if ended else S[F_MULTI * LN + i]
+
+
+@numba.njit(cache=True, error_model='numpy', boundscheck=False)
+def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
+         lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
+         aniso, ms, film):
+    """One step for all lanes of ``S`` (see the module docstring).
+
+    The last ten arguments are None or True and select what is compiled (numba compiles a None
+    argument's specialisation without the other branch; LLVM vectorises the loops of every
+    specialisation):
+
+    * ``height_correlated``: None, separable masking ``G1(o)``; True, height-correlated
+      ``G2 / G1(i)`` (the transmission's Beta function from
+      :func:`goniometer.optics.smith_g2_height_correlated`, which vectorises);
+    * ``tabulate``: None, every path starts along ``-l``; True, each draws its light direction
+      (cosine-weighted, its draw 0);
+    * ``media``: True when some region scatters: the event of a lane in such a region begins with a
+      free flight from the lane's height; a collision (Henyey-Greenstein scattering) is the event's
+      outcome, a flight that reaches the region's boundary goes on to what lies there;
+    * ``lambertian``, ``conductor``: True when the base is Lambertian, resp. a conductor;
+    * ``g_is_r``, ``b_is_g``: True when the conductor's green channel has the red one's complex
+      index, resp. blue the green one's (their Fresnel values are computed once);
+    * ``aniso``: True when some interface is anisotropic (tangent-frame rotations);
+    * ``ms``: True when some interface scatters multiply: the event on it is the first bounce of
+      its microsurface walk (the height of the hit, the visible normal, Fresnel, and whether the
+      ray then leaves the microsurface); a walk that goes on is continued by a per-lane step
+      (:func:`goniometer.kernel.steps.continue_walk`), and only lanes whose next action is the
+      event take it (without, every lane takes it);
+    * ``film``: True when some interface carries a thin film (the table's film block): on such an
+      interface the microfacet's reflectance and transmittance are the film's per channel
+      (:func:`goniometer.optics.film_rt_channel`); a dielectric reflects with probability
+      ``P = sum R_c / sum (R_c + T_c)`` and the weights take ``R_c / P`` or ``T_c / (1 - P)``, a
+      conductor reflects with the weights times ``R_c`` (``docs/material-format.md``, thin films).
+
+    The loop bodies are written out here, as an inlined function taking the state array would
+    keep reference counting in the loop and stop LLVM."""
+    prefer_wide_vectors()
+    # the stack table on this function's stack (gathers that provably do not alias S)
+    T = stack_block()
+    # 64-bit draws per event: two, a third for a walk's first bounce, one for a free flight
+    n_draws = 2 + (0 if ms is None else 1) + (0 if media is None else 1)
+    # an index-matched top interface that is not the base: a new path's first event, crossing it
+    # unchanged (no random number; an event at the top: bounce order 1), is made when the lane
+    # takes the path, and its first step goes on below
+    enter = n_if >= 1 and table[T_MATCHED] != 0.0 and base_k != 0 and event_cap > 1
+    r_new = 1 if enter else 0
+    e_new = 1 if enter else 0
+    for q in range(table.shape[0]):
+        T[q] = table[q]
+    # ---------------- stage A: book the path each lane ended, give the lane its next path
+    renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new)
     for i in range(LN):
         # ---------------- stage B: the event of the lanes whose next action it is
         st = np.int64(S[F_STATUS * LN + i])
