@@ -212,10 +212,14 @@ def test_cli_writes_the_png(lambert_classic, tmp_path, capsys):
 
 
 class _FakeTable:
-    """Stands for goniometer.tabulated's TabulatedBRDF (another branch): a stack and eval(l, v)."""
+    """Stands for goniometer.tabulated's TabulatedBRDF of an RGB tabulation: a stack, eval(l, v),
+    and rgb() (an RGB table is its own linear sRGB)."""
 
     def __init__(self, stack):
         self.stack = stack
+
+    def rgb(self):
+        return self
 
     def eval(self, l, v):
         return np.broadcast_to(RHO / math.pi, l.shape)
