@@ -133,6 +133,13 @@ class Launch:
         """The packed stack's arrays, in the kernels' order."""
         return self.facts.packed.as_tuple()
 
+    def scalars(self, first_chunk: int) -> tuple:
+        """The numbers of a batch starting at ``first_chunk``, as :func:`trace_slot` unpacks them:
+        ``(lx, ly, lz, n_rays, chunk_rays, first_chunk, seed, stream, param, n_theta, n_phi,
+        max_order, event_cap, skip_first)``."""
+        return (*self.light, self.n_rays, self.chunk_rays, int(first_chunk), self.seed, self.stream, self.param,
+                self.n_theta, self.n_phi, self.max_order, self.event_cap, self.skip_first)
+
     @property
     def n_chunks(self) -> int:
         """Chunks of the run's ``n_rays`` (chunk ``c``: rays ``c * chunk_rays`` up to
@@ -185,16 +192,12 @@ def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = Non
         cuda.trace_batch(run, first_chunk, outs, exits)
         return
     kernel = trace_batch if parallel else trace_batch_serial
-    kernel(*run.stack_args, *run.light, run.n_rays, run.chunk_rays, first_chunk, run.seed, run.stream, run.param,
-           run.n_theta, run.n_phi, *run.tables, run.max_order, run.event_cap, run.skip_first, *run.flags, *outs,
-           *exits)
+    kernel(run.stack_args, run.scalars(first_chunk), run.tables, *run.flags, tuple(outs) + tuple(exits))
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
-                lz, n_rays, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf,
-                energy, energy_sq, counts, exit_cell, exit_w):
+def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
+                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, outs):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
 
@@ -204,6 +207,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region
     cell, -1 if none) and ``exit_w[r]`` (weight) instead of to ``brdf``; transmitted exits are
     booked in ``energy`` only. Otherwise ``exit_cell``/``exit_w`` are not touched (they may be empty).
 
+    ``stack``: the packed stack's arrays (:meth:`goniometer.stack.PackedStack.as_tuple`);
+    ``tables``: the grid's ``(row_cos, col_cos, col_sin)``; ``outs``: ``(brdf, btdf, energy,
+    energy_sq, counts, exit_cell, exit_w)``.
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (:mod:`goniometer.kernel.deposit`); ``energy``:
     (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals;
     ``counts``: (N_COUNTS,) int64. ``skip_first`` (bool): reflected exits of bounce order 1 are
@@ -216,6 +222,9 @@ def trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region
     order at the end, exits are deposited in the order they happen: the same bits for any
     number of threads.
     """
+    if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind = stack
+    row_cos, col_cos, col_sin = tables
+    brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
@@ -316,76 +325,64 @@ def trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_slot(b, if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
-               ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
-               col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, media,
-               lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts, exit_cell,
-               exit_w):
-    """Zero histogram slot ``b`` and trace chunk ``first_chunk + b`` into it (``exit_cell[b]``,
-    ``exit_w[b]``: see :func:`trace_chunk`).
+def trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
+               aniso, ms, film, outs):
+    """Zero histogram slot ``b`` of ``outs`` and trace chunk ``first_chunk + b`` into it.
+
+    ``stack``: the packed stack's arrays (:meth:`goniometer.stack.PackedStack.as_tuple`); ``run``:
+    the batch's numbers (:meth:`Launch.scalars`); ``tables``: the grid's ``(row_cos, col_cos,
+    col_sin)``; ``outs``: ``(brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)``, each with
+    a leading dimension B (:func:`trace_chunk` gives the layouts). ``lanes`` .. ``film``: the
+    variant (:func:`kernel_flags`), None or True each; they are arguments, not a tuple, because
+    numba prunes the branch of a None *argument* and so compiles each variant without the others.
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
     is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.rng.chunk_key`)
     for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.rng.stream_state`)
-    for the per-path kernel (``lanes`` None); ``lanes`` .. ``ms``: None or True
-    (:func:`kernel_flags`).
+    for the per-path kernel (``lanes`` None).
     """
+    (lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, max_order,
+     event_cap, skip_first) = run
+    slot = (outs[0][b], outs[1][b], outs[2][b], outs[3][b], outs[4][b], outs[5][b], outs[6][b])
     c = first_chunk + b
     n = min(chunk_rays, n_rays_total - c * chunk_rays)
-    brdf[b].fill(0.0)
-    btdf[b].fill(0.0)
-    energy[b].fill(0.0)
-    energy_sq[b].fill(0.0)
-    counts[b].fill(0)
-    exit_cell[b].fill(-1)
+    slot[0].fill(0.0)
+    slot[1].fill(0.0)
+    slot[2].fill(0.0)
+    slot[3].fill(0.0)
+    slot[4].fill(0)
+    slot[5].fill(-1)
     if n <= 0:
         return
     if lanes is None:
         state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_paths(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
-                    ly, lz, n, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                    height_correlated is not None, event_cap, skip_first, brdf[b], btdf[b], energy[b], energy_sq[b],
-                    counts[b], exit_cell[b], exit_w[b])
+        trace_paths(stack, lx, ly, lz, n, state, param, n_theta, n_phi, tables, max_order,
+                    height_correlated is not None, event_cap, skip_first, slot)
     else:
         ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_chunk(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx,
-                    ly, lz, n, ckey, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order, event_cap, skip_first,
-                    height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf[b],
-                    btdf[b], energy[b], energy_sq[b], counts[b], exit_cell[b], exit_w[b])
+        trace_chunk(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
+                    height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, slot)
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, lx, ly,
-                lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, row_cos,
-                col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate, media,
-                lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts, exit_cell,
-                exit_w):
+def trace_batch(stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
+                aniso, ms, film, outs):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
-    (:func:`trace_slot`). Output arrays carry a leading dimension B (the batch). ``lanes`` ..
-    ``ms`` (None or True each) come from :func:`kernel_flags`: numba compiles, on first use, only
-    the variant they name."""
-    for b in numba.prange(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
-                   row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts,
-                   exit_cell, exit_w)
+    (:func:`trace_slot`, which gives the arguments; :func:`launch` makes them from a
+    :class:`Launch`). Output arrays carry a leading dimension B (the batch)."""
+    for b in numba.prange(outs[0].shape[0]):
+        trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
+                   b_is_g, aniso, ms, film, outs)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_batch_serial(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                       lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
-                       row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                       media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts,
-                       exit_cell, exit_w):
+def trace_batch_serial(stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
+                       b_is_g, aniso, ms, film, outs):
     """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
     default threading layer must not be entered by several threads at once.
     """
-    for b in range(brdf.shape[0]):
-        trace_slot(b, if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                   lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi,
-                   row_cos, col_cos, col_sin, max_order, event_cap, skip_first, lanes, height_correlated, tabulate,
-                   media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, brdf, btdf, energy, energy_sq, counts,
-                   exit_cell, exit_w)
+    for b in range(outs[0].shape[0]):
+        trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
+                   b_is_g, aniso, ms, film, outs)

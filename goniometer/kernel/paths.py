@@ -102,12 +102,11 @@ def _book(energy, energy_sq, row, x0, x1, x2):
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_paths(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind,
-                lx, ly, lz, n_rays, state, param, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
-                height_correlated, event_cap, skip_first, brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w):
+def trace_paths(stack, lx, ly, lz, n_rays, state, param, n_theta, n_phi, tables, max_order, height_correlated,
+                event_cap, skip_first, outs):
     """Trace ``n_rays`` paths one after the other for light direction ``l``, drawing from the
     chunk's xoshiro256** stream ``state``, and accumulate into the given arrays (arguments as
-    :func:`goniometer.tracer.trace_chunk`'s).
+    :func:`goniometer.tracer.trace_chunk`'s: ``stack``, ``tables`` and ``outs`` tuples).
 
     ``param`` is the slice parametrization (:data:`goniometer.slices.CLASSIC`, ``HALF``) or
     :data:`P_TABULATE`: then path ``r`` first draws its own light direction ``l`` with density
@@ -136,6 +135,9 @@ def trace_paths(if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region
     weights ``R_c / P``, else refracts, weights ``T_c / (1 - P)``; a conductor reflects, weights
     ``R_c``), in walks at every bounce (``docs/material-format.md``, thin films).
     """
+    if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind = stack
+    row_cos, col_cos, col_sin = tables
+    brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
