@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, compile_kernels, output_path,
-                                   progress_bar, sigint_latch, usage_errors, whole_number)
+                                   progress_bar, sigint_latch, skip_progress, usage_errors, whole_number)
 
 
 def register(sub) -> None:
