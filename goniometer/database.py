@@ -11,7 +11,9 @@ The definition format and the results directory are contracts of ``docs/database
 
 A rerun skips finished materials, resumes unfinished ones from their checkpoints, and refuses a
 directory that holds another database, quality or format (nothing is overwritten). A finished
-file that cannot be read is reported and re-simulated only on request.
+file that cannot be read is reported and re-simulated only on request. A definition may ask for
+spectral runs (``[simulation] spectral = true``, ``wavelength_bins``; ``docs/spectral.md``):
+every material is then traced in wavelength bins, locally or on a Dask cluster.
 """
 
 from __future__ import annotations
@@ -32,13 +34,18 @@ from goniometer.checkpoint import Checkpoints
 from goniometer.results import run_description, same_run
 from goniometer.settings import SettingsError, SimulationSettings
 from goniometer.run import run_incidents
-from goniometer.stack import Stack, StackError, stack_from_dict
+from goniometer.stack import Interface, Stack, StackError, check_films, stack_from_dict
 from goniometer.tomlfile import read_toml
 
 MANIFEST = "database.json"
 RESULTS_FORMAT = "goniometer.database-results"
 RESULTS_VERSION = 1
 PARAMS_REPORTED = ("alpha0", "alpha1", "tau", "rho", "eta1", "d", "g")
+#: the keys of a definition's ``[simulation]`` table (``docs/database-format.md`` section 1.2)
+SIMULATION_KEYS = ("incident_deg", "resolution", "seed", "masking", "parametrization", "spectral",
+                   "wavelength_bins")
+#: the bins of a spectral database that does not give ``wavelength_bins``: SimulationSettings' default
+DEFAULT_WAVELENGTH_BINS = SimulationSettings.wavelength_bins
 
 
 class DatabaseError(ValueError):
@@ -59,6 +66,10 @@ class Material:
 
 @dataclass(frozen=True)
 class Database:
+    """An expanded database definition (``docs/database-format.md`` section 1). ``spectral`` and
+    ``wavelength_bins``: every material is traced spectrally in that many bins
+    (``docs/spectral.md``); ``wavelength_bins`` other than the default goes with ``spectral``."""
+
     name: str
     path: str
     incident_deg: tuple[float, ...]
@@ -68,19 +79,32 @@ class Database:
     qualities: dict[str, int]
     materials: tuple[Material, ...]
     description: str = ""
+    spectral: bool = False
+    wavelength_bins: int = DEFAULT_WAVELENGTH_BINS
+
+    def __post_init__(self) -> None:
+        if self.spectral is False and self.wavelength_bins != DEFAULT_WAVELENGTH_BINS:
+            raise DatabaseError(_bins_without_spectral(self.path))
 
     def settings_for(self, material: Material, quality: str, threads: int | None = None) -> SimulationSettings:
+        """The settings of ``material``'s run at ``quality`` (SettingsError for invalid ones)."""
         if quality not in self.qualities:
             raise DatabaseError(f"{self.path}: quality {quality!r} is not one of {', '.join(self.qualities)}")
         return SimulationSettings(incident_deg=self.incident_deg, rays=self.qualities[quality],
                                   parametrization=material.parametrization, resolution=self.resolution,
-                                  seed=self.seed, masking=self.masking, threads=threads)
+                                  seed=self.seed, masking=self.masking, threads=threads,
+                                  spectral=self.spectral, wavelength_bins=self.wavelength_bins)
 
     def fingerprint(self) -> str:
-        """Hash of everything that determines the results (names, stacks, settings)."""
+        """Hash of everything that determines the results (names, stacks, settings;
+        ``docs/database-format.md`` section 2.2). The spectral keys enter only a spectral
+        database's hash: an RGB database keeps the fingerprint it had before they existed."""
         doc = {"name": self.name, "incident": self.incident_deg, "resolution": self.resolution, "seed": self.seed,
                "masking": self.masking,
                "materials": [[m.name, m.stack.to_json(), m.parametrization] for m in self.materials]}
+        if self.spectral:
+            doc["spectral"] = True
+            doc["wavelength_bins"] = self.wavelength_bins
         return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
     def select(self, only: str | None) -> list[Material]:
@@ -91,6 +115,11 @@ class Database:
         if not chosen:
             raise DatabaseError(f"--only {only!r} matches no material of {self.name}")
         return chosen
+
+
+def _bins_without_spectral(path: str | Path) -> str:
+    return (f"{path}: simulation: wavelength_bins: goes with spectral = true (the bins of a spectral run; an RGB "
+            f"run has none)")
 
 
 # ---------------------------------------------------------------------- loading
@@ -136,17 +165,44 @@ def load_database(path: str | Path) -> Database:
         if m.name in seen:
             raise DatabaseError(f"{p}: material name {m.name!r} is produced twice (materials {seen[m.name]} and {i})")
         seen[m.name] = i
+    if "wavelength_bins" in sim and sim.get("spectral", False) is False:
+        raise DatabaseError(_bins_without_spectral(p))
     db = Database(name=name, path=str(p), incident_deg=tuple(float(x) for x in sim.get("incident_deg", (0, 15, 30, 45, 60, 70, 80))),
                   resolution=tuple(sim.get("resolution", (90, 360))), seed=int(sim.get("seed", 1)),
                   masking=str(sim.get("masking", "separable")), qualities=dict(qualities),
-                  materials=tuple(materials), description=str(data.get("description", "")))
+                  materials=tuple(materials), description=str(data.get("description", "")),
+                  spectral=sim.get("spectral", False), wavelength_bins=sim.get("wavelength_bins", DEFAULT_WAVELENGTH_BINS))
     try:
         for m in materials[:1]:
             for q in qualities:
                 db.settings_for(m, q)
     except SettingsError as e:
         raise DatabaseError(f"{p}: simulation: {e}") from None
+    _check_runs(p, db)
     return db
+
+
+def _check_runs(p: Path, db: Database) -> None:
+    """Refuse, before anything is traced, a material its run cannot trace: in a spectral database a
+    stack whose spectra do not cover the bins (or a film the kernel cannot take), in an RGB one a
+    thin film (its colours need wavelengths; ``docs/spectral.md``)."""
+    if not db.materials:
+        return
+    settings = db.settings_for(db.materials[0], next(iter(db.qualities)))
+    for m in db.materials:
+        if not db.spectral:
+            for i, x in enumerate(m.stack.layers):
+                if isinstance(x, Interface) and x.film is not None and x.film.thickness_nm > 0.0:
+                    raise DatabaseError(f"{p}: {m.name}: layers[{i}].film: a thin film needs a spectral run "
+                                        f"(set spectral = true in [simulation]; docs/spectral.md)")
+            continue
+        from goniometer.spectral.launches import launch_stacks
+        try:
+            for _, stack, _ in launch_stacks(m.stack, settings):
+                check_films(stack)
+        except StackError as e:
+            where = "" if str(e).startswith(f"{m.name}: ") else f"{m.name}: "
+            raise DatabaseError(f"{p}: {where}{e}") from None
 
 
 def _read_definition(p: Path) -> dict:
@@ -155,6 +211,12 @@ def _read_definition(p: Path) -> dict:
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise DatabaseError(f"{p}: {unknown[0]}: unknown key (allowed: {', '.join(sorted(allowed))})")
+    sim = data.get("simulation", {})
+    if not isinstance(sim, dict):
+        raise DatabaseError(f"{p}: simulation: {sim!r} is not a table")
+    unknown = sorted(set(sim) - set(SIMULATION_KEYS))
+    if unknown:
+        raise DatabaseError(f"{p}: simulation.{unknown[0]}: unknown key (allowed: {', '.join(sorted(SIMULATION_KEYS))})")
     return data
 
 
@@ -231,16 +293,32 @@ def _partial_dir(out_dir: Path, material: Material) -> Path:
     return Path(out_dir) / ".partial" / material.name
 
 
+def paths_per_incident(db: Database, material: Material, quality: str) -> int:
+    """Paths one incident direction of ``material``'s run at ``quality`` traces: the quality's rays,
+    times a spectral run's launches (``docs/spectral.md`` section 1; what ``progress`` counts)."""
+    settings = db.settings_for(material, quality)
+    if not settings.spectral:
+        return settings.rays
+    from goniometer.spectral.launches import launches
+    return settings.rays * len(launches(material.stack, settings))
+
+
 def checkpointed_incidents(out_dir: Path, material: Material) -> int:
     """Number of incident directions of ``material`` kept in checkpoints under ``out_dir``."""
     return len(list(_partial_dir(out_dir, material).glob("m*.npz")))
 
 
 def _manifest(db: Database, quality: str) -> dict:
-    return {"format": RESULTS_FORMAT, "format_version": RESULTS_VERSION, "slices_format": store.FORMAT,
-            "slices_format_version": store.FORMAT_VERSION, "database": db.name, "fingerprint": db.fingerprint(),
-            "quality": quality, "rays_per_slice": db.qualities[quality],
-            "definition": str(Path(db.path).resolve())}
+    """The manifest of a results directory (``docs/database-format.md`` section 2.1); a spectral
+    database's also says so (an RGB database's keeps its keys)."""
+    out = {"format": RESULTS_FORMAT, "format_version": RESULTS_VERSION, "slices_format": store.FORMAT,
+           "slices_format_version": store.FORMAT_VERSION, "database": db.name, "fingerprint": db.fingerprint(),
+           "quality": quality, "rays_per_slice": db.qualities[quality],
+           "definition": str(Path(db.path).resolve())}
+    if db.spectral:
+        out["spectral"] = True
+        out["wavelength_bins"] = db.wavelength_bins
+    return out
 
 
 def check_results_dir(db: Database, out_dir: Path, quality: str) -> None:
@@ -302,6 +380,9 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     status)`` when a material starts (status as :func:`material_status`). ``scheduler`` (a Dask
     address such as ``tcp://host:8786``) or ``client`` (a ``distributed.Client``) runs the
     (material, incident, task) tasks on a Dask cluster; results are bit-identical to a local run.
+    A spectral database (``spectral = true``) runs every material spectrally, through the same
+    :func:`goniometer.run.run_incidents` (and so on a cluster with a local run's bits;
+    ``progress`` then counts the paths of its launches, :func:`paths_per_incident`).
     The kernel is compiled on first use unless the caller has compiled it
     (:func:`goniometer.tasks.warm_up_runs` of :func:`runs`). ``overwrite``: the selected finished
     materials are simulated again and their files replaced (``docs/outputs.md``); without it they

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, compile_kernels, output_path,
-                                   progress_bar, sigint_latch, usage_errors, whole_number)
+                                   progress_bar, sigint_latch, skip_progress, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -59,12 +59,14 @@ def cmd_database_list(args: argparse.Namespace) -> int:
     counts = {}
     for r in rows:
         counts[r["category"]] = counts.get(r["category"], 0) + 1
-    print(f"{len(rows)} materials ({', '.join(f'{n} {c}' for c, n in counts.items())}) in {db.name}")
+    spectral = f" (spectral, {db.wavelength_bins} wavelength bins)" if db.spectral else ""
+    print(f"{len(rows)} materials ({', '.join(f'{n} {c}' for c, n in counts.items())}) in {db.name}{spectral}")
     return 0
 
 
 def cmd_database_simulate(args: argparse.Namespace) -> int:
-    from goniometer.database import DatabaseError, load_database, material_status, runs, simulate_database
+    from goniometer.database import (DatabaseError, load_database, material_status, paths_per_incident, runs,
+                                     simulate_database)
     from goniometer.results import cell_geometries
     from goniometer.settings import SettingsError
     from goniometer.tasks import run_variant, warm_up_runs
@@ -73,10 +75,13 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
         materials = db.select(args.only)
         if args.quality not in db.qualities:
             raise DatabaseError(f"--quality: {args.quality!r} is not one of {', '.join(db.qualities)}")
-        rays = db.qualities[args.quality] * len(db.incident_deg)
+        # paths per material: a spectral run traces its launches' paths (docs/spectral.md section 1)
+        rays = {m.name: paths_per_incident(db, m, args.quality) * len(db.incident_deg) for m in materials}
     output_path(args.out, inputs=[args.config], directory=True)
-    print(f"{db.name}: {len(materials)} material(s), quality {args.quality} "
-          f"({db.qualities[args.quality]:,} rays per slice), into {args.out}", file=sys.stderr)
+    spectral = (f", spectral: {db.wavelength_bins} wavelength bins ({db.qualities[args.quality]:,} paths per bin "
+                f"and slice)" if db.spectral else f" ({db.qualities[args.quality]:,} rays per slice)")
+    print(f"{db.name}: {len(materials)} material(s), quality {args.quality}{spectral}, into {args.out}",
+          file=sys.stderr)
 
     try:
         with sigint_latch() as interrupts:
@@ -91,7 +96,7 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
                     grids = {m.parametrization: m for m in todo}
                     for m in grids.values():
                         cell_geometries(db.settings_for(m, args.quality))
-            bar = progress_bar(rays * len(materials), db.name, smoothing=0.05)
+            bar = progress_bar(sum(rays.values()), db.name, smoothing=0.05)
             progress = ResumeAware(bar, interrupts.check)
 
             def on_material(m, status):
@@ -102,7 +107,7 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
 
             with bar:
                 if len(todo) < len(materials):  # finished materials: done before this run, not in its rate
-                    skip_progress(bar, rays * (len(materials) - len(todo)))
+                    skip_progress(bar, sum(rays.values()) - sum(rays[m.name] for m in todo))
                 summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
                                             scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
                                             progress=progress, on_material=on_material, overwrite=args.overwrite)
@@ -116,6 +121,6 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
 
 
 def _checkpointed_rays(db, out: str, material, quality: str) -> int:
-    """Rays of the incident directions an unfinished material has in its checkpoints."""
-    from goniometer.database import checkpointed_incidents
-    return db.qualities[quality] * checkpointed_incidents(Path(out), material)
+    """Rays (paths) of the incident directions an unfinished material has in its checkpoints."""
+    from goniometer.database import checkpointed_incidents, paths_per_incident
+    return paths_per_incident(db, material, quality) * checkpointed_incidents(Path(out), material)

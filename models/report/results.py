@@ -188,6 +188,10 @@ def _describe(p: Path):
 def _check_file(name: str, category: str, paper_name: str, params: dict, parametrization: str | None,
                 path: Path, stack: Stack) -> ReportMaterial:
     have, settings = _describe(path)
+    if settings.spectral:
+        raise ReportError(f"{path}: a spectral run ({settings.wavelength_bins} wavelength bins); the report's "
+                          f"figures and tables are of RGB slices: report an RGB database (without spectral = true "
+                          f"in [simulation]), or judge one file with `gonio evaluate` (docs/spectral.md)")
     if have.to_json() != stack.to_json():
         raise ReportError(f"{path}: holds another stack than the definition's {name}; rerun `gonio database "
                           f"simulate --resimulate-corrupted`")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -201,3 +202,221 @@ def test_base_and_multiple_scattering_keys(tmp_path):
         twin.write_text(text)
         with pytest.raises(DatabaseError, match=message):
             load_database(twin)
+
+
+# ----------------------------------------------------------------------------- spectral databases
+
+TINY_SPECTRAL = ROOT / "tests" / "data" / "tiny_spectral_database.toml"
+
+#: the fingerprints of the shipped (RGB) definitions, computed before definitions could be spectral:
+#: they pin the fingerprint of existing databases, which their users' results directories record
+#: (database.json) and must keep matching (docs/database-format.md section 2.2)
+SHIPPED_FINGERPRINTS = {
+    "configs/bati2019.toml": "f2442e3041cc11a2",
+    "configs/bati2019-ms.toml": "f3d50e3df610a871",
+    "configs/anisotropic.toml": "637ad1bb86849be4",
+    "configs/appendix-e.toml": "9e92b68acaeb0e96",
+    "configs/production.toml": "eff7c052c4da1bb2",
+    "configs/production-demo.toml": "236ec79ed5c263e6",
+    "tests/data/tiny_database.toml": "49e640ebec4bb3fa",
+}
+
+
+def test_fingerprints_of_existing_databases_are_unchanged():
+    for path, fingerprint in SHIPPED_FINGERPRINTS.items():
+        db = load_database(ROOT / path)
+        assert not db.spectral and db.fingerprint() == fingerprint, path
+
+
+def test_every_shipped_definition_loads():
+    """Every definition under configs/ and tests/data/ passes the [simulation] key check."""
+    import tomllib
+
+    def is_definition(p: Path) -> bool:
+        data = tomllib.loads(p.read_text())
+        return "family" in data or str(data.get("base", "")).endswith(".toml")
+
+    paths = [p for p in sorted((ROOT / "configs").rglob("*.toml")) + sorted((ROOT / "tests" / "data").glob("*.toml"))
+             if is_definition(p)]
+    assert {ROOT / p for p in SHIPPED_FINGERPRINTS} <= set(paths)
+    for p in paths:
+        assert load_database(p).materials, p
+
+
+def test_spectral_keys_enter_the_fingerprint_and_the_settings(tmp_path):
+    db = load_database(TINY_SPECTRAL)
+    assert db.spectral is True and db.wavelength_bins == 6
+    s = db.settings_for(db.materials[0], "quick", threads=1)
+    assert s.spectral and s.wavelength_bins == 6 and s.n_channels == 6 and s.rays == 2000
+    text = TINY_SPECTRAL.read_text()
+    rgb = tmp_path / "rgb.toml"
+    rgb.write_text(text.replace("spectral = true\nwavelength_bins = 6\n", ""))
+    default_bins = tmp_path / "bins30.toml"
+    default_bins.write_text(text.replace("wavelength_bins = 6\n", ""))
+    a, b = load_database(rgb), load_database(default_bins)
+    assert not a.spectral and not a.settings_for(a.materials[0], "quick").spectral
+    assert b.spectral and b.wavelength_bins == 30 == g_default_bins()
+    assert len({db.fingerprint(), a.fingerprint(), b.fingerprint()}) == 3
+    # an RGB definition's fingerprint is the document without the spectral keys (as before they existed)
+    spelled = tmp_path / "spelled.toml"
+    spelled.write_text(text.replace("spectral = true\nwavelength_bins = 6\n", "spectral = false\n"))
+    assert load_database(spelled).fingerprint() == a.fingerprint()
+
+
+def g_default_bins() -> int:
+    from goniometer.settings import SimulationSettings
+    return SimulationSettings().wavelength_bins
+
+
+@pytest.mark.parametrize("replace, message", [
+    (("spectral = true", 'spectral = "yes"'), r"simulation: spectral: 'yes' is not a boolean \(true or false\)$"),
+    (("wavelength_bins = 6", "wavelength_bins = 0"), r"simulation: wavelength_bins: 0 is outside \[3, 471\]$"),
+    (("wavelength_bins = 6", "wavelength_bins = 7"), r"simulation: wavelength_bins: 7 must be a multiple of 3"),
+    (("wavelength_bins = 6", "wavelength_bins = 6.0"), r"simulation: wavelength_bins: 6.0 is not an integer$"),
+    (("spectral = true", "spectral = false"), r"simulation: wavelength_bins: goes with spectral = true"),
+    (("spectral = true\n", ""), r"simulation: wavelength_bins: goes with spectral = true"),
+    (("seed = 7", "seed = 7\nrays = 5"),
+     r"simulation\.rays: unknown key \(allowed: incident_deg, masking, parametrization, resolution, seed, spectral, "
+     r"wavelength_bins\)$"),
+    (("conductor = \"Au\"", "ior = { wavelength_nm = [400, 700], value = [0.2, 0.3] }, extinction = 3.0"),
+     r": metal/gold-a0_0\.2: layers\[0\]\.ior: the table covers 400-700 nm but the run's wavelength bins need"),
+])
+def test_bad_spectral_definitions(tmp_path, replace, message):
+    p = tmp_path / "bad.toml"
+    text = TINY_SPECTRAL.read_text()
+    assert replace[0] in text
+    p.write_text(text.replace(*replace))
+    with pytest.raises(DatabaseError, match=message) as e:
+        load_database(p)
+    assert str(e.value).startswith(f"{p}: ") and "\n" not in str(e.value)
+
+
+def test_unknown_simulation_key_of_a_base_names_the_base(tmp_path):
+    base = tmp_path / "base.toml"
+    base.write_text(TINY.read_text().replace("seed = 3", "seed = 3\nmax_order = 4"))
+    twin = tmp_path / "twin.toml"
+    twin.write_text('base = "base.toml"\nname = "twin"\n')
+    with pytest.raises(DatabaseError, match=rf"^{base}: simulation\.max_order: unknown key"):
+        load_database(twin)
+    (tmp_path / "x.toml").write_text(TINY.read_text().replace("[simulation]\n", "simulation = 3\n[sim]\n", 1))
+    with pytest.raises(DatabaseError, match="unknown key"):
+        load_database(tmp_path / "x.toml")
+
+
+def test_a_thin_film_in_an_rgb_database_is_refused_at_load(tmp_path):
+    text = TINY_SPECTRAL.read_text().replace("spectral = true\nwavelength_bins = 6\n", "").replace(
+        '{ type = "interface", roughness = "$alpha0", conductor = "Au" },',
+        '{ type = "interface", roughness = "$alpha0", ior = 1.5, film = { thickness_nm = 400, ior = 1.33 } },\n'
+        '    { type = "lambertian", albedo = 0.02 },').replace('category = "metal"', 'category = "plastic"')
+    p = tmp_path / "film.toml"
+    p.write_text(text)
+    with pytest.raises(DatabaseError, match=r"metal/gold-a0_0\.2: layers\[0\]\.film: a thin film needs a spectral "
+                                            r"run \(set spectral = true in \[simulation\]"):
+        load_database(p)
+    p.write_text(text.replace('parametrization = "classic"', 'parametrization = "classic"\nspectral = true'))
+    assert load_database(p).spectral
+
+
+@pytest.fixture(scope="module")
+def spectral_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("db") / "spectral"
+    db = load_database(TINY_SPECTRAL)
+    summary = simulate_database(db, out, "quick", threads=2)
+    return db, out, summary
+
+
+def _assert_same_result(a, b) -> None:
+    """Every array of two SimulationResults is bit-identical."""
+    for x, y in [(a.brdf, b.brdf)] + ([(a.btdf, b.btdf)] if a.btdf is not None or b.btdf is not None else []):
+        for name in ("value", "stderr", "stderr_internal", "orders", "mask", "proj_solid_angle"):
+            assert np.array_equal(getattr(x, name), getattr(y, name)), name
+    for x, y in ((a.energy, b.energy), (a.energy_stderr, b.energy_stderr)):
+        assert x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x)
+    for name in ("roulette", "capped", "capped_paths", "mean_events", "theta_deg", "phi_deg"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_a_spectral_database_gives_the_bits_of_simulate(spectral_run, tmp_path):
+    """Each material's file holds what goniometer.run.simulate gives for its stack and settings
+    (written as any slices file is: the bounce orders as float32, docs/slices-format.md)."""
+    from goniometer.run import simulate
+    db, out, summary = spectral_run
+    assert sorted(summary.simulated) == sorted(m.name for m in db.materials)
+    for m in db.materials:
+        f = store.read(material_path(out, m))
+        assert f.settings.spectral and f.settings.wavelength_bins == 6 and f.brdf.value.shape == (2, 6, 6, 12)
+        assert (f.btdf is not None) == m.stack.transmits
+        ref = simulate(m.stack, db.settings_for(m, "quick"))
+        assert np.array_equal(f.brdf.value, ref.brdf.value) and np.array_equal(f.brdf.stderr, ref.brdf.stderr)
+        store.write(tmp_path / "ref.h5", ref)
+        _assert_same_result(f, store.read(tmp_path / "ref.h5"))
+        assert material_status(db, out, m, "quick") == "done"
+    manifest = json.loads((out / "database.json").read_text())
+    assert manifest["spectral"] is True and manifest["wavelength_bins"] == 6
+    assert manifest["fingerprint"] == db.fingerprint()
+    assert not (out / ".partial").exists()
+    again = simulate_database(db, out, "quick")
+    assert again.simulated == [] and sorted(again.skipped) == sorted(m.name for m in db.materials)
+    # the RGB twin of the definition is another database: its run refuses the directory
+    rgb = dataclasses.replace(db, spectral=False, wavelength_bins=30)
+    with pytest.raises(DatabaseError, match="database definition"):
+        check_results_dir(rgb, out, "quick")
+
+
+class _Interrupted(Exception):
+    pass
+
+
+def test_an_interrupted_spectral_material_resumes_to_the_same_bits(spectral_run, tmp_path):
+    from goniometer.database import checkpointed_incidents, paths_per_incident
+    db, out, _ = spectral_run
+    m = db.select("metal/*")[0]
+    per = paths_per_incident(db, m, "quick")
+    assert per == 2 * db.qualities["quick"]    # gold: 6 bins in 2 launches of 3 wavelengths
+    done = []
+
+    def interrupt(n: int) -> None:           # stops in the second incident direction
+        done.append(n)
+        if sum(done) > per:
+            raise _Interrupted()
+
+    work = tmp_path / "work"
+    with pytest.raises(_Interrupted):
+        simulate_database(db, work, "quick", only=m.name, progress=interrupt)
+    assert not material_path(work, m).exists() and checkpointed_incidents(work, m) == 1
+    assert material_status(db, work, m, "quick") == "partial"
+    seen: list[int] = []
+    s = simulate_database(db, work, "quick", only=m.name, progress=seen.append)
+    assert s.resumed == [m.name] and s.simulated == [m.name]
+    assert seen[0] == per and sum(seen) == 2 * per   # the first direction came from its checkpoint
+    _assert_same_result(store.read(material_path(work, m)), store.read(material_path(out, m)))
+    assert material_status(db, work, m, "quick") == "done" and not (work / ".partial").exists()
+
+
+def test_cli_runs_and_lists_a_spectral_database(spectral_run, tmp_path, capsys):
+    from goniometer.cli import main
+    db, out, _ = spectral_run
+    work = tmp_path / "cli"
+    shutil.copytree(out, work)
+    m = db.select("slab/*")[0]
+    material_path(work, m).unlink()
+    assert main(["database", "simulate", str(TINY_SPECTRAL), "--out", str(work), "--threads", "2"]) == 0
+    assert "1 simulated (0 resumed, 0 re-simulated), 1 already done" in capsys.readouterr().out
+    _assert_same_result(store.read(material_path(work, m)), store.read(material_path(out, m)))
+    assert main(["database", "simulate", str(TINY_SPECTRAL), "--out", str(work)]) == 0
+    assert "0 simulated (0 resumed, 0 re-simulated), 2 already done" in capsys.readouterr().out
+    assert main(["database", "list", str(TINY_SPECTRAL), "--out", str(work)]) == 0
+    text = capsys.readouterr().out
+    assert text.count("[done]") == 2 and "in tiny-spectral (spectral, 6 wavelength bins)" in text
+
+
+def test_dask_cluster_runs_a_spectral_database_with_the_local_bits(spectral_run, tmp_path):
+    distributed = pytest.importorskip("distributed", reason="Dask distributed is a test dependency")
+    db, out, _ = spectral_run
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        remote = tmp_path / "remote"
+        simulate_database(db, remote, "quick", scheduler=cluster.scheduler_address)
+    for m in db.materials:
+        _assert_same_result(store.read(material_path(out, m)), store.read(material_path(remote, m)))
+        assert material_status(db, remote, m, "quick") == "done"

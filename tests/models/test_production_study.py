@@ -165,6 +165,18 @@ def test_cli_refuses_a_directory_without_a_database(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("gonio: error: RESULTS_DIR:")
 
 
+def test_cli_refuses_a_spectral_database(tmp_path, capsys):
+    """The study measures RGB channels: a spectral results directory is refused with one line
+    naming the file (docs/database-format.md section 5)."""
+    definition = Path(__file__).resolve().parents[1] / "data" / "tiny_spectral_database.toml"
+    results = tmp_path / "spectral"
+    simulate_database(load_database(definition), results, "quick", only="metal/*")
+    assert main(["production", str(results), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "gold-a0_0.2.h5: a spectral run (6 wavelength bins); the production study measures RGB channels" in err
+    assert len(err.strip().splitlines()) == 1
+
+
 @pytest.mark.slow
 def test_pipeline_with_belcour(tiny_results, tmp_path):
     """belcour-fwd is read by the reference's own estimators on the conductors and refuses the

@@ -324,6 +324,29 @@ def test_bad_input_raises_report_error(results_dir, tmp_path):
         build_report(_h5_files(results_dir)[0], tmp_path / "out")
 
 
+def test_a_spectral_database_is_refused(tmp_path, capsys):
+    """The report reads RGB slices: over a spectral database it stops with one line naming the file
+    (docs/database-format.md section 5), with or without the definition, and the CLI exits 2."""
+    from goniometer.cli import main
+    definition = TINY.parent / "tiny_spectral_database.toml"
+    results = tmp_path / "spectral"
+    simulate_database(load_database(definition), results, "quick", only="metal/*")
+    gold = results / "metal" / "gold-a0_0.2.h5"
+    for kw in ({}, {"definition": definition}):
+        with pytest.raises(ReportError, match=r"gold-a0_0\.2\.h5: a spectral run \(6 wavelength bins\); the report") as e:
+            build_report(results, tmp_path / "out", **kw)
+        assert str(gold) in str(e.value) and "\n" not in str(e.value)
+    mf = json.loads((results / "database.json").read_text())
+    mf["definition"] = str(tmp_path / "gone.toml")     # the materials then come from the files
+    (results / "database.json").write_text(json.dumps(mf))
+    with pytest.raises(ReportError, match="a spectral run"):
+        open_results(results)
+    assert main(["report", str(results), "--out", str(tmp_path / "cli")]) == 2
+    err = capsys.readouterr().err
+    assert "a spectral run (6 wavelength bins)" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "cli" / "index.html").exists()
+
+
 def test_without_its_definition_parameters_come_from_the_files(results_dir, tmp_path):
     moved = tmp_path / "moved"
     shutil.copytree(results_dir, moved)

@@ -102,7 +102,11 @@ def measure_results(results_dir: str | Path, with_belcour: bool = True,
     bare: dict[str, Path] = {}
     coated: list[tuple[Path, CoatedBase]] = []
     for path in result_files(results_dir):
-        stack, _ = store.describe(path)
+        stack, settings = store.describe(path)
+        if settings.spectral:
+            raise ProductionError(f"{path}: a spectral run ({settings.wavelength_bins} wavelength bins); the "
+                                  f"production study measures RGB channels: simulate the database without "
+                                  f"spectral = true in [simulation] (docs/production.md)")
         key = bare_key(stack)
         if key is not None:
             bare[key] = path
