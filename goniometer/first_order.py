@@ -99,7 +99,7 @@ def first_order_fractions(stack: Stack, parametrization: str, n_theta: int, n_ph
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _fresnel(cos_i, p, conductor, c):
     """Fresnel reflectance of channel ``c`` (the run's exact formulas, :mod:`goniometer.optics`)."""
     if conductor:
@@ -117,7 +117,7 @@ def _mirror_cell(out, p, conductor, param, n_theta, n_phi, row_cos, col_cos, col
             out[c, i, j] = _fresnel(lz, p, conductor, c)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _integrand(param, su, cu, cw, sw, p, conductor, hc):
     """``f_1 cos(theta_v)`` times the Jacobian of the cell coordinates (u, w) per channel, given
     ``sin u, cos u, cos w, sin w``: (theta_v, phi_v) with ``dw = sin(theta_v)``, or (theta_h, phi_h)
@@ -155,7 +155,7 @@ def _integrand(param, su, cu, cw, sw, p, conductor, hc):
     return f, f, f
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, trig):
     """Product Gauss-Legendre rule (nodes ``gx``, weights ``gw`` on [-1, 1]) over the rectangle
     [u0, u1] x [w0, w1] (three channels); ``trig``: (2, len(gx)) scratch for the nodes' cos, sin w."""
@@ -180,7 +180,7 @@ def _rule(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, trig):
     return a0 * s, a1 * s, a2 * s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, hx, hw, rtol, atol, stack, trig):
     """Adaptive cubature of one rectangle: the rule of ``gx`` against the coarser one of ``hx``;
     where they disagree beyond ``atol + rtol |value|`` (``atol`` shared out by area) the rectangle
@@ -212,7 +212,7 @@ def _adaptive(param, u0, u1, w0, w1, p, conductor, hc, gx, gw, hx, hw, rtol, ato
     return t0, t1, t2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _theta_h(param, u, w, lx, ly, lz):
     """theta_h of the cell coordinates (u, w)."""
     if param != CLASSIC:
@@ -224,7 +224,7 @@ def _theta_h(param, u, w, lx, ly, lz):
     return math.acos(min(1.0, z / math.sqrt(x * x + y * y + z * z)))
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, error_model='numpy', parallel=True)
 def _integrate_cells(out, p, conductor, hc, param, n_theta, n_phi, gx, gw, hx, hw, rtol, atol):
     """Every cell of the slice, rows in parallel (each cell's value is independent of threads)."""
     a_min = min(p[_AX], p[_AY])

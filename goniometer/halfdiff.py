@@ -41,7 +41,7 @@ _HALF_PI = 0.5 * math.pi
 MEASURE_GAUSS = (8, 3)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def halfdiff_angles(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float):
     """``(theta_h, theta_d, phi_d)`` of the unit directions ``l`` and ``v``, ``phi_d`` in [-pi, pi]."""
     hx = lx + vx
@@ -72,7 +72,7 @@ def halfdiff_angles(lx: float, ly: float, lz: float, vx: float, vy: float, vz: f
     return theta_h, theta_d, phi_d
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def cell_of_angles(theta_h: float, theta_d: float, phi_d: float) -> int:
     """Flat MERL index ``i_p + 180 (i_d + 90 i_h)`` of half/difference angles (radians)."""
     if theta_h <= 0.0:
@@ -86,7 +86,7 @@ def cell_of_angles(theta_h: float, theta_d: float, phi_d: float) -> int:
     return ip + N_PHI_D * (idd + N_THETA_D * ih)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def cell_of(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float) -> int:
     """Flat MERL cell of the pair ``(l, v)`` of unit directions, or -1 if either lies at or below
     the horizon."""
@@ -96,7 +96,7 @@ def cell_of(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float) ->
     return cell_of_angles(th, td, pd)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _cells(l: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
     for k in range(l.shape[0]):
         out[k] = cell_of(l[k, 0], l[k, 1], l[k, 2], v[k, 0], v[k, 1], v[k, 2])
@@ -146,7 +146,7 @@ def phi_d_centers_deg() -> np.ndarray:
     return (np.arange(N_PHI_D) + 0.5) * (180.0 / N_PHI_D)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _theta_d_integral(ch: float, sh: float, d0: float, c0: float, s0: float, d1: float, c1: float,
                       s1: float, cphi: float) -> float:
     """``Int 4 cos td sin td max(0, l_z v_z) dtd`` over ``[d0, d1]`` (cosines ``c``, sines ``s``)
@@ -167,7 +167,7 @@ def _theta_d_integral(ch: float, sh: float, d0: float, c0: float, s0: float, d1:
     return ch * ch * (c02 * c02 - c12 * c12) + S * (s02 * s02 - s12 * s12)
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, error_model='numpy', parallel=True)
 def _measure(gx: np.ndarray, gw: np.ndarray, px: np.ndarray, pw: np.ndarray, th_edges: np.ndarray, td_edges: np.ndarray,
              pd_edges: np.ndarray) -> np.ndarray:
     """theta_d exactly, phi_d by Gauss-Legendre on the pieces between the kinks of the

@@ -51,7 +51,7 @@ _COS_TURN.setflags(write=False)
 _SIN_TURN.setflags(write=False)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def cos_sin_2pi(u: float):
     """``(cos(2 pi u), sin(2 pi u))`` for ``u`` in [0, 1], without a libm call or branch.
 
@@ -73,7 +73,7 @@ def cos_sin_2pi(u: float):
     return cj * c - sj * s, sj * c + cj * s
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def cosine_from_disk(x: float, y: float):
     """A direction of the upper hemisphere with density ``cos theta / pi`` from a point ``(x, y)``
     uniform in the open unit disk (Malley's method: the disk point lifted onto the hemisphere),
@@ -91,7 +91,7 @@ _LN2_STEP_HI = 0.693147180369123816490 / _EXP_STEPS
 _LN2_STEP_LO = 1.90821492927058770002e-10 / _EXP_STEPS
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def exp_neg(x: float) -> float:
     """``exp(x)`` for ``x <= 0`` without a libm call, so that loops using it vectorise (LLVM has
     no vector form of libm's ``exp`` here): ``x = (64 k + j) ln 2 / 64 + r`` with ``|r| <= ln 2 / 128``
@@ -107,7 +107,7 @@ def exp_neg(x: float) -> float:
     return _EXP2_TABLE[n & (_EXP_STEPS - 1)] * p * _pow2(n >> 6)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _pow2(k: int) -> float:
     """``2.0 ** k`` for ``-1022 <= k <= 1023``, from the exponent bits."""
     return int64_as_double((k + 1023) << 52)
@@ -123,7 +123,7 @@ _LN2_HI = 0.693147180369123816490
 _LN2_LO = 1.90821492927058770002e-10
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def log_pos(x: float) -> float:
     """``log(x)`` for a positive normal ``x`` without a libm call, so that loops using it vectorise:
     ``x = 2^e m`` (``m`` in [1, 2), from the bits), ``m = (1 + j / 64)(1 + r)`` with ``j`` the top six
@@ -144,7 +144,7 @@ def log_pos(x: float) -> float:
 
 # --------------------------------------------------------------------------- Fresnel
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def fresnel_dielectric_cos_t(cos_i: float, eta: float):
     """Exact unpolarised Fresnel reflectance of a dielectric boundary and the refracted cosine.
 
@@ -156,7 +156,7 @@ def fresnel_dielectric_cos_t(cos_i: float, eta: float):
     return fresnel_dielectric_cos_t_inv(cos_i, eta, 1.0 / eta)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_dielectric_terms(cos_i: float, eta: float, inv_eta: float):
     """The parts of :func:`fresnel_dielectric_cos_t_inv`: ``(num, den, cos_t, tir)`` with the
     reflectance ``min(1, num / den)`` unless ``tir`` (total internal reflection: 1) or ``eta = 1``
@@ -175,14 +175,14 @@ def fresnel_dielectric_terms(cos_i: float, eta: float, inv_eta: float):
     return 0.5 * (a * a * (q * q) + p * p * (b * b)), max(bq * bq, 1e-300), cos_t, tir
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_dielectric_select(ratio: float, eta: float, tir: bool) -> float:
     """The reflectance from the parts of :func:`fresnel_dielectric_terms` (``ratio = num / den``)."""
     f = min(1.0, ratio)
     return 0.0 if eta == 1.0 else (1.0 if tir else f)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
     """:func:`fresnel_dielectric_cos_t` for callers that already hold ``inv_eta = 1 / eta``
     (the tracer precomputes both per interface, which keeps divisions off its critical path).
@@ -197,7 +197,7 @@ def fresnel_dielectric_cos_t_inv(cos_i: float, eta: float, inv_eta: float):
     return fresnel_dielectric_select(num / den, eta, tir), cos_t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def fresnel_dielectric(cos_i: float, eta: float) -> float:
     """Exact unpolarised Fresnel reflectance of a dielectric boundary (see
     :func:`fresnel_dielectric_cos_t`): total internal reflection returns 1, ``eta == 1``
@@ -205,7 +205,7 @@ def fresnel_dielectric(cos_i: float, eta: float) -> float:
     return fresnel_dielectric_cos_t(cos_i, eta)[0]
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _conductor_terms(cos_i: float, eta: float, kappa: float):
     """``(num, den)`` with the conductor reflectance ``num / den`` (:func:`fresnel_conductor`)."""
     c = min(abs(cos_i), 1.0)
@@ -221,7 +221,7 @@ def _conductor_terms(cos_i: float, eta: float, kappa: float):
     return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     """Exact unpolarised Fresnel reflectance for a complex relative index ``eta + i kappa``.
 
@@ -240,7 +240,7 @@ def fresnel_conductor(cos_i: float, eta: float, kappa: float) -> float:
     return 0.0 if (eta == 1.0 and kappa == 0.0) else f
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_conductor_rgb(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, eta2: float,
                           kappa2: float, num: float = 0.0, den: float = 1.0):
     """:func:`fresnel_conductor` of three channels with one division between them (each
@@ -261,7 +261,7 @@ def fresnel_conductor_rgb(cos_i: float, eta0: float, kappa0: float, eta1: float,
             0.0 if (eta2 == 1.0 and kappa2 == 0.0) else f2, num * (e0 * e1 * e2) * inv)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, num: float = 0.0,
                            den: float = 1.0):
     """:func:`fresnel_conductor_rgb` for two channels (RGB indices with two channels alike); also
@@ -278,7 +278,7 @@ def fresnel_conductor_pair(cos_i: float, eta0: float, kappa0: float, eta1: float
             num * (e0 * e1) * inv)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_conductor_channels(cos_i: float, eta0: float, kappa0: float, eta1: float, kappa1: float, eta2: float,
                                kappa2: float, g_is_r: bool, b_is_g: bool):
     """The three channels' conductor Fresnel reflectances: computed once for channels that share
@@ -306,13 +306,13 @@ def fresnel_conductor_channels(cos_i: float, eta0: float, kappa0: float, eta1: f
 # real arithmetic only (complex numbers as pairs), branch-free and libm-free, so that the lane
 # kernel's loop vectorises with it inlined (docs/kernel.md).
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _cmul(ar: float, ai: float, br: float, bi: float):
     """The complex product ``(ar + i ai)(br + i bi)``."""
     return ar * br - ai * bi, ar * bi + ai * br
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _csqrt(ar: float, ai: float):
     """The principal square root of ``ar + i ai`` (real part >= 0; imaginary part of the sign of
     ``ai``, ``ai = -0`` counting as positive), in the form without cancellation."""
@@ -324,7 +324,7 @@ def _csqrt(ar: float, ai: float):
     return (t if ar >= 0.0 else h), (hs if ar >= 0.0 else s)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def film_rt_terms(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
     """:func:`film_rt` as its parts ``(Rs_num, Ts_num, s_den, Rp_num, Tp_num, p_den)``: ``R = (Rs_num /
     s_den + Rp_num / p_den) / 2`` and likewise ``T`` (``s_den, p_den > 0``), for callers that share
@@ -386,7 +386,7 @@ def film_rt_terms(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: 
     return rs_num, ts_num, s_den, rp_num, tp_num, p_den
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _airy(n12r, n12i, p12r, p12i, n23r, n23i, p23r, p23i, er, ei):
     """``(|N12 P23 + N23 P12 E|^2, max(|P12 P23 + N12 N23 E|^2, 1e-300))``: the Airy sum's
     reflectance ``r = (r12 + r23 E) / (1 + r12 r23 E)`` as a fraction, ``r_ij = N_ij / P_ij``."""
@@ -403,7 +403,7 @@ def _airy(n12r, n12i, p12r, p12i, n23r, n23i, p23r, p23i, er, ei):
     return nr * nr + ni * ni, max(mr * mr + mi * mi, 1e-300)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def film_rt(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
     """Unpolarised reflectance and transmittance ``(R, T)`` of a thin film (Airy summation; Born &
     Wolf 1.6, Macleod's admittances; ``docs/material-format.md``, thin films).
@@ -425,7 +425,7 @@ def film_rt(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float,
     return 0.5 * (rs / ds + rp / dp), 0.5 * (ts / ds + tp / dp)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def film_rt_channel(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
     """:func:`film_rt` with one division (for the lane kernel, which inlines it)."""
     rs, ts, ds, rp, tp, dp = film_rt_terms(cos_i, n1, nf, kf, n3, k3, d_lam)
@@ -435,7 +435,7 @@ def film_rt_channel(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3
 
 # --------------------------------------------------------------------------- GGX
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def ggx_d(mx: float, my: float, mz: float, ax: float, ay: float) -> float:
     """GGX normal distribution D(m) in 1/sr, normalised so that Int D(m) m_z dm = 1.
 
@@ -450,7 +450,7 @@ def ggx_d(mx: float, my: float, mz: float, ax: float, ay: float) -> float:
     return _INV_PI / (ax * ay * t * t)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def ggx_lambda(vx: float, vy: float, vz: float, ax: float, ay: float) -> float:
     """Smith Lambda(v) of the GGX distribution (Heitz 2014, eq. 86); uses |v_z|."""
     z2 = vz * vz
@@ -462,7 +462,7 @@ def ggx_lambda(vx: float, vy: float, vz: float, ax: float, ay: float) -> float:
     return 0.5 * (math.sqrt(1.0 + a2t2 / z2) - 1.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def smith_g1(vx: float, vy: float, vz: float, v_dot_m: float, ax: float, ay: float) -> float:
     """Smith masking G1(v, m) = chi+(v.m / v.n) / (1 + Lambda(v)).
 
@@ -474,7 +474,7 @@ def smith_g1(vx: float, vy: float, vz: float, v_dot_m: float, ax: float, ay: flo
     return smith_g1_dir(vx, vy, vz, ax, ay)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def smith_g1_dir(vx: float, vy: float, vz: float, ax: float, ay: float) -> float:
     """Smith masking of a direction, ``1 / (1 + Lambda(v))`` (GGX; uses ``|v_z|``, no microfacet
     test), written ``2 |v_z| / (|v_z| + sqrt(v_z^2 + ax^2 v_x^2 + ay^2 v_y^2))``: one division,
@@ -485,7 +485,7 @@ def smith_g1_dir(vx: float, vy: float, vz: float, ax: float, ay: float) -> float
     return (z + z) / d if z > 0.0 else z - z
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def log_beta(a: float, b: float) -> float:
     """log of the Euler Beta function B(a, b) for a, b > 0."""
     return math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)
@@ -494,7 +494,7 @@ def log_beta(a: float, b: float) -> float:
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def log_gamma_ge1(x: float) -> float:
     """``log Gamma(x)`` for ``x >= 1`` without a libm call, so that loops using it vectorise
     (:func:`log_beta` calls libm's ``lgamma``): below 9 the recurrence ``Gamma(x) = Gamma(x + 8) /
@@ -510,7 +510,7 @@ def log_gamma_ge1(x: float) -> float:
     return ((y - 0.5) * log_pos(y) - y + _HALF_LOG_2PI + series) - log_pos(p)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def smith_g2_height_correlated(lambda_i: float, lambda_o: float, transmission: bool) -> float:
     """:func:`smith_g2`'s height-correlated form without branches or libm (for the lane kernel):
     the Beta function from :func:`log_gamma_ge1` (relative error below 1e-12 for Lambdas up to 100;
@@ -525,7 +525,7 @@ def smith_g2_height_correlated(lambda_i: float, lambda_o: float, transmission: b
     return 0.0 if inf else g
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def smith_g2(lambda_i: float, lambda_o: float, transmission: bool, height_correlated: bool) -> float:
     """Smith masking-shadowing G2 from the two Lambdas (visibility tests done by the caller).
 
@@ -542,7 +542,7 @@ def smith_g2(lambda_i: float, lambda_o: float, transmission: bool, height_correl
     return 1.0 / ((1.0 + lambda_i) * (1.0 + lambda_o))
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float, u2: float):
     """Sample a microfacet normal from the GGX visible-normal distribution.
 
@@ -557,7 +557,7 @@ def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float
     return sample_vndf_polar(wx, wy, wz, ax, ay, cos_phi, sin_phi, u2, inv)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: float, y: float):
     """:func:`sample_vndf` from a point ``(x, y)`` uniform in the unit disk (the walks draw it by
     rejection, :func:`goniometer.rng.next_disk`: no trigonometry).
@@ -578,7 +578,7 @@ def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: f
     return _vndf_unstretch(k * x + sx, k * y + sy, b * (1.0 - t), ax, ay)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def sample_vndf_polar(wx: float, wy: float, wz: float, ax: float, ay: float, cos_phi: float, sin_phi: float,
                       t: float, inv: float):
     """:func:`sample_vndf_disk` of the disk point ``sqrt(t) (cos_phi, sin_phi)``, given
@@ -591,7 +591,7 @@ def sample_vndf_polar(wx: float, wy: float, wz: float, ax: float, ay: float, cos
     return _vndf_unstretch(kr * cos_phi + sx, kr * sin_phi + sy, b * (1.0 - t), ax, ay)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def vndf_stretch_norm2(wx: float, wy: float, wz: float, ax: float, ay: float) -> float:
     """The squared length of ``w`` stretched to the alpha = 1 configuration (at least 1e-300)."""
     sx = ax * wx
@@ -599,7 +599,7 @@ def vndf_stretch_norm2(wx: float, wy: float, wz: float, ax: float, ay: float) ->
     return max(1e-300, sx * sx + sy * sy + wz * wz)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _vndf_unstretch(hx: float, hy: float, hz: float, ax: float, ay: float):
     """The unit microfacet normal of the stretched-configuration normal ``h``."""
     mx = ax * hx
@@ -609,7 +609,7 @@ def _vndf_unstretch(hx: float, hy: float, hz: float, ax: float, ay: float):
     return mx * inv, my * inv, mz * inv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def vndf_pdf(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, ax: float, ay: float) -> float:
     """Density (1/sr, over m) of :func:`sample_vndf`: G1(w) max(0, w.m) D(m) / w_z."""
     wm = wx * mx + wy * my + wz * mz
@@ -620,14 +620,14 @@ def vndf_pdf(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, a
 
 # --------------------------------------------------------------------------- geometry
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def reflect(wx: float, wy: float, wz: float, mx: float, my: float, mz: float):
     """Mirror ``w`` about ``m``: 2 (w.m) m - w (both pointing away from the surface)."""
     d = 2.0 * (wx * mx + wy * my + wz * mz)
     return d * mx - wx, d * my - wy, d * mz - wz
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def refract(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, eta: float):
     """Refract ``w`` (pointing away, on the side of ``m``) through a facet of normal ``m``.
 
@@ -643,7 +643,7 @@ def refract(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, et
     return x, y, z, True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def refract_known(wx: float, wy: float, wz: float, mx: float, my: float, mz: float,
                   inv_eta: float, cos_i: float, cos_t: float):
     """:func:`refract` when ``cos_i = w.m`` and the refracted cosine ``cos_t`` (e.g. from
@@ -654,7 +654,7 @@ def refract_known(wx: float, wy: float, wz: float, mx: float, my: float, mz: flo
 
 # --------------------------------------------------------------------------- microfacet BSDFs (Walter 2007)
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model='numpy', inline="always")
 def half_vector(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float) -> tuple:
     """The reflection half vector ``normalize(l + v)`` (``l``, ``v`` unit, not opposite)."""
     hx = lx + vx
@@ -664,7 +664,7 @@ def half_vector(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float
     return hx * inv, hy * inv, hz * inv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def microfacet_reflection(
     lx: float, ly: float, lz: float, vx: float, vy: float, vz: float,
     ax: float, ay: float, eta: float, kappa: float, height_correlated: bool,
@@ -689,7 +689,7 @@ def microfacet_reflection(
     return f * d * g / (4.0 * lz * vz)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def microfacet_transmission(
     lx: float, ly: float, lz: float, vx: float, vy: float, vz: float,
     ax: float, ay: float, eta: float, height_correlated: bool,
@@ -742,7 +742,7 @@ def microfacet_transmission(
 # :func:`goniometer.tracer.microsurface_walk` (it draws the random numbers).
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def ms_sample_height(wx: float, wy: float, wz: float, c: float, ax: float, ay: float, u: float) -> float:
     """Next intersection of a ray with the microsurface, in height-CDF space (Heitz 2016, sec. 4).
 
@@ -770,7 +770,7 @@ def ms_sample_height(wx: float, wy: float, wz: float, c: float, ax: float, ay: f
 _INV_4PI = 1.0 / (4.0 * math.pi)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def hg_phase(cos_theta: float, g: float) -> float:
     """Henyey-Greenstein phase function in 1/sr, normalised over the sphere:
     ``(1 - g^2) / (4 pi (1 + g^2 - 2 g cos)^(3/2))``. ``cos_theta`` is the cosine between the
@@ -779,7 +779,7 @@ def hg_phase(cos_theta: float, g: float) -> float:
     return (1.0 - g * g) * _INV_4PI / (d * math.sqrt(d))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def sample_hg_cos(g: float, u: float) -> float:
     """Cosine of the scattering angle drawn from the Henyey-Greenstein phase function, ``u`` in [0, 1).
 
@@ -794,7 +794,7 @@ def sample_hg_cos(g: float, u: float) -> float:
     return min(1.0, max(-1.0, c))
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model='numpy', inline="always")
 def hg_scatter(dx: float, dy: float, dz: float, g: float, u1: float, u2: float):
     """New propagation direction after a Henyey-Greenstein scattering of the unit direction ``d``:
     the scattering cosine from :func:`sample_hg_cos` (``u1``), the azimuth about ``d`` uniform
@@ -804,7 +804,7 @@ def hg_scatter(dx: float, dy: float, dz: float, g: float, u1: float, u2: float):
     return hg_scatter_cs(dx, dy, dz, g, u1, cos_ph, sin_ph)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model='numpy', inline="always")
 def hg_scatter_cs(dx: float, dy: float, dz: float, g: float, u1: float, cos_ph: float, sin_ph: float):
     """:func:`hg_scatter` with the azimuth given by its cosine and sine (a caller that has them)."""
     c = sample_hg_cos(g, u1)
@@ -822,7 +822,7 @@ def hg_scatter_cs(dx: float, dy: float, dz: float, g: float, u1: float, cos_ph: 
     return ox * inv, oy * inv, oz * inv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def hero_free_flight(u: float, t_hero: float) -> float:
     """Free-flight length drawn with the extinction ``t_hero`` of the path's hero channel:
     ``-log(1 - u) / t_hero``; ``inf`` (no collision) when ``t_hero = 0``."""
@@ -831,7 +831,7 @@ def hero_free_flight(u: float, t_hero: float) -> float:
     return -math.log1p(-u) / t_hero
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def spectral_mis_update(p0: float, p1: float, p2: float, q0: float, q1: float, q2: float):
     """One flight of path-level one-sample spectral MIS (``docs/material-format.md``, media).
 

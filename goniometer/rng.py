@@ -42,7 +42,7 @@ _CHUNK_SALT = np.uint64(0x5EED)
 _STREAM_SALT = np.uint64(0x243F6A8885A308D3)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def splitmix64(x: np.uint64) -> np.uint64:
     """One SplitMix64 step as a pure function: the mixed value of ``x + golden``."""
     z = x + _GOLDEN
@@ -51,7 +51,7 @@ def splitmix64(x: np.uint64) -> np.uint64:
     return z ^ (z >> _U31)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def stream_state(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.ndarray:
     """The xoshiro256** state of the stream keyed by (seed, incident index, chunk index)."""
     k = splitmix64(splitmix64(splitmix64(seed) ^ incident) ^ (chunk * _GOLDEN + _U5))
@@ -62,7 +62,7 @@ def stream_state(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.n
     return s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def seed_state(s: np.ndarray, key: np.uint64) -> None:
     """Fill the xoshiro256** state ``s`` (``uint64[4]``) from a path key (SplitMix64 steps)."""
     k = key ^ _STREAM_SALT
@@ -71,7 +71,7 @@ def seed_state(s: np.ndarray, key: np.uint64) -> None:
         s[i] = k
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def draw(key: np.uint64, n: np.uint64) -> np.uint64:
     """The ``n``-th 64-bit number of the path keyed ``key``: SplitMix64's finaliser of
     ``key + n * golden`` (no state; vectorisable)."""
@@ -81,7 +81,7 @@ def draw(key: np.uint64, n: np.uint64) -> np.uint64:
     return z ^ (z >> _U31)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def uniform_pair(h: np.uint64):
     """Two uniforms in [0, 1) on the grid 2^-32 from the two 32-bit halves of ``h``."""
     a = np.int64(h >> _U32)
@@ -89,7 +89,7 @@ def uniform_pair(h: np.uint64):
     return float(a) * _INV_2_32, float(b) * _INV_2_32
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def path_key(chunk: np.uint64, path: np.uint64) -> np.uint64:
     """The key of path ``path`` (index within its chunk) of the chunk keyed ``chunk``."""
     z = chunk ^ (path * _M2)
@@ -98,19 +98,19 @@ def path_key(chunk: np.uint64, path: np.uint64) -> np.uint64:
     return z ^ (z >> _U31)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def chunk_key(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.uint64:
     """The key of chunk ``chunk`` of incident direction ``incident`` of a run seeded ``seed``."""
     return path_key(path_key(path_key(_CHUNK_SALT, seed), incident), chunk)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def next_float(s: np.ndarray) -> float:
     """Next uniform double in [0, 1) with 53 random bits; advances the state ``s`` in place."""
     return float(next_u64(s) >> _U11) * _INV_2_53
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def next_disk(s: np.ndarray):
     """A point ``(x, y)`` uniform in the unit disk (``x^2 + y^2 < 1``) by rejection from the
     square: each trial takes one 64-bit output, its two 32-bit halves giving ``x`` and ``y`` on a
@@ -124,7 +124,7 @@ def next_disk(s: np.ndarray):
             return x, y
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def next_u64(s: np.ndarray) -> np.uint64:
     """Next 64-bit output of xoshiro256**; advances the state ``s`` in place."""
     s1 = s[1]

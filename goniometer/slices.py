@@ -39,7 +39,7 @@ _HALF_PI = 0.5 * math.pi
 _TWO_PI = 2.0 * math.pi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def slice_direction(param: int, transmission: bool, lx: float, ly: float, lz: float,
                     vx: float, vy: float, vz: float):
     """The unit vector whose polar angles the slice bins: ``v`` (classic) or ``normalize(l + v)``
@@ -57,7 +57,7 @@ def slice_direction(param: int, transmission: bool, lx: float, ly: float, lz: fl
     return x * inv, y * inv, z * inv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
                vx: float, vy: float, vz: float, n_theta: int, n_phi: int):
     """Cell ``(i, j)`` of the outgoing direction ``v`` for light direction ``l``.
@@ -84,7 +84,7 @@ def cell_index(param: int, transmission: bool, lx: float, ly: float, lz: float,
     return i, j
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fast_acos(x: float) -> float:
     """arccos of ``x`` in [0, 1] to 2e-8 rad (Abramowitz & Stegun 4.4.46). Only used to guess a
     row that :func:`cell_index_fast` then corrects exactly against the row boundaries."""
@@ -99,7 +99,7 @@ def fast_acos(x: float) -> float:
     return math.sqrt(max(0.0, 1.0 - x)) * p
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fast_angle(x: float, y: float) -> float:
     """Azimuth of (x, y) in [0, 2 pi) to about 1e-5 rad (a guess corrected by the caller); 0 for
     the origin. Selects only (the quadrant of a random direction is not predictable)."""
@@ -126,7 +126,7 @@ def boundary_tables(param: str, n_theta: int, n_phi: int) -> tuple[np.ndarray, n
     return row_cos, col_cos, col_sin
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: float,
                     vx: float, vy: float, vz: float, n_theta: int, n_phi: int,
                     row_cos: np.ndarray, col_cos: np.ndarray, col_sin: np.ndarray):
@@ -151,7 +151,7 @@ def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: fl
     return i, min(int(phi / _TWO_PI * n_phi), n_phi - 1)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _row_of(z: float, half: bool, n_theta: int, row_cos) -> int:
     """The row of ``cos theta = z`` (in [0, 1]): a guess within one row, corrected by one step."""
     u = fast_acos(z) / _HALF_PI
@@ -161,7 +161,7 @@ def _row_of(z: float, half: bool, n_theta: int, row_cos) -> int:
     return i + 1 if (i < n_theta - 1) & (z <= row_cos[i + 1]) else i
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def cell_index_lanes(param: int, transmission: bool, lx: float, ly: float, lz: float,
                      vx: float, vy: float, vz: float, n_theta: int, n_phi: int, row_cos, col_cos, col_sin):
     """The cell ``(i, j)`` of ``v`` (``(-1, -1)`` on the wrong side), without branches, for
@@ -192,7 +192,7 @@ def cell_index_lanes(param: int, transmission: bool, lx: float, ly: float, lz: f
     return (i if ok else -1), (j if ok else -1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s):
     """Centre direction v (reflection side) and projected solid angle of half sub-cell (i, a; j, b)."""
     u0 = (i + a / s) / n_theta
@@ -213,7 +213,7 @@ def _half_subcell(lx, ly, lz, i, a, j, b, n_theta, n_phi, s):
     return vx, vy, vz, w
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, error_model='numpy', parallel=True)
 def _half_subcells(lx, ly, lz, n_theta, n_phi, s, transmission):
     """Sub-cell centre directions and weights of a half slice (see :meth:`SliceGrid.subcells`)."""
     dirs = np.empty((n_theta, n_phi, s, s, 3))
@@ -230,7 +230,7 @@ def _half_subcells(lx, ly, lz, n_theta, n_phi, s, transmission):
     return dirs, weights
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, error_model='numpy', parallel=True)
 def _half_omega(lx, ly, lz, n_theta, n_phi, s):
     """Sum of sub-cell weights per half cell and whether every sub-cell centre is valid
     (:func:`_half_subcell`'s values, the sines and cosines taken once per row and per column)."""
@@ -273,7 +273,7 @@ def _half_omega(lx, ly, lz, n_theta, n_phi, s):
     return omega, valid
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _half_weight_sc(lx, ly, lz, st, ct, cp, sp):
     """:func:`_half_weight` from ``sin theta_h, cos theta_h, cos phi_h, sin phi_h``."""
     hx = st * cp
@@ -285,14 +285,14 @@ def _half_weight_sc(lx, ly, lz, st, ct, cp, sp):
     return w, vz, lh
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _half_weight(lx, ly, lz, th, ph):
     """Integrand of the projected solid angle of a half cell in (theta_h, phi_h), per unit
     ``dtheta dphi``: ``4 (l.h) max(0, v_z) sin(theta_h)``, 0 where l.h <= 0; and v_z, l.h."""
     return _half_weight_sc(lx, ly, lz, math.sin(th), math.cos(th), math.cos(ph), math.sin(ph))
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, error_model='numpy', parallel=True)
 def _half_omega_exact(lx, ly, lz, n_theta, n_phi, gx, gw, s_fine):
     """Projected solid angle of every half cell: Gauss-Legendre (nodes ``gx``, weights ``gw`` on
     [-1, 1]) in (theta_h, phi_h) where the cell lies entirely on the valid side (all of a grid of

@@ -155,7 +155,7 @@ class TabulationCheckpoint:
         shutil.rmtree(self.directory, ignore_errors=True)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq, hits, acc_energy, acc_energy_sq,
             acc_counts, chunk):
     """Add a batch of chunks to the state: the exit records to the cell sums (chunk by chunk, path

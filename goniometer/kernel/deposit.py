@@ -25,7 +25,7 @@ BUFFER = 512
 X_COLS = 8
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def _offsets(i, j, o, transmission, n_phi, row, nb, max_order):
     """Flat offsets of cell (i, j)'s order row ``o`` and of its squared-sum row (-1 outside the
     slice, ``i < 0``); transmitted exits offset by the BRDF's size ``nb``."""

@@ -114,7 +114,7 @@ T_TAU0, T_TAU1, T_TAU2, T_SCAT, T_IEXT0, T_IEXT1, T_IEXT2, T_ALB0, T_ALB1, T_ALB
 TAU_SCATTER = 3
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def tau_modes(region_tau: np.ndarray, region_albedo: np.ndarray) -> np.ndarray:
     """Per region: 0 clear, 1 achromatic absorption, 2 chromatic; a scattering medium (albedo > 0
     where tau > 0): TAU_SCATTER with achromatic extinction, TAU_SCATTER + 1 chromatic."""
@@ -131,7 +131,7 @@ def tau_modes(region_tau: np.ndarray, region_albedo: np.ndarray) -> np.ndarray:
     return mode
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def relative_indices(region_eta: np.ndarray):
     """Per interface k: the relative index going down (``n_{k+1} / n_k``) and up (its inverse);
     ones for a stack without interfaces."""
@@ -144,7 +144,7 @@ def relative_indices(region_eta: np.ndarray):
     return eta_dn, eta_up
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, n_if,
                 conductor_base, if_film, has_film):
     """The flat table of the event (layout above) and the offset of its region part; with

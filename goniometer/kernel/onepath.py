@@ -42,7 +42,7 @@ X_TRANSMITTED = 2
 FIXED_SCALE = 4294967296.0
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fixed_point(w: float) -> np.int64:
     """``w`` in the CUDA kernel's fixed point: the nearest integer to ``w * 2^32`` (ties upward)."""
     return np.int64(math.floor(w * FIXED_SCALE + 0.5))
@@ -306,7 +306,7 @@ def trace_path(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, regi
             rl0, rl1, rl2, cp0, cp1, cp2, capped, events)
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def path_state(state, seed, stream, chunk, path) -> None:
     """Seed ``state`` (uint64[4]) from the key of path ``path`` of chunk ``chunk`` of incident
     ``stream`` of a run seeded ``seed`` (:mod:`goniometer.rng`)."""

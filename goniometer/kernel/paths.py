@@ -54,7 +54,7 @@ def _prefetch(typingctx, arr, i, j, k, c):
     return sig, codegen
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, error_model='numpy', _nrt=False)
 def _prefetch_exit(h, i, j, o, max_order):
     """Prefetch the rows of histogram cell ``(i, j)`` that :func:`_deposit` will update."""
     _prefetch(h, i, j, o, 0)
@@ -63,7 +63,7 @@ def _prefetch_exit(h, i, j, o, max_order):
     _prefetch(h, i, j, max_order + 1, 2)
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, error_model='numpy', _nrt=False)
 def _deposit(h, i, j, o, max_order, w0, w1, w2):
     """Add one exit of bounce-order row ``o`` with weight ``w`` to histogram cell ``(i, j)``."""
     h[i, j, o, 0] += w0
@@ -81,7 +81,7 @@ def _deposit(h, i, j, o, max_order, w0, w1, w2):
         h[i, j, max_order + 1, 2] += q2
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, error_model='numpy', _nrt=False)
 def _deposit_pending(brdf, btdf, pend, i, j, o, max_order, w0, w1, w2):
     """Deposit the exit held back for prefetching: none (``pend`` 0), BRDF (1) or BTDF (2)."""
     if pend == 1:
@@ -90,7 +90,7 @@ def _deposit_pending(brdf, btdf, pend, i, j, o, max_order, w0, w1, w2):
         _deposit(btdf, i, j, o, max_order, w0, w1, w2)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model='numpy', inline="always")
 def _book(energy, energy_sq, row, x0, x1, x2):
     """Add a path's per-channel amount to energy row ``row`` and its square to the second moments."""
     energy[row, 0] += x0

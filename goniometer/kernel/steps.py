@@ -27,7 +27,7 @@ from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 LN = LANES
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model='numpy', inline="always")
 def _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2):
     """The path weight times ``(a0, a1, a2)`` per channel, what it loses booked as absorbed:
     ``(w0 a0, w1 a1, w2 a2, ab0 + w0 (1 - a0), ...)``."""

@@ -228,7 +228,7 @@ def _sph(theta, phi) -> np.ndarray:
     return np.stack(np.broadcast_arrays(st * np.cos(phi), st * np.sin(phi), np.cos(theta)), axis=-1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _ndf(m, ax, ay, c, s, broad):
     """The warp's NDF at unit normals ``m`` (N, 3): ``(1 - broad) D_GGX(ax, ay, rotated) + broad / pi``."""
     out = np.empty(m.shape[0])
@@ -240,7 +240,7 @@ def _ndf(m, ax, ay, c, s, broad):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model='numpy')
 def _sigma(w, ax, ay, c, s, broad):
     """Projected area ``sigma(w) = Int max(0, w.m) D(m) dm`` of the warp's NDF at unit ``w`` (N, 3):
     ``cos theta (1 + Lambda(w))`` per GGX lobe (Smith; ``(1 + cos theta) / 2`` for alpha = 1)."""

@@ -155,7 +155,7 @@ _ATAN = (1.0, -0.3333333333323848, 0.19999999980351277, -0.14285712758863092, 0.
 _TAN_PI_8 = 0.41421356237309503
 
 
-@numba.njit(cache=True, inline='always')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def atan2_poly(y: float, x: float) -> float:
     """``atan2(y, x)`` in (-pi, pi] to a few ulp without libm and without branches (selects only),
     so that a loop calling it is cheap: the octant by selects, the argument reduced to
