@@ -29,8 +29,10 @@ $(STAMP): pyproject.toml examples/plugin-model/pyproject.toml
 
 setup: $(STAMP)
 
+# two workers, whole files per worker (module fixtures built once), each with its own numba cache
+# (tests/conftest.py): numba's compiles are single-threaded
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow

@@ -2,9 +2,20 @@
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
-from scipy import stats
+import os
+
+# Under pytest-xdist (`make test` runs two workers) each worker keeps its own numba cache, set
+# before numba is first imported: two processes sharing one on-disk cache once raised inside
+# trace_batch. The CLI subprocesses a worker starts inherit its cache.
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER")
+if _WORKER:
+    _BASE = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(
+        __file__))), "build", "numba-cache")
+    os.environ["NUMBA_CACHE_DIR"] = os.path.join(_BASE, _WORKER)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from scipy import stats  # noqa: E402
 
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 
