@@ -77,29 +77,39 @@ def test_run_writes_one_file_per_material_and_skips_them_on_rerun(tiny_run):
     assert manifest["database"] == "tiny" and manifest["quality"] == "quick"
 
 
-def test_resume_gives_the_same_bits(tiny_run, tmp_path):
-    """An interrupted material resumes from its finished incident directions; the result is
-    bit-identical to an uninterrupted run."""
+def test_resume_gives_the_same_bits(tiny_run, tmp_path, monkeypatch):
+    """An interrupted material resumes from its checkpointed incident directions: they are loaded,
+    not traced again, and the result is bit-identical to an uninterrupted run."""
+    import goniometer.run
+    from goniometer.database import checkpointed_incidents, paths_per_incident
     db, out, _ = tiny_run
     m = db.materials[0]
-    fresh = tmp_path / "fresh"
-    simulate_database(db, fresh, "quick", only=m.name)
-    # simulate an interruption after the first incident direction: keep only its checkpoint
-    from goniometer.database import _partial_dir
-    from goniometer.tasks import trace_incident
-    settings = db.settings_for(m, "quick")
-    pdir = _partial_dir(fresh, m)
-    pdir.mkdir(parents=True)
-    (pdir / "meta.json").write_text(json.dumps({"fingerprint": db.fingerprint(), "quality": "quick", "material": m.name,
-                                                "settings": [settings.rays, settings.seed, settings.chunk_rays,
-                                                             settings.chunks_per_task]}))
-    trace_incident(m.stack, settings, 0).save(pdir / "m00.npz")
-    material_path(fresh, m).unlink()
-    assert material_status(db, fresh, m, "quick") == "partial"
-    s = simulate_database(db, fresh, "quick", only=m.name)
-    assert s.resumed == [m.name]
-    a, b = store.read(material_path(out, m)), store.read(material_path(fresh, m))
-    assert np.array_equal(a.brdf.value, b.brdf.value) and np.array_equal(a.brdf.orders, b.brdf.orders)
+    per = paths_per_incident(db, m, "quick")
+    done = []
+
+    def interrupt(n: int) -> None:           # stops in the second incident direction
+        done.append(n)
+        if sum(done) > per:
+            raise _Interrupted()
+
+    work = tmp_path / "work"
+    with pytest.raises(_Interrupted):
+        simulate_database(db, work, "quick", only=m.name, progress=interrupt)
+    assert not material_path(work, m).exists() and checkpointed_incidents(work, m) == 1
+    assert material_status(db, work, m, "quick") == "partial"
+    traced: list[int] = []
+    trace = goniometer.run.trace_incident
+
+    def counted(stack, settings, k, *args, **kwargs):
+        traced.append(k)
+        return trace(stack, settings, k, *args, **kwargs)
+
+    monkeypatch.setattr(goniometer.run, "trace_incident", counted)
+    s = simulate_database(db, work, "quick", only=m.name)
+    assert s.resumed == [m.name] and s.simulated == [m.name]
+    assert traced == [1]   # direction 0 came from its checkpoint (a discarded checkpoint traces [0, 1])
+    _assert_same_result(store.read(material_path(work, m)), store.read(material_path(out, m)))
+    assert material_status(db, work, m, "quick") == "done" and not (work / ".partial").exists()
 
 
 def test_results_dir_of_another_database_or_quality_is_refused(tiny_run, tmp_path):
