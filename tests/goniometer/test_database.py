@@ -54,6 +54,58 @@ def test_bad_definitions(tmp_path):
             load_database(p)
 
 
+_RULE = r'\{ classic_if_alpha0_at_least = a, otherwise = "half" \}'
+_NAMES = "classic, half"
+
+
+@pytest.mark.parametrize("replace, message", [
+    # integers and names are SimulationSettings' to check: nothing is converted on the way
+    ([("seed = 3", "seed = 1.7")], r"seed: 1\.7 is not an integer in \[0, 9223372036854775807\]$"),
+    ([("seed = 3", 'seed = "3"')], r"seed: '3' is not an integer in \[0, 9223372036854775807\]$"),
+    ([("seed = 3", "seed = true")], r"seed: True is not an integer in \[0, 9223372036854775807\]$"),
+    ([('masking = "separable"', "masking = 1")], r"masking: 1 is not one of separable, height-correlated$"),
+    ([("resolution = [9, 18]", "resolution = [9.0, 18]")], r"resolution \(n_theta\): 9\.0 is not an integer in "),
+    # the lists and the parametrization rule are the definition's
+    ([("incident_deg = [0, 60]", "incident_deg = 45")],
+     r"incident_deg: 45 is not a list of elevations \(numbers of degrees, each in \[0, 90\)\)$"),
+    ([("incident_deg = [0, 60]", 'incident_deg = "45"')], r"incident_deg: '45' is not a list of elevations"),
+    ([("incident_deg = [0, 60]", 'incident_deg = [0, "60"]')],
+     r"incident_deg: '60' is not a number \(elevations in degrees, each in \[0, 90\)\)$"),
+    ([("incident_deg = [0, 60]", "incident_deg = [true]")], r"incident_deg: True is not a number"),
+    ([("resolution = [9, 18]", "resolution = 5")], r"resolution: 5 is not \[n_theta, n_phi\] \(a list of two integers\)$"),
+    ([("resolution = [9, 18]", 'resolution = "9x18"')], r"resolution: '9x18' is not \[n_theta, n_phi\]"),
+    ([('otherwise = "half"', "otherwise = 4")], rf"parametrization\.otherwise: 4 is not one of {_NAMES}$"),
+    # the first material is classic: its settings alone do not show the others' parametrization
+    ([("alpha0 = [0.05, 0.2]", "alpha0 = [0.2, 0.05]"), ('otherwise = "half"', 'otherwise = "sphere"')],
+     rf"parametrization\.otherwise: 'sphere' is not one of {_NAMES}$"),
+    ([("classic_if_alpha0_at_least = 0.2", 'classic_if_alpha0_at_least = "0.2"')],
+     r"parametrization\.classic_if_alpha0_at_least: '0\.2' is not a number \(the alpha0 from which materials use "
+     r"classic slices\)$"),
+    ([('otherwise = "half"', 'otherwise = "half", above = 0.3')],
+     rf"parametrization\.above: unknown key of the rule {_RULE}$"),
+    ([("classic_if_alpha0_at_least = 0.2, ", "")],
+     rf"parametrization\.classic_if_alpha0_at_least: required in the rule {_RULE}$"),
+    ([("parametrization = { classic_if_alpha0_at_least = 0.2, otherwise = \"half\" }", 'parametrization = "rgl"')],
+     rf"parametrization: 'rgl' is not one of {_NAMES} or the rule {_RULE}$"),
+    ([("parametrization = { classic_if_alpha0_at_least = 0.2, otherwise = \"half\" }", "parametrization = 3")],
+     rf"parametrization: 3 is not one of {_NAMES} or the rule {_RULE}$"),
+    # a definition that expands to no material is still checked
+    ([("alpha0 = [0.05, 0.2]", "alpha0 = []"), ("alpha0 = [0.2], alpha1", "alpha0 = [], alpha1"),
+      ("seed = 3", "seed = 2.5")], r"seed: 2\.5 is not an integer in "),
+])
+def test_simulation_values_of_the_wrong_type_are_refused(tmp_path, replace, message):
+    """One DatabaseError line naming the [simulation] field and what it takes, never a conversion."""
+    text = TINY.read_text()
+    for old, new in replace:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(DatabaseError, match=message) as e:
+        load_database(p)
+    assert str(e.value).startswith(f"{p}: simulation") and "\n" not in str(e.value)
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("db") / "tiny"
