@@ -46,6 +46,12 @@ SIMULATION_KEYS = ("incident_deg", "resolution", "seed", "masking", "parametriza
                    "wavelength_bins")
 #: the bins of a spectral database that does not give ``wavelength_bins``: SimulationSettings' default
 DEFAULT_WAVELENGTH_BINS = SimulationSettings.wavelength_bins
+#: the elevations (degrees) of a definition that does not give ``incident_deg``
+DEFAULT_INCIDENT_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
+#: the parametrizations a database's materials can use (``rgl`` needs a grid made from each stack)
+DATABASE_PARAMETRIZATIONS = ("classic", "half")
+#: the parametrization rule's form (``docs/database-format.md`` section 1.2)
+PARAMETRIZATION_RULE = '{ classic_if_alpha0_at_least = a, otherwise = "half" }'
 
 
 class DatabaseError(ValueError):
@@ -88,10 +94,13 @@ class Database:
 
     def settings_for(self, material: Material, quality: str, threads: int | None = None) -> SimulationSettings:
         """The settings of ``material``'s run at ``quality`` (SettingsError for invalid ones)."""
+        return self._settings(material.parametrization, quality, threads)
+
+    def _settings(self, parametrization: str, quality: str, threads: int | None = None) -> SimulationSettings:
         if quality not in self.qualities:
             raise DatabaseError(f"{self.path}: quality {quality!r} is not one of {', '.join(self.qualities)}")
         return SimulationSettings(incident_deg=self.incident_deg, rays=self.qualities[quality],
-                                  parametrization=material.parametrization, resolution=self.resolution,
+                                  parametrization=parametrization, resolution=self.resolution,
                                   seed=self.seed, masking=self.masking, threads=threads,
                                   spectral=self.spectral, wavelength_bins=self.wavelength_bins)
 
@@ -147,6 +156,7 @@ def load_database(path: str | Path) -> Database:
     if not isinstance(name, str) or not name:
         raise DatabaseError(f"{p}: name: required, a non-empty string")
     sim = data.get("simulation", {})
+    _check_simulation(p, sim)
     qualities = data.get("quality", {})
     if not qualities or not all(isinstance(v, int) and v > 0 for v in qualities.values()):
         raise DatabaseError(f"{p}: quality: a table of positive ray counts per quality name is required")
@@ -167,15 +177,17 @@ def load_database(path: str | Path) -> Database:
         seen[m.name] = i
     if "wavelength_bins" in sim and sim.get("spectral", False) is False:
         raise DatabaseError(_bins_without_spectral(p))
-    db = Database(name=name, path=str(p), incident_deg=tuple(float(x) for x in sim.get("incident_deg", (0, 15, 30, 45, 60, 70, 80))),
-                  resolution=tuple(sim.get("resolution", (90, 360))), seed=int(sim.get("seed", 1)),
-                  masking=str(sim.get("masking", "separable")), qualities=dict(qualities),
+    # the values as the file gives them (their types are checked above; SimulationSettings checks the rest)
+    db = Database(name=name, path=str(p),
+                  incident_deg=tuple(float(x) for x in sim.get("incident_deg", DEFAULT_INCIDENT_DEG)),
+                  resolution=tuple(sim.get("resolution", (90, 360))), seed=sim.get("seed", 1),
+                  masking=sim.get("masking", "separable"), qualities=dict(qualities),
                   materials=tuple(materials), description=str(data.get("description", "")),
                   spectral=sim.get("spectral", False), wavelength_bins=sim.get("wavelength_bins", DEFAULT_WAVELENGTH_BINS))
-    try:
-        for m in materials[:1]:
+    try:   # every parametrization the materials use (one if they expand to none): the rest is shared
+        for parametrization in dict.fromkeys(m.parametrization for m in materials) or DATABASE_PARAMETRIZATIONS[:1]:
             for q in qualities:
-                db.settings_for(m, q)
+                db._settings(parametrization, q)
     except SettingsError as e:
         raise DatabaseError(f"{p}: simulation: {e}") from None
     _check_runs(p, db)
@@ -203,6 +215,44 @@ def _check_runs(p: Path, db: Database) -> None:
         except StackError as e:
             where = "" if str(e).startswith(f"{m.name}: ") else f"{m.name}: "
             raise DatabaseError(f"{p}: {where}{e}") from None
+
+
+def _check_simulation(p: Path, sim: dict) -> None:
+    """The types of the ``[simulation]`` values that :class:`SimulationSettings` would otherwise
+    convert (a list of elevations, the resolution's list, the parametrization rule): DatabaseError,
+    one line naming the field and what it takes. Nothing is converted: SimulationSettings checks
+    the integers (``seed``, the resolution's), the names (``masking``) and every range."""
+    def bad(message: str) -> DatabaseError:
+        return DatabaseError(f"{p}: simulation: {message}")
+    if "incident_deg" in sim:
+        inc = sim["incident_deg"]
+        if not isinstance(inc, list):
+            raise bad(f"incident_deg: {inc!r} is not a list of elevations (numbers of degrees, each in [0, 90))")
+        for x in inc:
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                raise bad(f"incident_deg: {x!r} is not a number (elevations in degrees, each in [0, 90))")
+    if "resolution" in sim and not isinstance(sim["resolution"], list):
+        raise bad(f"resolution: {sim['resolution']!r} is not [n_theta, n_phi] (a list of two integers)")
+    rule = sim.get("parametrization", DATABASE_PARAMETRIZATIONS[0])
+    names = ", ".join(DATABASE_PARAMETRIZATIONS)
+    if isinstance(rule, str):
+        if rule not in DATABASE_PARAMETRIZATIONS:
+            raise bad(f"parametrization: {rule!r} is not one of {names} or the rule {PARAMETRIZATION_RULE}")
+    elif isinstance(rule, dict):
+        unknown = sorted(set(rule) - {"classic_if_alpha0_at_least", "otherwise"})
+        if unknown:
+            raise bad(f"parametrization.{unknown[0]}: unknown key of the rule {PARAMETRIZATION_RULE}")
+        if "classic_if_alpha0_at_least" not in rule:
+            raise bad(f"parametrization.classic_if_alpha0_at_least: required in the rule {PARAMETRIZATION_RULE}")
+        a = rule["classic_if_alpha0_at_least"]
+        if isinstance(a, bool) or not isinstance(a, (int, float)):
+            raise bad(f"parametrization.classic_if_alpha0_at_least: {a!r} is not a number (the alpha0 from which "
+                      f"materials use classic slices)")
+        otherwise = rule.get("otherwise", "half")
+        if not isinstance(otherwise, str) or otherwise not in DATABASE_PARAMETRIZATIONS:
+            raise bad(f"parametrization.otherwise: {otherwise!r} is not one of {names}")
+    else:
+        raise bad(f"parametrization: {rule!r} is not one of {names} or the rule {PARAMETRIZATION_RULE}")
 
 
 def _read_definition(p: Path) -> dict:
@@ -273,14 +323,14 @@ def _substitute(value: Any, params: dict, symbols: dict, where: str) -> Any:
 
 
 def _parametrization(rule, params: dict, where: str) -> str:
+    """A material's parametrization: ``rule`` (checked by :func:`_check_simulation`) is a name or
+    the rule on its ``alpha0``."""
     if isinstance(rule, str):
         return rule
-    if isinstance(rule, dict) and "classic_if_alpha0_at_least" in rule:
-        a0 = params.get("alpha0")
-        if a0 is None:
-            raise DatabaseError(f"{where}: the parametrization rule needs an alpha0 parameter")
-        return "classic" if a0 >= rule["classic_if_alpha0_at_least"] else str(rule.get("otherwise", "half"))
-    raise DatabaseError(f"{where}: parametrization rule {rule!r} is not understood")
+    a0 = params.get("alpha0")
+    if a0 is None:
+        raise DatabaseError(f"{where}: the parametrization rule needs an alpha0 parameter")
+    return "classic" if a0 >= rule["classic_if_alpha0_at_least"] else rule.get("otherwise", "half")
 
 
 # ---------------------------------------------------------------------- results directory

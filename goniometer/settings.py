@@ -271,7 +271,7 @@ def _is_num(x: Any) -> bool:
 
 def _int_in(value: Any, name: str, lo: int, hi: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise SettingsError(f"{name}: {value!r} is not an integer")
+        raise SettingsError(f"{name}: {value!r} is not an integer in [{lo}, {hi}]")
     if not lo <= value <= hi:
         raise SettingsError(f"{name}: {value} is outside [{lo}, {hi}]")
 

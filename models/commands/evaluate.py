@@ -225,6 +225,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     print(f"wrote {len(r['figures'])} figures into {args.out}:")
     for p in r["figures"]:
         print(f"  {p}")
+    if "reference" in r:
+        print(f"({r['reference']})")
     return 0
 
 

@@ -101,7 +101,7 @@ def _figure_incidents(ref: SimulationResult, wanted: Sequence[float] | None) -> 
 
 def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndarray, np.ndarray]],
                           fig_dir: Path, rel: str, styles: dict, incidents: Sequence[float] | None,
-                          standalone: bool = False, name: str | None = None) -> dict:
+                          standalone: bool = False, name: str | None = None, title: str | None = None) -> dict:
     """Draw every figure of one material into ``fig_dir``; returns their paths relative to the
     report (``rel`` is ``fig_dir`` relative to it) for the HTML: ``{"incidents": [...], "energy": ...}``.
     Files of incident direction m are named ``*_m<m>.png``. ``standalone`` (``gonio plot``, where
@@ -109,21 +109,23 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
     top views drawn as labelled figures (titles, colour bars, orientation; :func:`_labelled_top`).
     Otherwise the page draws the colour bars from each entry's ``legend`` / ``orders_legend`` and
     reads the hover values from ``hover.js`` (:mod:`models.report.hover`), registered under ``name``
-    (default: the stack's name)."""
+    (default: the stack's name). ``title``: what the figure titles call the material (default: the
+    stack's name)."""
+    title = title or ref.stack.name
     side = comparison_side(ref.stack)
     sd = ref.brdf if side == "brdf" else ref.btdf
     entries, hover = [], []
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
         tag = f"theta{inc.theta:g}_phi{inc.phi:g}" if standalone else f"m{inc.m}"
         plane = f"plane_{tag}.png"
-        plane_fig, plane_values = _plane_figure(inc, sd.grid, side, styles, ref.stack.name, ref.settings.rays)
+        plane_fig, plane_values = _plane_figure(inc, sd.grid, side, styles, title, ref.settings.rays)
         save_figure(plane_fig, fig_dir / plane)
-        labels = (ref.stack.name, side) if standalone else None
+        labels = (title, side) if standalone else None
         tops, diff_scale, lum_scale, rgb_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
         orders = f"orders_{tag}.png"
         top, bottom, orders_legend = _orders_panels(inc, sd.grid)
         if standalone:
-            save_figure(_labelled_orders(top, bottom, orders_legend, inc, ref.stack.name, side), fig_dir / orders)
+            save_figure(_labelled_orders(top, bottom, orders_legend, inc, title, side), fig_dir / orders)
         else:
             write_png(fig_dir / orders, compose([top, bottom], gap=PANEL_GAP_PX))
         entries.append({"index": inc.m, "theta": inc.theta, "phi": inc.phi, "plane": f"{rel}/{plane}",
@@ -132,7 +134,7 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
                         "legend": _legend(rgb_scale, lum_scale), "orders_legend": orders_legend})
         if not standalone:
             hover.append({**_hover_entry(inc, sd.grid), "plane": plane_values})
-    save_figure(_energy_figure(ref, sd, side), fig_dir / "energy.png")
+    save_figure(_energy_figure(ref, sd, side, title), fig_dir / "energy.png")
     out = {"incidents": entries, "energy": f"{rel}/energy.png", "orders_k": int(sd.orders.shape[1])}
     if not standalone:
         write_text(fig_dir / "hover.js", hover_script(name or ref.stack.name, side, hover))
@@ -171,9 +173,11 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
     ``models``: names to draw beside the reference (``["all"]``: every model that supports the
     stack; None or empty: the reference alone), integrated onto the file's cells exactly as
     ``gonio evaluate`` does (``subcells``, ``isotropize``). ``incidents``: polar angles (degrees)
-    of the file's incident directions to draw (None: all). Returns ``{"figures": [paths],
-    "evaluation": the gonio evaluate --json object or None}``. Raises ReportError for a bad file or
-    an incident angle the file does not hold, ModelError for an unknown or unsupported model.
+    of the file's incident directions to draw (None: all). A spectral file is drawn in linear sRGB
+    (:meth:`SimulationResult.rgb`, ``docs/spectral.md`` section 4), which every figure title says.
+    Returns ``{"figures": [paths], "evaluation": the gonio evaluate --json object or None}``, plus
+    ``"reference"``, a note of what was drawn, for a spectral file. Raises ReportError for a bad
+    file or an incident angle the file does not hold, ModelError for an unknown or unsupported model.
     """
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -192,16 +196,27 @@ def plot_file(path: str | Path, out_dir: str | Path, models: Sequence[str] | Non
         names = None if list(models) == ["all"] else list(models)
         ev = evaluate(ref, names, s=subcells, isotropize=isotropize)
         slices = {n: (ms.top, ms.internal) for n, ms in ev.slices.items()}
-        doc = ev.to_json()
+        doc = ev.to_json()   # evaluate judges a spectral reference in linear sRGB itself
+    title, note = ref.stack.name, None
+    if ref.settings.spectral:
+        bins = ref.settings.wavelength_bins
+        title = f"{ref.stack.name} (linear sRGB of {bins} wavelength bins)"
+        note = (f"spectral file ({bins} wavelength bins) drawn in linear sRGB (D65, CIE 1931; docs/spectral.md "
+                f"section 4); its standard errors are upper bounds")
+        ref = ref.rgb()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ReportError(f"{out}: cannot create the output directory ({e.strerror or e})") from None
-    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents, standalone=True)
+    figs = draw_material_figures(ref, slices, out, ".", model_style(list(slices)), incidents, standalone=True,
+                                 title=title)
     paths = [out / "energy.png"]
     for e in figs["incidents"]:
         paths += [out / e["plane"], out / e["orders"]] + [out / t for t in e["top"].values()]
-    return {"figures": [str(p.resolve()) for p in paths], "evaluation": doc}
+    r = {"figures": [str(p.resolve()) for p in paths], "evaluation": doc}
+    if note is not None:
+        r["reference"] = note
+    return r
 
 
 def _lum(cells: np.ndarray) -> np.ndarray:
@@ -400,7 +415,7 @@ def order_energy(sd: SliceData) -> np.ndarray:
     return np.einsum("mkij,mij->mk", lum, sd.proj_solid_angle)
 
 
-def _energy_figure(ref: SimulationResult, sd: SliceData, side: str):
+def _energy_figure(ref: SimulationResult, sd: SliceData, side: str, title: str | None = None):
     from matplotlib.figure import Figure
     e = order_energy(sd)
     K = e.shape[1]
@@ -422,7 +437,7 @@ def _energy_figure(ref: SimulationResult, sd: SliceData, side: str):
     ax.set_ylabel(("reflected" if side == "brdf" else "transmitted") + " energy (luminance)", fontsize=8)
     ax.tick_params(labelsize=8)
     ax.legend(fontsize=7, frameon=False, loc="center left", bbox_to_anchor=(1.0, 0.5))
-    ax.set_title(f"{ref.stack.name}: energy per bounce order", fontsize=9)
+    ax.set_title(f"{title or ref.stack.name}: energy per bounce order", fontsize=9)
     return fig
 
 

@@ -370,3 +370,29 @@ def test_plot_bad_input(simulated, tmp_path, capsys):
     assert "ww09" in capsys.readouterr().err
     assert main(["plot", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_plot_draws_a_spectral_file_in_linear_srgb(tmp_path, capsys, monkeypatch):
+    """A spectral file's bins are drawn as their linear sRGB (result.rgb(), docs/spectral.md §4), and
+    every figure title says so: 6 bins used to crash (broadcast error), 3 bins were read as R, G, B."""
+    from goniometer import store
+    from models.report import figures
+    f = tmp_path / "sp.h5"
+    assert main(["simulate", str(EXAMPLES / "plastic.toml"), "--out", str(f), "--rays", "2000", "--incident", "60",
+                 "--resolution", "9x18", "--spectral", "--wavelength-bins", "3"]) == 0
+    titles, bars = [], []
+    save = figures.save_figure
+
+    def spy(fig, path):
+        titles.append(fig._suptitle.get_text() if fig._suptitle is not None else fig.axes[0].get_title())
+        if Path(path).name == "energy.png":
+            bars.extend(p.get_height() for p in fig.axes[0].patches)
+        return save(fig, path)
+    monkeypatch.setattr(figures, "save_figure", spy)
+    capsys.readouterr()
+    assert main(["plot", str(f), "--out", str(tmp_path / "fig"), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert len(r["figures"]) == 4 and "linear sRGB" in r["reference"] and "3 wavelength bins" in r["reference"]
+    assert len(titles) == 4 and all("linear sRGB of 3 wavelength bins" in t for t in titles), titles
+    rgb = store.read(f).rgb()
+    np.testing.assert_allclose(bars, figures.order_energy(rgb.brdf)[0], rtol=1e-12)   # one incident, K orders

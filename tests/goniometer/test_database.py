@@ -54,6 +54,58 @@ def test_bad_definitions(tmp_path):
             load_database(p)
 
 
+_RULE = r'\{ classic_if_alpha0_at_least = a, otherwise = "half" \}'
+_NAMES = "classic, half"
+
+
+@pytest.mark.parametrize("replace, message", [
+    # integers and names are SimulationSettings' to check: nothing is converted on the way
+    ([("seed = 3", "seed = 1.7")], r"seed: 1\.7 is not an integer in \[0, 9223372036854775807\]$"),
+    ([("seed = 3", 'seed = "3"')], r"seed: '3' is not an integer in \[0, 9223372036854775807\]$"),
+    ([("seed = 3", "seed = true")], r"seed: True is not an integer in \[0, 9223372036854775807\]$"),
+    ([('masking = "separable"', "masking = 1")], r"masking: 1 is not one of separable, height-correlated$"),
+    ([("resolution = [9, 18]", "resolution = [9.0, 18]")], r"resolution \(n_theta\): 9\.0 is not an integer in "),
+    # the lists and the parametrization rule are the definition's
+    ([("incident_deg = [0, 60]", "incident_deg = 45")],
+     r"incident_deg: 45 is not a list of elevations \(numbers of degrees, each in \[0, 90\)\)$"),
+    ([("incident_deg = [0, 60]", 'incident_deg = "45"')], r"incident_deg: '45' is not a list of elevations"),
+    ([("incident_deg = [0, 60]", 'incident_deg = [0, "60"]')],
+     r"incident_deg: '60' is not a number \(elevations in degrees, each in \[0, 90\)\)$"),
+    ([("incident_deg = [0, 60]", "incident_deg = [true]")], r"incident_deg: True is not a number"),
+    ([("resolution = [9, 18]", "resolution = 5")], r"resolution: 5 is not \[n_theta, n_phi\] \(a list of two integers\)$"),
+    ([("resolution = [9, 18]", 'resolution = "9x18"')], r"resolution: '9x18' is not \[n_theta, n_phi\]"),
+    ([('otherwise = "half"', "otherwise = 4")], rf"parametrization\.otherwise: 4 is not one of {_NAMES}$"),
+    # the first material is classic: its settings alone do not show the others' parametrization
+    ([("alpha0 = [0.05, 0.2]", "alpha0 = [0.2, 0.05]"), ('otherwise = "half"', 'otherwise = "sphere"')],
+     rf"parametrization\.otherwise: 'sphere' is not one of {_NAMES}$"),
+    ([("classic_if_alpha0_at_least = 0.2", 'classic_if_alpha0_at_least = "0.2"')],
+     r"parametrization\.classic_if_alpha0_at_least: '0\.2' is not a number \(the alpha0 from which materials use "
+     r"classic slices\)$"),
+    ([('otherwise = "half"', 'otherwise = "half", above = 0.3')],
+     rf"parametrization\.above: unknown key of the rule {_RULE}$"),
+    ([("classic_if_alpha0_at_least = 0.2, ", "")],
+     rf"parametrization\.classic_if_alpha0_at_least: required in the rule {_RULE}$"),
+    ([("parametrization = { classic_if_alpha0_at_least = 0.2, otherwise = \"half\" }", 'parametrization = "rgl"')],
+     rf"parametrization: 'rgl' is not one of {_NAMES} or the rule {_RULE}$"),
+    ([("parametrization = { classic_if_alpha0_at_least = 0.2, otherwise = \"half\" }", "parametrization = 3")],
+     rf"parametrization: 3 is not one of {_NAMES} or the rule {_RULE}$"),
+    # a definition that expands to no material is still checked
+    ([("alpha0 = [0.05, 0.2]", "alpha0 = []"), ("alpha0 = [0.2], alpha1", "alpha0 = [], alpha1"),
+      ("seed = 3", "seed = 2.5")], r"seed: 2\.5 is not an integer in "),
+])
+def test_simulation_values_of_the_wrong_type_are_refused(tmp_path, replace, message):
+    """One DatabaseError line naming the [simulation] field and what it takes, never a conversion."""
+    text = TINY.read_text()
+    for old, new in replace:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(DatabaseError, match=message) as e:
+        load_database(p)
+    assert str(e.value).startswith(f"{p}: simulation") and "\n" not in str(e.value)
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("db") / "tiny"
@@ -77,29 +129,39 @@ def test_run_writes_one_file_per_material_and_skips_them_on_rerun(tiny_run):
     assert manifest["database"] == "tiny" and manifest["quality"] == "quick"
 
 
-def test_resume_gives_the_same_bits(tiny_run, tmp_path):
-    """An interrupted material resumes from its finished incident directions; the result is
-    bit-identical to an uninterrupted run."""
+def test_resume_gives_the_same_bits(tiny_run, tmp_path, monkeypatch):
+    """An interrupted material resumes from its checkpointed incident directions: they are loaded,
+    not traced again, and the result is bit-identical to an uninterrupted run."""
+    import goniometer.run
+    from goniometer.database import checkpointed_incidents, paths_per_incident
     db, out, _ = tiny_run
     m = db.materials[0]
-    fresh = tmp_path / "fresh"
-    simulate_database(db, fresh, "quick", only=m.name)
-    # simulate an interruption after the first incident direction: keep only its checkpoint
-    from goniometer.database import _partial_dir
-    from goniometer.tasks import trace_incident
-    settings = db.settings_for(m, "quick")
-    pdir = _partial_dir(fresh, m)
-    pdir.mkdir(parents=True)
-    (pdir / "meta.json").write_text(json.dumps({"fingerprint": db.fingerprint(), "quality": "quick", "material": m.name,
-                                                "settings": [settings.rays, settings.seed, settings.chunk_rays,
-                                                             settings.chunks_per_task]}))
-    trace_incident(m.stack, settings, 0).save(pdir / "m00.npz")
-    material_path(fresh, m).unlink()
-    assert material_status(db, fresh, m, "quick") == "partial"
-    s = simulate_database(db, fresh, "quick", only=m.name)
-    assert s.resumed == [m.name]
-    a, b = store.read(material_path(out, m)), store.read(material_path(fresh, m))
-    assert np.array_equal(a.brdf.value, b.brdf.value) and np.array_equal(a.brdf.orders, b.brdf.orders)
+    per = paths_per_incident(db, m, "quick")
+    done = []
+
+    def interrupt(n: int) -> None:           # stops in the second incident direction
+        done.append(n)
+        if sum(done) > per:
+            raise _Interrupted()
+
+    work = tmp_path / "work"
+    with pytest.raises(_Interrupted):
+        simulate_database(db, work, "quick", only=m.name, progress=interrupt)
+    assert not material_path(work, m).exists() and checkpointed_incidents(work, m) == 1
+    assert material_status(db, work, m, "quick") == "partial"
+    traced: list[int] = []
+    trace = goniometer.run.trace_incident
+
+    def counted(stack, settings, k, *args, **kwargs):
+        traced.append(k)
+        return trace(stack, settings, k, *args, **kwargs)
+
+    monkeypatch.setattr(goniometer.run, "trace_incident", counted)
+    s = simulate_database(db, work, "quick", only=m.name)
+    assert s.resumed == [m.name] and s.simulated == [m.name]
+    assert traced == [1]   # direction 0 came from its checkpoint (a discarded checkpoint traces [0, 1])
+    _assert_same_result(store.read(material_path(work, m)), store.read(material_path(out, m)))
+    assert material_status(db, work, m, "quick") == "done" and not (work / ".partial").exists()
 
 
 def test_results_dir_of_another_database_or_quality_is_refused(tiny_run, tmp_path):
@@ -272,7 +334,8 @@ def g_default_bins() -> int:
     (("spectral = true", 'spectral = "yes"'), r"simulation: spectral: 'yes' is not a boolean \(true or false\)$"),
     (("wavelength_bins = 6", "wavelength_bins = 0"), r"simulation: wavelength_bins: 0 is outside \[3, 471\]$"),
     (("wavelength_bins = 6", "wavelength_bins = 7"), r"simulation: wavelength_bins: 7 must be a multiple of 3"),
-    (("wavelength_bins = 6", "wavelength_bins = 6.0"), r"simulation: wavelength_bins: 6.0 is not an integer$"),
+    (("wavelength_bins = 6", "wavelength_bins = 6.0"),
+     r"simulation: wavelength_bins: 6.0 is not an integer in \[3, 471\]$"),
     (("spectral = true", "spectral = false"), r"simulation: wavelength_bins: goes with spectral = true"),
     (("spectral = true\n", ""), r"simulation: wavelength_bins: goes with spectral = true"),
     (("seed = 7", "seed = 7\nrays = 5"),
