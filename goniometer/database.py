@@ -158,8 +158,14 @@ def load_database(path: str | Path) -> Database:
     sim = data.get("simulation", {})
     _check_simulation(p, sim)
     qualities = data.get("quality", {})
-    if not qualities or not all(isinstance(v, int) and v > 0 for v in qualities.values()):
+    if not isinstance(qualities, dict) or not qualities:
         raise DatabaseError(f"{p}: quality: a table of positive ray counts per quality name is required")
+    for q, v in qualities.items():
+        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
+            raise DatabaseError(f"{p}: quality.{q}: {v!r} is not a positive integer (rays per slice)")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise DatabaseError(f"{p}: description: {description!r} is not a string")
     symbols = data.get("symbols", {})
     families = data.get("family", [])
     if not families:
@@ -182,7 +188,7 @@ def load_database(path: str | Path) -> Database:
                   incident_deg=tuple(float(x) for x in sim.get("incident_deg", DEFAULT_INCIDENT_DEG)),
                   resolution=tuple(sim.get("resolution", (90, 360))), seed=sim.get("seed", 1),
                   masking=sim.get("masking", "separable"), qualities=dict(qualities),
-                  materials=tuple(materials), description=str(data.get("description", "")),
+                  materials=tuple(materials), description=description,
                   spectral=sim.get("spectral", False), wavelength_bins=sim.get("wavelength_bins", DEFAULT_WAVELENGTH_BINS))
     try:   # every parametrization the materials use (one if they expand to none): the rest is shared
         for parametrization in dict.fromkeys(m.parametrization for m in materials) or DATABASE_PARAMETRIZATIONS[:1]:

@@ -54,6 +54,24 @@ def test_bad_definitions(tmp_path):
             load_database(p)
 
 
+@pytest.mark.parametrize("old, new, message", [
+    ("quick = 30_000", "quick = true", r"quality\.quick: True is not a positive integer \(rays per slice\)$"),
+    ("quick = 30_000", "quick = 3e4", r"quality\.quick: 30000\.0 is not a positive integer"),
+    ("quick = 30_000", "quick = 0", r"quality\.quick: 0 is not a positive integer"),
+    ('name = "tiny"', 'name = "tiny"\ndescription = 3', r"description: 3 is not a string$"),
+])
+def test_qualities_and_description_of_the_wrong_type_are_refused(tmp_path, old, new, message):
+    """A quality's ray count is a positive integer (a boolean is not one), a description a string:
+    one DatabaseError line naming the key, never a conversion."""
+    text = TINY.read_text()
+    assert old in text
+    p = tmp_path / "bad.toml"
+    p.write_text(text.replace(old, new, 1))
+    with pytest.raises(DatabaseError, match=message) as e:
+        load_database(p)
+    assert str(e.value).startswith(f"{p}: ") and "\n" not in str(e.value)
+
+
 _RULE = r'\{ classic_if_alpha0_at_least = a, otherwise = "half" \}'
 _NAMES = "classic, half"
 
