@@ -50,7 +50,7 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_MULTI, F_ORDER,
                                       F_PATH, F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ,
                                       N_FIELDS, P_TABULATE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
-                                      TAU_SCATTER, relative_indices, stack_table, tau_modes)
+                                      TAU_SCATTER, stack_table)
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import continue_walk, free_flight, microsurface_walk
 from goniometer.kernel.variants import KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS, StackFacts, stack_facts, variant_flags
@@ -128,10 +128,16 @@ class Launch:
     skip_first: bool
     device: str = "cpu"
 
+    #: what the run derives from the stack once for the CPU kernels (:func:`prepare`): the regions'
+    #: modes, the relative indices, the lane kernel's stack table and the offset of its region part
+    derived: tuple = ()
+
     @property
     def stack_args(self) -> tuple:
-        """The packed stack's arrays, in the kernels' order."""
-        return self.facts.packed.as_tuple()
+        """The kernels' ``stack`` argument: the packed stack's arrays in
+        :data:`goniometer.stack.PackedStack.KERNEL_FIELDS` order, then :attr:`derived`
+        (``tau_mode, eta_dn, eta_up, table, off``)."""
+        return self.facts.packed.as_tuple() + self.derived
 
     def scalars(self, first_chunk: int) -> tuple:
         """The numbers of a batch starting at ``first_chunk``, as :func:`trace_slot` unpacks them:
@@ -165,9 +171,15 @@ def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int,
         raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
     facts = stack_facts(packed)
     flags = variant_flags(facts, height_correlated, tabulate, kernel)
+    p = packed
+    table, off = stack_table(p.if_alpha, p.if_rot, p.if_ms, facts.eta_dn, facts.eta_up, p.region_tau, p.region_albedo,
+                             p.region_g, facts.tau_mode, facts.n_if, p.base_kind == 1, p.if_film, flags[10] is not None)
+    if device == "cpu" and flags[0] is not None and table.shape[0] > STACK_BLOCK:   # the lane kernel's event
+        raise ValueError(f"the stack's table ({table.shape[0]} numbers) does not fit the event's block "
+                         f"({STACK_BLOCK}): too many layers")
     return Launch(facts, flags, (float(light[0]), float(light[1]), float(light[2])), int(n_rays), int(chunk_rays),
                   int(seed), int(stream), int(param), int(n_theta), int(n_phi), tuple(tables), int(max_order),
-                  int(event_cap), bool(skip_first), device)
+                  int(event_cap), bool(skip_first), device, (facts.tau_mode, facts.eta_dn, facts.eta_up, table, off))
 
 
 def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -207,7 +219,9 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     cell, -1 if none) and ``exit_w[r]`` (weight) instead of to ``brdf``; transmitted exits are
     booked in ``energy`` only. Otherwise ``exit_cell``/``exit_w`` are not touched (they may be empty).
 
-    ``stack``: the packed stack's arrays (:meth:`goniometer.stack.PackedStack.as_tuple`);
+    ``stack``: the packed stack's arrays and what the run derived from them once
+    (:attr:`Launch.stack_args`: the regions' modes, relative indices, the stack table of
+    :func:`goniometer.kernel.layout.stack_table` made for this variant's ``film``, and its offset);
     ``tables``: the grid's ``(row_cos, col_cos, col_sin)``; ``outs``: ``(brdf, btdf, energy,
     energy_sq, counts, exit_cell, exit_w)``.
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (:mod:`goniometer.kernel.deposit`); ``energy``:
@@ -222,18 +236,13 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     order at the end, exits are deposited in the order they happen: the same bits for any
     number of threads.
     """
-    if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind = stack
+    (if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
+     eta_dn, eta_up, table, off) = stack
     row_cos, col_cos, col_sin = tables
     brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
-    tau_mode = tau_modes(region_tau, region_albedo)
-    eta_dn, eta_up = relative_indices(region_eta)
-    table, off = stack_table(if_alpha, if_rot, if_ms, eta_dn, eta_up, region_tau, region_albedo, region_g, tau_mode, n_if,
-                             conductor_base, if_film, film is not None)
-    if table.shape[0] > STACK_BLOCK:
-        raise ValueError("the stack's table does not fit the event's block (too many layers)")
     # conductor channels that share their complex index share their Fresnel value (walks)
     walk_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
     walk_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
@@ -329,7 +338,7 @@ def trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media,
                aniso, ms, film, outs):
     """Zero histogram slot ``b`` of ``outs`` and trace chunk ``first_chunk + b`` into it.
 
-    ``stack``: the packed stack's arrays (:meth:`goniometer.stack.PackedStack.as_tuple`); ``run``:
+    ``stack``: the packed stack's arrays and what the run derived from them (:attr:`Launch.stack_args`); ``run``:
     the batch's numbers (:meth:`Launch.scalars`); ``tables``: the grid's ``(row_cos, col_cos,
     col_sin)``; ``outs``: ``(brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)``, each with
     a leading dimension B (:func:`trace_chunk` gives the layouts). ``lanes`` .. ``film``: the

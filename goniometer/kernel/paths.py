@@ -23,8 +23,7 @@ from goniometer import optics
 from goniometer.halfdiff import cell_of as halfdiff_cell
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
-                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER,
-                                      relative_indices, tau_modes)
+                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER)
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
 from goniometer.rng import next_disk, next_float
 from goniometer.slices import cell_index_fast
@@ -135,16 +134,15 @@ def trace_paths(stack, lx, ly, lz, n_rays, state, param, n_theta, n_phi, tables,
     weights ``R_c / P``, else refracts, weights ``T_c / (1 - P)``; a conductor reflects, weights
     ``R_c``), in walks at every bounce (``docs/material-format.md``, thin films).
     """
-    if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind = stack
+    (if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
+     eta_dn, eta_up, _table, _off) = stack
     row_cos, col_cos, col_sin = tables
     brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
     n_if = region_eta.shape[0] - 1
     transmit_base = base_kind == 0
     conductor_base = base_kind == 1
-    # per region: clear, absorbing (achromatic / chromatic) or scattering (layout.tau_modes)
-    tau_mode = tau_modes(region_tau, region_albedo)
-    # per interface: relative indices going down / up, tangent-frame rotation needed
-    eta_dn, eta_up = relative_indices(region_eta)
+    # per region: clear, absorbing (achromatic / chromatic) or scattering (layout.tau_modes), and per
+    # interface the relative indices going down / up: the run's (stack); the tangent-frame rotation needed
     aniso = np.zeros(max(n_if, 1), dtype=np.bool_)
     for k in range(n_if):
         aniso[k] = if_alpha[k, 0] != if_alpha[k, 1] or if_rot[k, 1] != 0.0
