@@ -173,7 +173,7 @@ def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int,
     flags = variant_flags(facts, height_correlated, tabulate, kernel)
     p = packed
     table, off = stack_table(p.if_alpha, p.if_rot, p.if_ms, facts.eta_dn, facts.eta_up, p.region_tau, p.region_albedo,
-                             p.region_g, facts.tau_mode, facts.n_if, p.base_kind == 1, p.if_film, flags[10] is not None)
+                             p.region_g, facts.tau_mode, facts.n_if, facts.conductor, p.if_film, flags[10] is not None)
     if device == "cpu" and flags[0] is not None and table.shape[0] > STACK_BLOCK:   # the lane kernel's event
         raise ValueError(f"the stack's table ({table.shape[0]} numbers) does not fit the event's block "
                          f"({STACK_BLOCK}): too many layers")

@@ -151,22 +151,10 @@ def test_resume_gives_the_same_bits(tiny_run, tmp_path, monkeypatch):
     """An interrupted material resumes from its checkpointed incident directions: they are loaded,
     not traced again, and the result is bit-identical to an uninterrupted run."""
     import goniometer.run
-    from goniometer.database import checkpointed_incidents, paths_per_incident
     db, out, _ = tiny_run
     m = db.materials[0]
-    per = paths_per_incident(db, m, "quick")
-    done = []
-
-    def interrupt(n: int) -> None:           # stops in the second incident direction
-        done.append(n)
-        if sum(done) > per:
-            raise _Interrupted()
-
     work = tmp_path / "work"
-    with pytest.raises(_Interrupted):
-        simulate_database(db, work, "quick", only=m.name, progress=interrupt)
-    assert not material_path(work, m).exists() and checkpointed_incidents(work, m) == 1
-    assert material_status(db, work, m, "quick") == "partial"
+    _interrupt_in_the_second_direction(db, m, work)
     traced: list[int] = []
     trace = goniometer.run.trace_incident
 
@@ -448,24 +436,32 @@ class _Interrupted(Exception):
     pass
 
 
-def test_an_interrupted_spectral_material_resumes_to_the_same_bits(spectral_run, tmp_path):
+def _interrupt_in_the_second_direction(db, m, work) -> int:
+    """Simulate material ``m`` of ``db`` into ``work`` and stop it, from its progress callback, in
+    its second incident direction: the first is checkpointed, no file written. Returns the paths of
+    one direction."""
     from goniometer.database import checkpointed_incidents, paths_per_incident
-    db, out, _ = spectral_run
-    m = db.select("metal/*")[0]
     per = paths_per_incident(db, m, "quick")
-    assert per == 2 * db.qualities["quick"]    # gold: 6 bins in 2 launches of 3 wavelengths
     done = []
 
-    def interrupt(n: int) -> None:           # stops in the second incident direction
+    def interrupt(n: int) -> None:
         done.append(n)
         if sum(done) > per:
             raise _Interrupted()
 
-    work = tmp_path / "work"
     with pytest.raises(_Interrupted):
         simulate_database(db, work, "quick", only=m.name, progress=interrupt)
     assert not material_path(work, m).exists() and checkpointed_incidents(work, m) == 1
     assert material_status(db, work, m, "quick") == "partial"
+    return per
+
+
+def test_an_interrupted_spectral_material_resumes_to_the_same_bits(spectral_run, tmp_path):
+    db, out, _ = spectral_run
+    m = db.select("metal/*")[0]
+    work = tmp_path / "work"
+    per = _interrupt_in_the_second_direction(db, m, work)
+    assert per == 2 * db.qualities["quick"]    # gold: 6 bins in 2 launches of 3 wavelengths
     seen: list[int] = []
     s = simulate_database(db, work, "quick", only=m.name, progress=seen.append)
     assert s.resumed == [m.name] and s.simulated == [m.name]
