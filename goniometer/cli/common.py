@@ -74,6 +74,7 @@ def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--ou
     from pathlib import Path
 
     from goniometer import outputs
+    _check_ancestors(Path(path), option)
     with usage_errors(outputs.OutputError):
         out = outputs.check_output(path, inputs=inputs, overwrite=overwrite, option=option, directory=directory,
                                    marker=marker)
@@ -82,6 +83,17 @@ def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--ou
         with usage_errors(store.StoreError, prefix=option):
             store.check_writable(out)
     return Path(out)
+
+
+def _check_ancestors(path, option: str) -> None:
+    """A :class:`UsageError` when the nearest existing directory above ``path`` is a file
+    (``--out m.h5/x.h5``: ``m.h5 is a file, not a directory``, not "does not exist")."""
+    from goniometer.outputs import describe_existing
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{option}: {path}: {parent} is a file ({describe_existing(parent)}), not a directory")
+            return
 
 
 def whole_number(text: str) -> int:
