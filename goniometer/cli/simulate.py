@@ -189,10 +189,11 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
                                             "spectral", "wavelength_bins", "device")}
     fields.update({k: v for k, v in over.items() if k != "parametrization"})
-    if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):
-        print(f"warning: {stack.name} is anisotropic but the RGL grid has one incident azimuth: the readers take "
-              f"such a file as isotropic, and gonio export refuses it (use --rgl-grid with N_PHI_I >= 3)",
-              file=sys.stderr)
+    if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):   # refused before tracing
+        source = "--rgl-grid" if args.rgl_grid is not None else f"{args.config}: simulation.rgl_grid"
+        raise UsageError(f"{source}: {stack.name} is anisotropic but the RGL grid has one incident azimuth "
+                         f"(N_PHI_I = 1): the readers would take the file as isotropic and gonio export refuses it; "
+                         f"give N_PHI_I >= 3, e.g. --rgl-grid {len(grid.theta_i_deg)}x9x{grid.n}")
     return SimulationSettings.on_rgl_grid(grid, **fields)
 
 
