@@ -71,11 +71,10 @@ def cmd_database_list(args: argparse.Namespace) -> int:
 def _is_material_file(path: str) -> bool:
     """True when ``path`` is a TOML file with ``[[layers]]``: a material file (docs/material-format.md),
     which no database definition has."""
-    import tomllib
+    from goniometer.tomlfile import read_toml
     try:
-        with open(path, "rb") as fh:
-            return "layers" in tomllib.load(fh)
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return "layers" in read_toml(path, ValueError)
+    except ValueError:   # unreadable: the definition's own error says so
         return False
 
 
