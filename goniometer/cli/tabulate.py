@@ -162,6 +162,10 @@ def _export_rgl(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with usage_errors(ExportError, prefix=str(args.file)):
         fields = bsdf_fields(result, spectral=args.spectral)
+    if args.spectral and not result.settings.spectral:
+        print(f"note: {args.file} is an RGB run: the file's spectra are its RGB upsampled (B 465, G 550, R 610 nm; "
+              f"docs/rgl-format.md section 5); a spectral run (gonio simulate --spectral) exports traced spectra",
+              file=sys.stderr)
     readers = check_readers(fields)
     wanted = ("mitsuba-spectral", "pbrt-v4") if args.spectral else ("mitsuba-rgb",)
     problems = [f"{r}: {'; '.join(readers[r])}" for r in wanted if readers[r]]

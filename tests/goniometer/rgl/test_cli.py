@@ -55,12 +55,14 @@ def test_export_both_files_and_info_says_who_reads_them(gold, tmp_path, capsys):
     rgb, spec = tmp_path / "gold_rgb.bsdf", tmp_path / "gold_spec.bsdf"
     capsys.readouterr()
     assert main(["export", str(out), "--format", "rgl", "--out", str(rgb)]) == 0
-    said = capsys.readouterr().out
+    said, err = capsys.readouterr()
     # pbrt-v4 refuses RGB files: no pbrt-v4 line for one, but the export that pbrt-v4 reads
     assert f"Mitsuba 3 (RGB variants): {{'type': 'measured', 'filename': '{rgb}'}}" in said
     assert 'Material "measured"' not in said and "pbrt-v4 does not read this file" in said and "--spectral" in said
+    assert "is an RGB run" not in err
     assert main(["export", str(out), "--format", "rgl", "--out", str(spec), "--spectral"]) == 0
-    said = capsys.readouterr().out
+    said, err = capsys.readouterr()
+    assert "is an RGB run: the file's spectra are its RGB upsampled" in err   # a stand-in, said so
     assert f'pbrt-v4: Material "measured" "string filename" "{spec}"' in said
     assert "Mitsuba 3 (spectral variants)" in said and "RGB variants" not in said.split("\n", 1)[1]
     assert main(["info", str(spec), "--json"]) == 0
