@@ -126,6 +126,23 @@ def test_a_slow_cache_load_is_not_called_compiling():
     assert "compiling" not in err.getvalue()
 
 
+def test_on_a_terminal_one_line_counts_up_and_changes_its_words_when_compiling_starts():
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    def load_then_compile() -> None:
+        time.sleep(1.6)                    # loading past the first second ...
+        _numba_compiles(_CachedDispatcher())   # ... then numba compiles
+
+    err = Terminal()
+    compile_kernels(_slow(0.6, load_then_compile), file=err)
+    shown = [part for part in err.getvalue().split("\r\033[K") if part]
+    assert shown[0].startswith("loading compiled kernels: ")
+    assert any(part.startswith("compiling kernels (first run only, about 45 s): ") for part in shown)
+    assert shown[-1].startswith("compiled kernels in ") and shown[-1].endswith("(cached for later runs)\n")
+
+
 def test_a_real_compile_is_announced_and_an_uncached_one_not_as_first_run_only():
     import numba
     fresh = numba.njit(lambda x: x + 1)       # no on-disk cache: compiled in every process
