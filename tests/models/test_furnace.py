@@ -279,6 +279,14 @@ def test_spectral_smooth_gold_is_its_fresnel_reflectance_in_every_bin(tmp_path):
         np.testing.assert_allclose(r.spectral.albedo[m], F, rtol=1e-12)
     assert np.all(r.spectral.stderr < 1e-7)                 # rounding of the second moment, not noise
     np.testing.assert_allclose(r.spectral.wavelength_nm, centres, rtol=0, atol=0)
+    # the figure's panels are the bins' linear sRGB, and say so
+    import matplotlib.pyplot as plt
+    from models.report.furnace import furnace_figure
+    fig = furnace_figure(r)
+    try:
+        assert [ax.get_title() for ax in fig.axes[:3]] == [f"linear sRGB {c} of 12 wavelength bins" for c in "RGB"]
+    finally:
+        plt.close(fig)
 
 
 def test_spectral_soap_film_json_per_bin(capsys):
