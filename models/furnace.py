@@ -2,7 +2,8 @@
 (``gonio furnace``; contract in ``docs/furnace.md``).
 
 The **directional albedo** ``E(l)`` is the fraction of the flux arriving from direction ``l``
-that leaves the stack, on either side, per RGB channel:
+that leaves the stack, on either side, per RGB channel -- or, for a spectral run
+(``docs/spectral.md``), per wavelength bin, shown in linear sRGB:
 
 * simulated: ``reflected + transmitted`` of the tracer's energy bookkeeping
   (``docs/material-format.md``, transport). A path leaves the stack at most once, upward or
@@ -18,12 +19,21 @@ that leaves the stack, on either side, per RGB channel:
 
 Models are taken from :func:`models.registry.all_models` (every analytic model, whatever its
 name); fitted models need a simulated file's slices and are listed as skipped.
+
+A **spectral run** (the material file's ``[simulation] spectral = true``, or ``--spectral``) has
+one albedo per wavelength bin, each from ``rays`` paths: :func:`simulated_albedo` holds per bin, and
+the per-bin table is kept in :class:`SpectralBins`. The table's channels are then the bins'
+linear sRGB, reduced by the one colour pipeline, :meth:`SimulationResult.rgb`
+(``docs/spectral.md`` section 4; standard errors are its upper bounds), as ``gonio evaluate``
+judges a spectral reference; the models are RGB and read the material's RGB equivalent.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
+
+import dataclasses
 
 import numpy as np
 
@@ -47,8 +57,8 @@ ENERGY_TERMS = SLICE_ENERGY_TERMS + ("roulette", "capped")
 
 def furnace_settings(table: Mapping[str, Any] | None = None, *, incident_deg: tuple[float, ...] | None = None,
                      incident_phi_deg: tuple[float, ...] | None = None, rays: int | None = None,
-                     seed: int | None = None, threads: int | None = None,
-                     source: str = "simulation") -> SimulationSettings:
+                     seed: int | None = None, threads: int | None = None, spectral: bool | None = None,
+                     wavelength_bins: int | None = None, source: str = "simulation") -> SimulationSettings:
     """The settings of a furnace run: the furnace defaults (:data:`INCIDENT_DEG`, :data:`RAYS`),
     then a material file's ``[simulation]`` table, then the given values; the slice grid is
     always :data:`GRID`. Raises :class:`goniometer.settings.SettingsError` naming the field."""
@@ -58,14 +68,17 @@ def furnace_settings(table: Mapping[str, Any] | None = None, *, incident_deg: tu
     if incident_deg is not None and incident_phi_deg is None:
         incident_phi_deg = tuple(0.0 for _ in incident_deg)
     return s.with_overrides(incident_deg=incident_deg, incident_phi_deg=incident_phi_deg, rays=rays, seed=seed,
-                            threads=threads, parametrization=GRID[0], resolution=GRID[1])
+                            threads=threads, spectral=spectral, wavelength_bins=wavelength_bins,
+                            parametrization=GRID[0], resolution=GRID[1])
 
 
 def simulated_albedo(result: SimulationResult) -> tuple[np.ndarray, np.ndarray]:
-    """(albedo, standard error), each (M, 3): ``reflected + transmitted`` and the standard error
+    """(albedo, standard error), each (M, C): ``reflected + transmitted`` and the standard error
     of that mean from the per-path second moments (a path exits once, so ``E[(r + t)^2] =
     E[r^2] + E[t^2]``; the second moments are recovered from the means and standard errors
-    :func:`goniometer.results.assemble` stores)."""
+    :func:`goniometer.results.assemble` stores). ``C`` is 3 (RGB) or, for a spectral result, the
+    wavelength bins, each estimated from ``rays`` paths (``docs/spectral.md`` section 1); not for a
+    spectral result reduced to sRGB, whose standard errors are bounds (:func:`albedo_in_srgb`)."""
     n = result.settings.rays
     mean = result.energy["reflected"] + result.energy["transmitted"]
     second = np.zeros_like(mean)
@@ -132,10 +145,67 @@ def model_albedos(stack: Stack, theta_deg: tuple[float, ...], phi_deg: tuple[flo
     return out
 
 
+#: the key under which :func:`albedo_in_srgb` passes the albedo through the colour pipeline
+_ALBEDO = "directional_albedo"
+
+
+def albedo_in_srgb(result: SimulationResult, albedo: np.ndarray, stderr: np.ndarray
+                   ) -> tuple[SimulationResult, np.ndarray, np.ndarray]:
+    """A spectral ``result`` and its per-bin ``albedo`` and ``stderr`` (M, B) in linear sRGB:
+    ``(result.rgb(), albedo (M, 3), stderr (M, 3))``. The albedo rides through
+    :meth:`SimulationResult.rgb` as one more energy term, so it gets exactly the reduction the
+    energies get (the bins' D65 / CIE 1931 weights; the standard error bounded over the bins of
+    one launch and added in quadrature over launches, ``docs/spectral.md`` section 4)."""
+    carrier = dataclasses.replace(result, energy={**result.energy, _ALBEDO: albedo},
+                                  energy_stderr={**result.energy_stderr, _ALBEDO: stderr})
+    rgb = carrier.rgb()
+    return rgb, rgb.energy.pop(_ALBEDO), rgb.energy_stderr.pop(_ALBEDO)
+
+
+
+@dataclass
+class SpectralBins:
+    """A spectral furnace run per wavelength bin: ``albedo``, ``stderr`` and every energy term
+    (M, B), ``wavelength_nm`` the bin centres (B,), ``launches`` the launches per incident
+    direction (each of ``rays`` paths; ``docs/spectral.md`` section 2)."""
+
+    wavelength_nm: np.ndarray                # (B,)
+    albedo: np.ndarray                       # (M, B)
+    stderr: np.ndarray                       # (M, B)
+    energy: dict[str, np.ndarray]            # ENERGY_TERMS -> (M, B)
+    energy_stderr: dict[str, np.ndarray]     # reflected, transmitted, absorbed, masking_loss -> (M, B)
+    launches: int
+
+    @property
+    def bins(self) -> int:
+        return int(self.wavelength_nm.size)
+
+    def to_json(self) -> dict[str, Any]:
+        """``spectral`` of ``gonio furnace --json`` (``docs/furnace.md`` section 4)."""
+        rows = (lambda a: np.asarray(a, dtype=float).tolist())
+        return {"wavelength_bins": self.bins, "wavelength_nm": rows(self.wavelength_nm),
+                "launches": self.launches,
+                "per_bin": {"albedo": rows(self.albedo), "stderr": rows(self.stderr),
+                            "energy": {k: rows(self.energy[k]) for k in ENERGY_TERMS},
+                            "energy_stderr": {k: rows(v) for k, v in self.energy_stderr.items()}}}
+
+
+def spectral_bins(result: SimulationResult) -> SpectralBins:
+    """The per-bin table of a spectral run's ``result``."""
+    from goniometer.spectral.launches import launches
+    albedo, stderr = simulated_albedo(result)
+    energy = {k: result.energy[k] for k in SLICE_ENERGY_TERMS}
+    energy["roulette"] = result.roulette
+    energy["capped"] = result.capped
+    return SpectralBins(np.asarray(result.wavelengths_nm), albedo, stderr, energy, dict(result.energy_stderr),
+                        len(launches(result.stack, result.settings)))
+
+
 @dataclass
 class FurnaceResult:
     """A furnace table: the simulated albedo with its standard error and energy terms, and the
-    models' albedos, at the incident directions (``docs/furnace.md``)."""
+    models' albedos, at the incident directions (``docs/furnace.md``). The (M, 3) arrays are RGB,
+    or for a spectral run (``spectral`` not None, holding the bins) the bins' linear sRGB."""
 
     material: str
     category: str
@@ -152,10 +222,18 @@ class FurnaceResult:
     masking: str
     capped_paths: int
     quadrature: dict[str, Any]
+    spectral: SpectralBins | None = None
 
     @property
     def sides(self) -> tuple[str, ...]:
         return ("brdf", "btdf") if self.base == "transmit" else ("brdf",)
+
+    @property
+    def channels(self) -> str:
+        """What the (M, 3) arrays' channels are, in words."""
+        if self.spectral is None:
+            return "R G B"
+        return f"linear sRGB (D65) of {self.spectral.bins} wavelength bins"
 
     def to_json(self) -> dict[str, Any]:
         """The object printed by ``gonio furnace --json`` (``docs/furnace.md``, JSON)."""
@@ -165,6 +243,7 @@ class FurnaceResult:
             "sides": list(self.sides),
             "incident_deg": rows(self.incident_deg),
             "incident_phi_deg": rows(self.incident_phi_deg),
+            "channels": self.channels,
             "simulated": {
                 "albedo": rows(self.albedo),
                 "stderr": rows(self.stderr),
@@ -176,23 +255,33 @@ class FurnaceResult:
             "model_sides": {n: {s: rows(a) for s, a in d.items()} for n, d in self.models.sides.items()},
             "skipped": dict(self.models.skipped),
             "quadrature": dict(self.quadrature),
+            **({} if self.spectral is None else {"spectral": self.spectral.to_json()}),
         }
 
 
 def run_furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[int], None] | None = None,
-            model_progress: Callable[[str], None] | None = None) -> FurnaceResult:
+                model_progress: Callable[[str], None] | None = None,
+                models: ModelAlbedos | None = None) -> FurnaceResult:
     """Simulate ``stack`` at the incident directions of ``settings`` (its grid is replaced by
     :data:`GRID`) and evaluate every model that applies. The models run first, so a model that
-    fails does so before the simulation. ``progress(rays)`` as in
-    :func:`goniometer.run.run_incidents` (which compiles the kernel on first use),
-    ``model_progress(name)`` before each model."""
+    fails does so before the simulation; ``models`` (from :func:`model_albedos` at the same
+    directions) are taken as they are. ``progress(paths)`` as in
+    :func:`goniometer.run.run_incidents` (which compiles the kernel on first use; a spectral run
+    reports the paths of all its launches), ``model_progress(name)`` before each model. A
+    spectral ``settings`` gives the table in linear sRGB and the bins in ``spectral``."""
     if settings.resolution != GRID[1] or settings.parametrization != GRID[0]:
         settings = settings.with_overrides(parametrization=GRID[0], resolution=GRID[1])
     settings.validate()
     theta, phi = settings.incident_deg, settings.incident_phi_deg
-    models = model_albedos(stack, theta, phi, progress=model_progress)
+    if models is None:
+        models = model_albedos(stack, theta, phi, progress=model_progress)
     result = run_incidents(stack, settings, progress=progress)
-    albedo, stderr = simulated_albedo(result)
+    bins = None
+    if settings.spectral:
+        bins = spectral_bins(result)
+        result, albedo, stderr = albedo_in_srgb(result, bins.albedo, bins.stderr)
+    else:
+        albedo, stderr = simulated_albedo(result)
     energy = {k: result.energy[k] for k in SLICE_ENERGY_TERMS}
     energy["roulette"] = result.roulette
     energy["capped"] = result.capped
@@ -200,8 +289,9 @@ def run_furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[
                   "order": ORDER, "max_panel_rad": MAX_PANEL, "finest_panel_rad": lobe_scale(stack)}
     return FurnaceResult(stack.name, stack.category, stack.base, np.array(theta), np.array(phi), albedo, stderr,
                          energy, dict(result.energy_stderr), models, settings.rays, settings.seed, settings.masking,
-                         int(np.sum(result.capped_paths)), quadrature)
+                         int(np.sum(result.capped_paths)), quadrature, bins)
 
 
-__all__ = ["INCIDENT_DEG", "RAYS", "GRID", "ENERGY_TERMS", "furnace_settings", "simulated_albedo", "needed_sides",
-           "model_reason", "ModelAlbedos", "model_albedos", "FurnaceResult", "run_furnace"]
+__all__ = ["INCIDENT_DEG", "RAYS", "GRID", "ENERGY_TERMS", "furnace_settings", "simulated_albedo", "albedo_in_srgb",
+           "needed_sides", "model_reason", "ModelAlbedos", "model_albedos", "SpectralBins", "spectral_bins",
+           "FurnaceResult", "run_furnace"]

@@ -7,7 +7,8 @@ The host never imports a plugin's package, so the simulator stands without the m
 (``docs/architecture.md``). Plugins keep ``register`` light (imports inside the commands), so
 ``gonio --help`` imports no model.
 
-Every user error prints one line ``gonio: error: ...`` on stderr and exits with status 2;
+Every user error prints one line ``gonio: error: ...`` on stderr and exits with status 2 (a value
+the parser refuses: ``gonio CMD: error: --option: ...; see gonio CMD --help``, :class:`Parser`);
 an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output name. Output cut
 short by its reader (``gonio database list ... | head``) ends quietly with status 141
 (128 + SIGPIPE, what a shell tool killed by the broken pipe reports).
@@ -19,7 +20,7 @@ import argparse
 import os
 import sys
 from importlib.metadata import entry_points
-from typing import Callable, Sequence
+from typing import Callable, NoReturn, Sequence
 
 from goniometer.cli import database, simulate, tabulate
 import goniometer
@@ -28,7 +29,7 @@ from goniometer.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 #: exit status when stdout's reader went away (128 + SIGPIPE)
 EXIT_BROKEN_PIPE = 141
 
-__all__ = ["ENTRY_POINT_GROUP", "EXIT_INTERRUPTED", "EXIT_USAGE", "UsageError", "build_parser", "main"]
+__all__ = ["ENTRY_POINT_GROUP", "EXIT_INTERRUPTED", "EXIT_USAGE", "Parser", "UsageError", "build_parser", "main"]
 
 #: the entry-point group through which packages contribute ``gonio`` sub-commands
 ENTRY_POINT_GROUP = "goniometer.commands"
@@ -40,9 +41,42 @@ def plugins() -> list[Callable[[argparse._SubParsersAction], None]]:
     return [ep.load() for ep in found]
 
 
+class Parser(argparse.ArgumentParser):
+    """The parser of ``gonio`` and of every sub-command, the plugins' included (``add_subparsers``
+    makes its parsers of the parent's class): a value it refuses is one line on stderr, exit 2,
+
+        gonio simulate: error: --rays: 'abc' is not a whole number (e.g. 100000 or 1e5); see gonio simulate --help
+
+    not argparse's usage block above the line that matters."""
+
+    def error(self, message: str, prog: str | None = None) -> NoReturn:
+        prog = prog or self.prog
+        if message.startswith("argument "):   # "argument --rays: ..." -> "--rays: ...", as every other error names it
+            message = message[len("argument "):]
+        self.exit(EXIT_USAGE, f"{prog}: error: {message}; see {prog} --help\n")
+
+    def parse_known_args(self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+                         ) -> tuple[argparse.Namespace, list[str]]:
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and not hasattr(ns, _UNRECOGNIZED_BY):   # the innermost sub-command returns first
+            setattr(ns, _UNRECOGNIZED_BY, self.prog)
+        return ns, extras
+
+    def parse_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                   namespace: argparse.Namespace | None = None) -> argparse.Namespace:
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:   # named by the sub-command that was given them: gonio simulate: error: unrecognized ...
+            self.error(f"unrecognized arguments: {' '.join(extras)}", prog=getattr(ns, _UNRECOGNIZED_BY, None))
+        return ns
+
+
+#: the namespace attribute through which :class:`Parser` learns which sub-command left arguments over
+_UNRECOGNIZED_BY = "_gonio_unrecognized_by"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``gonio`` parser: the simulator's commands, then every plugin's."""
-    parser = argparse.ArgumentParser(prog="gonio", description="Monte Carlo virtual goniometer for layered materials.")
+    parser = Parser(prog="gonio", description="Monte Carlo virtual goniometer for layered materials.")
     parser.add_argument("--version", action="version", version=f"gonio (goniometer) {goniometer.__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     simulate.register(sub)

@@ -74,6 +74,7 @@ def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--ou
     from pathlib import Path
 
     from goniometer import outputs
+    _check_ancestors(Path(path), option)
     with usage_errors(outputs.OutputError):
         out = outputs.check_output(path, inputs=inputs, overwrite=overwrite, option=option, directory=directory,
                                    marker=marker)
@@ -82,6 +83,17 @@ def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--ou
         with usage_errors(store.StoreError, prefix=option):
             store.check_writable(out)
     return Path(out)
+
+
+def _check_ancestors(path, option: str) -> None:
+    """A :class:`UsageError` when the nearest existing directory above ``path`` is a file
+    (``--out m.h5/x.h5``: ``m.h5 is a file, not a directory``, not "does not exist")."""
+    from goniometer.outputs import describe_existing
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{option}: {path}: {parent} is a file ({describe_existing(parent)}), not a directory")
+            return
 
 
 def whole_number(text: str) -> int:
@@ -223,23 +235,75 @@ def resolution(text: str) -> tuple[int, int]:
 #: the notice below uses it
 COMPILE_FIRST_S = 45.0
 COMPILE_MORE_S = 15.0
-#: a warm-up still running after this many seconds is compiling, not loading from the cache
+#: a warm-up that takes longer than this many seconds is announced (compiling, or loading from the cache)
 COMPILE_NOTICE_AFTER_S = 1.0
+
+
+class CompileWatch:
+    """Counts what numba compiles while it is installed (the ``numba:compile`` event, which numba
+    fires for a function it compiles and not for one it loads from its on-disk cache; numba-cuda's
+    own event too, when numba-cuda is loaded), and whether every compiled function is cached on
+    disk (then a later run loads it)."""
+
+    def __init__(self) -> None:
+        self.compiled = 0
+        self.uncached = 0
+
+    @contextlib.contextmanager
+    def installed(self):
+        import numba.core.event as ev
+        modules = [ev] + [m for m in (sys.modules.get("numba.cuda.core.event"),)
+                          if m is not None and hasattr(m, "register") and hasattr(m, "Listener")]
+        listeners = [self._listener(m) for m in modules]
+        for m, listener in zip(modules, listeners):
+            m.register("numba:compile", listener)
+        try:
+            yield self
+        finally:
+            for m, listener in zip(modules, listeners):
+                m.unregister("numba:compile", listener)
+
+    def _listener(self, module):
+        watch = self
+
+        class Listener(module.Listener):
+            def on_start(self, event) -> None:
+                watch.started(event.data.get("dispatcher") if isinstance(event.data, dict) else None)
+
+            def on_end(self, event) -> None:
+                pass
+
+        return Listener()
+
+    def started(self, dispatcher) -> None:
+        """One function is being compiled (``dispatcher``, numba's, or None if unknown). numba's own
+        implementations (``np.zeros`` and the like) have no cache of their own: they are compiled
+        into their caller, and cached with it."""
+        self.compiled += 1
+        module = getattr(getattr(dispatcher, "py_func", None), "__module__", None)
+        if dispatcher is None or module is None or module.split(".")[0] == "numba":
+            return
+        if getattr(getattr(dispatcher, "_cache", None), "cache_path", None) is None:
+            self.uncached += 1
 
 
 def compile_kernels(warm_up: Callable[[], float], variants: int = 1, file=None, clock=None) -> float:
     """Run ``warm_up()`` (which compiles or loads the kernels a run needs) and return its seconds.
 
-    Loading from the on-disk cache takes well under a second and shows nothing. A warm-up that is
-    still going after :data:`COMPILE_NOTICE_AFTER_S` is compiling: the user sees ``compiling
-    kernels (first run only, about N s)`` and the elapsed time (on a terminal one line that counts
-    up; in a log a line every 15 s and one when done), so a first run does not sit silent. The
-    warm-up runs in a worker thread so that the main thread can report; Ctrl-C is the caller's
-    (inside :meth:`Interrupts.deferred`, it takes effect once compiling is over)."""
+    A warm-up done within :data:`COMPILE_NOTICE_AFTER_S` shows nothing. A longer one says what it
+    is doing, as measured by :class:`CompileWatch`: ``loading compiled kernels`` while numba only
+    loads from its on-disk cache, ``compiling kernels (first run only, about N s)`` once it
+    actually compiles (without "first run only" when what it compiles has no on-disk cache), with
+    the elapsed time (on a terminal one line that counts up; in a log a line every 15 s), and a
+    last line ``loaded compiled kernels in T s`` or ``compiled kernels in T s``. The warm-up runs
+    in a worker thread so that the main thread can report; Ctrl-C is the caller's (inside
+    :meth:`Interrupts.deferred`, it takes effect once compiling is over). The seconds are the
+    run's ``compile_s``, never tracing time (``docs/architecture.md``, honest first runs)."""
     import time
     clock = clock or time.monotonic
     file = file if file is not None else sys.stderr
     box: dict[str, Any] = {}
+    watch = CompileWatch()
 
     def work() -> None:
         try:
@@ -247,35 +311,56 @@ def compile_kernels(warm_up: Callable[[], float], variants: int = 1, file=None, 
         except BaseException as e:  # re-raised in the caller's thread
             box["error"] = e
 
-    worker = threading.Thread(target=work, name="gonio-compile", daemon=True)
-    t0 = clock()
-    worker.start()
-    worker.join(COMPILE_NOTICE_AFTER_S)
-    if worker.is_alive():
-        estimate = COMPILE_FIRST_S + COMPILE_MORE_S * max(0, variants - 1)
-        tty = file.isatty() if hasattr(file, "isatty") else False
-        head = f"compiling kernels (first run only, about {estimate:.0f} s)"
-        if not tty:
-            print(f"{head} ...", file=file, flush=True)
-        last = clock()
-        while worker.is_alive():
-            worker.join(0.25 if tty else 1.0)
-            now = clock()
-            if tty:
-                file.write(f"\r{head}: {now - t0:4.0f} s elapsed")
-                file.flush()
-            elif now - last >= 15.0:
-                print(f"  {now - t0:.0f} s elapsed", file=file, flush=True)
-                last = now
-        elapsed = clock() - t0
-        if tty:
-            file.write("\r\033[K")
-        print(f"compiled kernels in {elapsed:.1f} s (cached for later runs)", file=file, flush=True)
-    else:
-        worker.join()
+    with watch.installed():
+        worker = threading.Thread(target=work, name="gonio-compile", daemon=True)
+        t0 = clock()
+        worker.start()
+        worker.join(COMPILE_NOTICE_AFTER_S)
+        if worker.is_alive():
+            _report_warm_up(worker, watch, t0, clock, file,
+                            COMPILE_FIRST_S + COMPILE_MORE_S * max(0, variants - 1))
+        else:
+            worker.join()
     if "error" in box:
         raise box["error"]
     return box["s"]
+
+
+def _report_warm_up(worker: threading.Thread, watch: CompileWatch, t0: float, clock, file, estimate: float) -> None:
+    """The words of :func:`compile_kernels` while ``worker`` runs, and its last line."""
+    tty = file.isatty() if hasattr(file, "isatty") else False
+
+    def head() -> str:
+        if not watch.compiled:
+            return "loading compiled kernels"
+        if watch.uncached:
+            return "compiling kernels (not cached on disk: every run compiles them)"
+        return f"compiling kernels (first run only, about {estimate:.0f} s)"
+
+    shown, last = "", clock()
+    while True:
+        now, text = clock(), head()
+        if tty:
+            file.write(f"\r\033[K{text}: {now - t0:4.0f} s elapsed")
+            file.flush()
+        elif text != shown:
+            print(f"{text} ...", file=file, flush=True)
+            last = now
+        elif now - last >= 15.0:
+            print(f"  {now - t0:.0f} s elapsed", file=file, flush=True)
+            last = now
+        shown = text
+        if not worker.is_alive():
+            break
+        worker.join(0.25 if tty else 1.0)
+    elapsed = clock() - t0
+    if tty:
+        file.write("\r\033[K")
+    if watch.compiled:
+        print(f"compiled kernels in {elapsed:.1f} s" + ("" if watch.uncached else " (cached for later runs)"),
+              file=file, flush=True)
+    else:
+        print(f"loaded compiled kernels in {elapsed:.1f} s", file=file, flush=True)
 
 
 class LineProgress:

@@ -46,9 +46,13 @@ def cmd_database_list(args: argparse.Namespace) -> int:
     from goniometer.database import DatabaseError, list_rows, load_database
     try:
         db = load_database(args.config)
-        rows = list_rows(db, args.out, args.quality) if args.out else list_rows(db)
     except DatabaseError as e:
+        if _is_material_file(args.config):
+            raise UsageError(f"{args.config}: a material file (its [[layers]] are one stack: gonio simulate and gonio "
+                             f"furnace take it), not a database definition (docs/database-format.md)") from None
         raise UsageError(str(e)) from None
+    with usage_errors(DatabaseError):
+        rows = list_rows(db, args.out, args.quality) if args.out else list_rows(db)
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
@@ -62,6 +66,16 @@ def cmd_database_list(args: argparse.Namespace) -> int:
     spectral = f" (spectral, {db.wavelength_bins} wavelength bins)" if db.spectral else ""
     print(f"{len(rows)} materials ({', '.join(f'{n} {c}' for c, n in counts.items())}) in {db.name}{spectral}")
     return 0
+
+
+def _is_material_file(path: str) -> bool:
+    """True when ``path`` is a TOML file with ``[[layers]]``: a material file (docs/material-format.md),
+    which no database definition has."""
+    from goniometer.tomlfile import read_toml
+    try:
+        return "layers" in read_toml(path, ValueError)
+    except ValueError:   # unreadable: the definition's own error says so
+        return False
 
 
 def cmd_database_simulate(args: argparse.Namespace) -> int:

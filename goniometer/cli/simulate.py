@@ -189,10 +189,11 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
                                             "spectral", "wavelength_bins", "device")}
     fields.update({k: v for k, v in over.items() if k != "parametrization"})
-    if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):
-        print(f"warning: {stack.name} is anisotropic but the RGL grid has one incident azimuth: the readers take "
-              f"such a file as isotropic, and gonio export refuses it (use --rgl-grid with N_PHI_I >= 3)",
-              file=sys.stderr)
+    if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):   # refused before tracing
+        source = "--rgl-grid" if args.rgl_grid is not None else f"{args.config}: simulation.rgl_grid"
+        raise UsageError(f"{source}: {stack.name} is anisotropic but the RGL grid has one incident azimuth "
+                         f"(N_PHI_I = 1): the readers would take the file as isotropic and gonio export refuses it; "
+                         f"give N_PHI_I >= 3, e.g. --rgl-grid {len(grid.theta_i_deg)}x9x{grid.n}")
     return SimulationSettings.on_rgl_grid(grid, **fields)
 
 
@@ -280,16 +281,27 @@ def info_dict(path: Path) -> dict[str, Any]:
     return d
 
 
+#: what ``gonio info`` reads, as its refusals say
+INFO_READS = ("gonio info reads a goniometer.slices file (gonio simulate), a goniometer.tabulated file (gonio "
+              "tabulate) or an RGL tensor file (.bsdf, gonio export --format rgl)")
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     from goniometer.results import ENERGY_TERMS
     from goniometer import store
-    if _is_tensor(Path(args.file)):
+    from goniometer.outputs import describe_existing
+    path = Path(args.file)
+    if path.is_dir():
+        raise UsageError(f"{path}: a directory, not a file; {INFO_READS}")
+    if _is_tensor(path):
         return _info_tensor(args)
-    if _is_tabulated(Path(args.file)):
+    if _is_tabulated(path):
         return _info_tabulated(args)
     try:
-        d = info_dict(Path(args.file))
+        d = info_dict(path)
     except store.StoreError as e:
+        if path.is_file() and _hdf5_format(path) != store.FORMAT:   # another kind of file: say what it is
+            raise UsageError(f"{path}: {describe_existing(path)}; {INFO_READS}") from None
         raise UsageError(str(e)) from None
     if args.json:
         print(json.dumps(d, indent=2))
@@ -380,14 +392,20 @@ def _info_tensor(args: argparse.Namespace) -> int:
     return 0
 
 
-def _is_tabulated(path: Path) -> bool:
+def _hdf5_format(path: Path) -> str | None:
+    """The ``format`` attribute of an HDF5 file (None: no such attribute, or not an HDF5 file)."""
     import h5py
-    from goniometer.tabulated import FORMAT
     try:
         with h5py.File(path, "r") as f:
-            return f.attrs.get("format") == FORMAT
+            fmt = f.attrs.get("format")
     except OSError:
-        return False
+        return None
+    return fmt.decode() if isinstance(fmt, bytes) else fmt
+
+
+def _is_tabulated(path: Path) -> bool:
+    from goniometer.tabulated import FORMAT
+    return _hdf5_format(path) == FORMAT
 
 
 def _info_tabulated(args: argparse.Namespace) -> int:

@@ -162,6 +162,10 @@ def _export_rgl(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with usage_errors(ExportError, prefix=str(args.file)):
         fields = bsdf_fields(result, spectral=args.spectral)
+    if args.spectral and not result.settings.spectral:
+        print(f"note: {args.file} is an RGB run: the file's spectra are its RGB upsampled (B 465, G 550, R 610 nm; "
+              f"docs/rgl-format.md section 5); a spectral run (gonio simulate --spectral) exports traced spectra",
+              file=sys.stderr)
     readers = check_readers(fields)
     wanted = ("mitsuba-spectral", "pbrt-v4") if args.spectral else ("mitsuba-rgb",)
     problems = [f"{r}: {'; '.join(readers[r])}" for r in wanted if readers[r]]
@@ -173,9 +177,25 @@ def _export_rgl(args: argparse.Namespace) -> int:
         else "RGB (Mitsuba's RGB variants)"
     print(f"wrote {out} (RGL tensor file, {kind}; {len(g.theta_i_deg)} theta_i x {len(g.phi_i_deg)} phi_i, "
           f"{g.n}x{g.n} nodes; {time.perf_counter() - t0:.1f} s)")
-    print(f"  Mitsuba 3: {{'type': 'measured', 'filename': '{out}'}}   pbrt-v4: Material \"measured\" "
-          f"\"string filename\" \"{out}\"")
+    for line in _reader_lines(str(out), readers):
+        print(f"  {line}")
     return 0
+
+
+def _reader_lines(out: str, readers: dict[str, list[str]]) -> list[str]:
+    """How each reader loads the written file, for the readers that take it (``check_readers``:
+    pbrt-v4 never takes an RGB file), and what to export for the ones that do not."""
+    lines = []
+    if not readers["mitsuba-rgb"]:
+        lines.append(f"Mitsuba 3 (RGB variants): {{'type': 'measured', 'filename': '{out}'}}")
+    if not readers["mitsuba-spectral"]:
+        lines.append(f"Mitsuba 3 (spectral variants): {{'type': 'measured', 'filename': '{out}'}}")
+    if not readers["pbrt-v4"]:
+        lines.append(f'pbrt-v4: Material "measured" "string filename" "{out}"')
+    else:   # an RGB file (a spectral file pbrt-v4 refuses is not written): the spectral export is pbrt-v4's
+        lines.append(f"pbrt-v4 does not read this file ({'; '.join(readers['pbrt-v4'])}): export again with "
+                     f"--spectral for pbrt-v4")
+    return lines
 
 
 def _format_of(path: str) -> str | None:

@@ -7,8 +7,8 @@ import argparse
 import json
 import sys
 
-from goniometer.cli.common import (UsageError, add_overwrite, compile_kernels, incident_list, output_path, progress_bar,
-                                   sigint_latch, whole_number)
+from goniometer.cli.common import (UsageError, add_overwrite, add_spectral, compile_kernels, incident_list, output_path,
+                                   progress_bar, sigint_latch, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -29,6 +29,7 @@ def register(sub) -> None:
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "default: as the file says")
+    add_spectral(p)
     add_overwrite(p)
     p.set_defaults(func=cmd_furnace)
 
@@ -44,7 +45,7 @@ def cmd_furnace(args: argparse.Namespace) -> int:
     from goniometer.stack import StackError, load_toml
     from goniometer.tasks import warm_up
     from models.base import ModelError
-    from models.furnace import furnace_settings, run_furnace
+    from models.furnace import furnace_settings, model_albedos, run_furnace
 
     try:
         stack, table = load_toml(args.config)
@@ -58,29 +59,39 @@ def cmd_furnace(args: argparse.Namespace) -> int:
         thetas, phis = tuple(t), (tuple(p) if p is not None else None)
     try:
         settings = furnace_settings(table, incident_deg=thetas, incident_phi_deg=phis, rays=args.rays,
-                                    seed=args.seed, threads=args.threads, source=f"{args.config}: simulation")
+                                    seed=args.seed, threads=args.threads, spectral=args.spectral,
+                                    wavelength_bins=args.wavelength_bins, source=f"{args.config}: simulation")
     except SettingsError as e:
         raise UsageError(str(e) if str(e).startswith(str(args.config)) else _option_error(str(e))) from None
+    with usage_errors(StackError, prefix=str(args.config)):
+        per = _paths_per_incident(stack, settings)
     if args.plot:
         _check_plot_path(args.plot, args.config, args.overwrite)
 
     quiet = args.json
-    total = settings.rays * len(settings.incident_deg)
     if not quiet:
+        spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {per // settings.rays} "
+                    f"launch(es) of {settings.rays:,} paths" if settings.spectral else "")
         print(f"furnace {stack.name} ({stack.category}, {stack.base} base): {len(settings.incident_deg)} incident "
-              f"direction(s) x {settings.rays:,} rays, {settings.n_threads} thread(s)", file=sys.stderr)
+              f"direction(s) x {settings.rays:,} rays{spectral}, {settings.n_threads} thread(s)", file=sys.stderr)
+        if stack.is_spectral and not settings.spectral:
+            print(f"note: {stack.name} has spectral data; an RGB run traces their RGB equivalents "
+                  f"(docs/spectral.md section 3); --spectral traces the spectra", file=sys.stderr)
     with sigint_latch() as interrupts:
-        with interrupts.deferred():
-            compile_kernels(lambda: warm_up(stack, settings))
         try:
-            with progress_bar(total, stack.name) as bar:
+            # the models first (a model that fails stops the command before any ray is traced), and
+            # outside the progress bar, whose rate is the tracing's
+            models = model_albedos(stack, settings.incident_deg, settings.incident_phi_deg,
+                                   progress=None if quiet else (lambda n: print(f"integrating {n} ...",
+                                                                                file=sys.stderr)))
+            with interrupts.deferred():
+                compile_kernels(lambda: warm_up(stack, settings))
+            with progress_bar(per * len(settings.incident_deg), stack.name) as bar:
                 def progress(n: int) -> None:
                     interrupts.check()
                     bar.update(n)
 
-                result = run_furnace(stack, settings, progress=progress,
-                                 model_progress=None if quiet else (lambda n: bar.write(f"integrating {n} ...",
-                                                                                        file=sys.stderr)))
+                result = run_furnace(stack, settings, progress=progress, models=models)
         except ModelError as e:
             raise UsageError(f"{args.config}: {e}") from None
     if args.plot:
@@ -95,9 +106,21 @@ def cmd_furnace(args: argparse.Namespace) -> int:
     return 0
 
 
+def _paths_per_incident(stack, settings) -> int:
+    """Paths per incident direction: ``rays``, times a spectral run's launches. Raises StackError
+    for what the run cannot trace: a spectral table that does not cover the bins, a film in an RGB
+    run (``docs/spectral.md``)."""
+    if not settings.spectral:
+        from goniometer.stack import check_films
+        check_films(stack)
+        return settings.rays
+    from goniometer.spectral.launches import launch_stacks
+    return settings.rays * len(launch_stacks(stack, settings))
+
+
 #: the option that sets each settings field
 OPTIONS = {"incident_deg": "--incident", "incident_phi_deg": "--incident", "rays": "--rays", "seed": "--seed",
-           "threads": "--threads"}
+           "threads": "--threads", "wavelength_bins": "--wavelength-bins"}
 
 
 def _option_error(message: str) -> str:
@@ -112,14 +135,26 @@ def _rgb(a) -> str:
 
 
 def _print_table(r) -> None:
+    """The text table (``docs/furnace.md`` section 4): RGB columns, or for a spectral run the
+    bins' linear sRGB with each albedo's smallest and largest bin."""
     from goniometer.results import ENERGY_TERMS
+    sp = r.spectral
     print(f"{r.material} ({r.category}, {r.base} base): directional albedo E = reflected + transmitted, "
-          f"{r.rays:,} rays per angle, seed {r.seed}")
-    print(f"{'theta_l':>7}  {'simulated E (R G B)':>23}  {'std. error':>23}  {'reflected':>23}  {'transmitted':>23}  "
-          f"{'absorbed':>23}  {'masking_loss':>23}")
+          f"{r.rays:,} rays per angle{' and wavelength bin' if sp is not None else ''}, seed {r.seed}")
+    if sp is not None:
+        print(f"spectral: {sp.bins} wavelength bins, {sp.wavelength_nm[0]:.1f}-{sp.wavelength_nm[-1]:.1f} nm "
+              f"(centres), {sp.launches} launch(es); columns in {r.channels} (docs/spectral.md section 4)")
+        print("  (standard errors are upper bounds; components leave [0, 1] for colours outside the sRGB gamut; "
+              "per bin: --json, spectral.per_bin)")
+    label = "linear sRGB" if sp is not None else "R G B"
+    extra = f"  {'E over the bins [min, max]':>26}" if sp is not None else ""
+    print(f"{'theta_l':>7}  {f'simulated E ({label})':>23}  {'std. error':>23}  {'reflected':>23}  "
+          f"{'transmitted':>23}  {'absorbed':>23}  {'masking_loss':>23}{extra}")
     for m, t in enumerate(r.incident_deg):
         cols = [_rgb(r.albedo[m]), " ".join(f"{x:7.1e}" for x in r.stderr[m])]
         cols += [_rgb(r.energy[k][m]) for k in ENERGY_TERMS]
+        if sp is not None:
+            cols.append(f"{'':8s}[{sp.albedo[m].min():7.4f}, {sp.albedo[m].max():7.4f}]")
         print(f"{t:7.2f}  " + "  ".join(cols))
     if any(abs(x) > 0 for k in ("roulette", "capped") for x in r.energy[k].ravel()):
         worst = {k: float(abs(r.energy[k]).max()) for k in ("roulette", "capped")}
@@ -128,8 +163,9 @@ def _print_table(r) -> None:
     if r.models.albedo:
         names = list(r.models.albedo)
         print()
+        reads = "; the models read the material's RGB equivalent, docs/spectral.md" if sp is not None else ""
         print(f"models' directional albedo ({' + '.join(s.upper() for s in r.sides)}; quadrature, docs/furnace.md), "
-              f"minus the simulation in brackets (R G B):")
+              f"minus the simulation in brackets ({label}{reads}):")
         for name in names:
             print(f"  {name}")
             for m, t in enumerate(r.incident_deg):

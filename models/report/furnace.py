@@ -17,8 +17,9 @@ SIGMAS = 2.0
 
 
 def furnace_figure(result: FurnaceResult):
-    """A matplotlib figure: one panel per RGB channel, E(theta_l) of the simulation (+- 2 standard
-    errors) and of every evaluated model, with the white-furnace level 1 dashed."""
+    """A matplotlib figure: one panel per RGB channel (a spectral run: per linear sRGB channel of
+    its bins, ``docs/spectral.md`` section 4), E(theta_l) of the simulation (+- 2 standard errors)
+    and of every evaluated model, with the white-furnace level 1 dashed."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -34,14 +35,16 @@ def furnace_figure(result: FurnaceResult):
         for name, a in result.models.albedo.items():
             st = styles[name]
             ax.plot(t, a[:, c], lw=1.5, ms=4, color=st["colour"], marker=st["marker"], label=name)
-        ax.set_title(f"channel {label}", color=colour)
+        ax.set_title(f"channel {label}" if result.spectral is None else f"linear sRGB {label} of "
+                     f"{result.spectral.bins} wavelength bins", color=colour)
         ax.set_xlabel("incident angle theta_l (degrees)")
         ax.set_xlim(0.0, 90.0)
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("directional albedo E (fraction of incident flux)")
     handles, labels = axes[-1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right center", fontsize=8)   # beside the panels: hides no curve
-    fig.suptitle(f"{result.material}: directional albedo (reflected + transmitted), {result.rays:,} rays per angle")
+    per = "angle" if result.spectral is None else "angle and wavelength bin"
+    fig.suptitle(f"{result.material}: directional albedo (reflected + transmitted), {result.rays:,} rays per {per}")
     return fig
 
 

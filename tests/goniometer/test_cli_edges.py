@@ -310,3 +310,99 @@ def test_models_table_has_a_header_and_the_anisotropy_column(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split()[:6] == ["model", "sides", "kind", "aniso", "scatter", "description"]
     assert any(" yes " in line for line in lines[1:]) and any("belcour-aniso" in line for line in lines)
+
+
+# ----------------------------------------------------------------------------- issue 31: the words
+
+def _parser_paths(parser: argparse.ArgumentParser, path: str = "gonio"):
+    """Every (sub-)command of gonio, the plugins' included: ("gonio database list", ...)."""
+    yield path
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, sub in a.choices.items():
+                yield from _parser_paths(sub, f"{path} {name}")
+
+
+def _parser_error(capsys, argv) -> str:
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2, argv
+    return capsys.readouterr().err
+
+
+def test_every_command_refuses_an_argument_in_one_line_with_a_hint(capsys):
+    """argparse printed its 12-line usage before the line that matters: now one line naming the
+    command and where its help is, for every command (plugins share the parser class)."""
+    paths = list(_parser_paths(build_parser()))
+    assert {"gonio simulate", "gonio database list", "gonio furnace", "gonio evaluate", "gonio report"} <= set(paths)
+    for path in paths:
+        err = _parser_error(capsys, path.split()[1:] + ["--no-such-option"])
+        assert err.count("\n") == 1 and err.startswith(f"{path}: error: "), err
+        assert err.rstrip().endswith(f"; see {path} --help"), err
+        assert "usage:" not in err
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["simulate", "x.toml", "--out", "x.h5", "--rays", "abc"],
+     "gonio simulate: error: --rays: 'abc' is not a whole number (e.g. 100000 or 1e5); see gonio simulate --help"),
+    (["furnace", "x.toml", "--rays", "1.5"],
+     "gonio furnace: error: --rays: '1.5' is not a whole number (e.g. 100000 or 1e5); see gonio furnace --help"),
+    (["simulate", "x.toml", "--out", "x.h5", "--masking", "smith"],
+     "gonio simulate: error: --masking: invalid choice: 'smith'"),
+    (["database", "list", "x.toml", "--bogus"],
+     "gonio database list: error: unrecognized arguments: --bogus; see gonio database list --help"),
+])
+def test_argument_errors_name_the_option_and_the_command(capsys, argv, expected):
+    err = _parser_error(capsys, argv)
+    assert err.startswith(expected) and err.count("\n") == 1, err
+
+
+def test_info_of_a_directory_or_of_a_file_it_does_not_read(tmp_path, capsys):
+    """'gonio info DIR' said 'no such file'; 'gonio info m.binary' said 'not a readable
+    goniometer.slices file': now what the path is and what info reads."""
+    err = _one_line_error(capsys, ["info", str(tmp_path)], f"{tmp_path}: a directory, not a file")
+    assert "gonio info reads a goniometer.slices file" in err and "RGL tensor file (.bsdf" in err
+    merl = tmp_path / "m.binary"
+    import numpy as np
+    merl.write_bytes(np.array([90, 90, 180], "<i4").tobytes() + bytes(64))
+    err = _one_line_error(capsys, ["info", str(merl)], "a MERL .binary BRDF (90x90x180)")
+    assert "gonio info reads a goniometer.slices file" in err and "not a readable" not in err
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    _one_line_error(capsys, ["info", str(cfg)], "a TOML file of")
+    _one_line_error(capsys, ["info", str(tmp_path / "none.h5")], "no such file")
+    # a slices file that is damaged keeps the reader's own word
+    broken = tmp_path / "b.h5"
+    import h5py
+    with h5py.File(broken, "w") as f:
+        f.attrs["format"] = "goniometer.slices"
+    _one_line_error(capsys, ["info", str(broken)], "goniometer.slices")
+
+
+def test_out_under_an_existing_file_names_the_file(tmp_path, capsys):
+    """'--out existing_file/x.h5' said the directory does not exist."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    blocker = tmp_path / "m.h5"
+    blocker.write_bytes(b"keep")
+    for argv in (["simulate", str(cfg), "--out", str(blocker / "x.h5")],
+                 ["simulate", str(cfg), "--out", str(blocker / "deeper" / "x.h5")],
+                 ["furnace", str(cfg), "--plot", str(blocker / "e.png")],
+                 ["report", str(tmp_path), "--out", str(blocker / "rep")]):
+        err = _one_line_error(capsys, argv, f"{blocker} is a file")
+        assert "not a directory" in err and "does not exist" not in err
+    assert blocker.read_bytes() == b"keep"
+    _one_line_error(capsys, ["simulate", str(cfg), "--out", str(tmp_path / "none" / "x.h5")],
+                    f"output directory {tmp_path / 'none'} does not exist")
+
+
+def test_database_list_of_a_material_file(tmp_path, capsys):
+    """It said 'category: unknown key (allowed: ...)'."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    err = _one_line_error(capsys, ["database", "list", str(cfg)], f"{cfg}: a material file")
+    assert "not a database definition" in err and "unknown key" not in err
+    # a definition with a mistake keeps its own word
+    (tmp_path / "db.toml").write_text('name = "d"\ncategory = "x"\n')
+    _one_line_error(capsys, ["database", "list", str(tmp_path / "db.toml")], "category: unknown key")

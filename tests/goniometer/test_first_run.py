@@ -71,24 +71,86 @@ def test_a_database_warms_each_variant_once(monkeypatch):
     assert run_variant(metal, s) != run_variant(metal, s.with_overrides(masking="height-correlated"))
 
 
+def _slow(seconds: float, then=None):
+    def warm_up() -> float:
+        if then is not None:
+            then()
+        time.sleep(seconds)
+        return seconds
+    return warm_up
+
+
+class _CachedDispatcher:
+    """What numba's compile event carries for a function of ours with an on-disk cache."""
+
+    class _cache:
+        cache_path = "/numba/cache"
+
+    py_func = staticmethod(_slow)        # a function of ours (numba's own implementations are cached with their caller)
+
+
+def _numba_compiles(dispatcher) -> None:
+    """Announce a compile exactly as numba's Dispatcher.compile does (its ``numba:compile`` event)."""
+    import numba.core.event as ev
+    with ev.trigger_event("numba:compile", data={"dispatcher": dispatcher}):
+        pass
+
+
 def test_compile_notice_is_shown_only_while_compiling():
     err = io.StringIO()
     assert compile_kernels(lambda: 0.01, file=err) == 0.01
-    assert err.getvalue() == ""  # a cache load says nothing
+    assert err.getvalue() == ""  # a quick cache load says nothing
     err = io.StringIO()
-
-    def slow() -> float:
-        time.sleep(1.4)
-        return 1.4
-    assert compile_kernels(slow, variants=3, file=err) == 1.4
+    assert compile_kernels(_slow(1.4, lambda: _numba_compiles(_CachedDispatcher())), variants=3, file=err) == 1.4
     text = err.getvalue()
     assert text.startswith("compiling kernels (first run only, about 75 s)")
-    assert "compiled kernels in 1." in text
+    assert "compiled kernels in 1." in text and "(cached for later runs)" in text
 
     def broken() -> float:
         raise RuntimeError("numba says no")
     with pytest.raises(RuntimeError, match="numba says no"):
         compile_kernels(broken, file=io.StringIO())
+
+
+def test_a_slow_cache_load_is_not_called_compiling():
+    """A warm-up that takes over a second but compiles nothing (numba loads every function from its
+    cache, here: kernels this process already has) says so; it was announced as 'compiling kernels
+    (first run only, about 45 s)' with its seconds booked as compiling."""
+    stack = Stack("p", (Interface(0.2, (1.5,) * 3), Lambertian((0.5,) * 3)))
+    s = SimulationSettings(incident_deg=(30.0,), rays=100, resolution=(9, 18), threads=1)
+    warm_up(stack, s)
+    err = io.StringIO()
+    compile_kernels(_slow(1.3, lambda: warm_up(stack, s)), file=err)
+    assert err.getvalue().splitlines()[0] == "loading compiled kernels ..."
+    assert err.getvalue().splitlines()[-1].startswith("loaded compiled kernels in 1.")
+    assert "compiling" not in err.getvalue()
+
+
+def test_on_a_terminal_one_line_counts_up_and_changes_its_words_when_compiling_starts():
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    def load_then_compile() -> None:
+        time.sleep(1.6)                    # loading past the first second ...
+        _numba_compiles(_CachedDispatcher())   # ... then numba compiles
+
+    err = Terminal()
+    compile_kernels(_slow(0.6, load_then_compile), file=err)
+    shown = [part for part in err.getvalue().split("\r\033[K") if part]
+    assert shown[0].startswith("loading compiled kernels: ")
+    assert any(part.startswith("compiling kernels (first run only, about 45 s): ") for part in shown)
+    assert shown[-1].startswith("compiled kernels in ") and shown[-1].endswith("(cached for later runs)\n")
+
+
+def test_a_real_compile_is_announced_and_an_uncached_one_not_as_first_run_only():
+    import numba
+    fresh = numba.njit(lambda x: x + 1)       # no on-disk cache: compiled in every process
+    err = io.StringIO()
+    compile_kernels(_slow(1.2, lambda: fresh(1)), file=err)
+    lines = err.getvalue().splitlines()
+    assert lines[0] == "compiling kernels (not cached on disk: every run compiles them) ..."
+    assert lines[-1].startswith("compiled kernels in ") and "cached" not in lines[-1]
 
 
 def test_progress_moves_within_an_incident_direction():

@@ -194,3 +194,156 @@ def test_cli_missing_or_invalid_file(tmp_path, capsys):
     assert main(["furnace", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert "layers[0].roughness" in err and "\n" not in err
+
+
+# ----------------------------------------------------------------------------- spectral runs
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
+#: CI-sized spectral runs: two angles, few paths per bin
+SPECTRAL_ANGLES = "0,60"
+SPECTRAL_RAYS = "2000"
+
+
+def _spectral_json(capsys, config, *extra: str) -> dict:
+    capsys.readouterr()
+    assert main(["furnace", str(config), "--json", "--incident", SPECTRAL_ANGLES, "--rays", SPECTRAL_RAYS,
+                 "--threads", "1", *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def _check_bins(d: dict, bins: int) -> dict:
+    """The per-bin table of a spectral --json: its wavelengths, shapes, bookkeeping per bin, and the
+    sRGB columns as the colour pipeline's reduction of the bins (returns ``per_bin``)."""
+    from goniometer.spectral import combined_stderr, rgb_weights, wavelength_bins
+    centres, edges = wavelength_bins(bins)
+    sp = d["spectral"]
+    assert d["channels"] == f"linear sRGB (D65) of {bins} wavelength bins"
+    assert sp["wavelength_bins"] == bins and sp["launches"] == bins // 3
+    np.testing.assert_allclose(sp["wavelength_nm"], centres, rtol=0, atol=1e-9)
+    per = sp["per_bin"]
+    M = len(d["incident_deg"])
+    assert set(per["energy"]) == set(ENERGY_TERMS)
+    for a in (per["albedo"], per["stderr"], *per["energy"].values(), *per["energy_stderr"].values()):
+        assert np.shape(a) == (M, bins)
+    e = {k: np.array(v) for k, v in per["energy"].items()}
+    np.testing.assert_allclose(sum(e.values()), 1.0, atol=1e-12)           # every bin's bookkeeping closes
+    np.testing.assert_allclose(per["albedo"], e["reflected"] + e["transmitted"], rtol=0, atol=0)
+    # the table's columns are the bins' linear sRGB: the colour pipeline's weights and its bound
+    W = rgb_weights(edges)
+    groups = np.arange(bins) % (bins // 3)             # launch k carries bins k, k + B/3, k + 2B/3
+    sim = d["simulated"]
+    assert np.shape(sim["albedo"]) == np.shape(sim["stderr"]) == (M, 3)
+    np.testing.assert_allclose(sim["albedo"], np.array(per["albedo"]) @ W, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(sim["stderr"], combined_stderr(np.array(per["stderr"]), W, groups), rtol=1e-12)
+    np.testing.assert_allclose(sim["energy"]["absorbed"], e["absorbed"] @ W, rtol=1e-12, atol=1e-15)
+    assert all(np.shape(a) == (M, 3) for a in d["models"].values())
+    return per
+
+
+def test_spectral_gold_json_per_bin_and_in_srgb(capsys):
+    """gold-spectral.toml (30 bins) was a broadcast traceback: now sRGB columns, bins in --json, and
+    each bin agrees with an independent RGB run of the stack at three of the bins' wavelengths."""
+    from goniometer.spectral import wavelength_bins
+    d = _spectral_json(capsys, EXAMPLES / "gold-spectral.toml")
+    per = _check_bins(d, 30)
+    albedo, se = np.array(per["albedo"]), np.array(per["stderr"])
+    assert np.all(se > 0) and np.all((albedo > 0.3) & (albedo < 1.0))
+    # bins of three different launches, traced again as one RGB run with its own seed: within the
+    # combined standard error of the two independent estimates, per bin
+    stack, _ = load_toml(EXAMPLES / "gold-spectral.toml")
+    picks = (0, 11, 25)
+    centres = wavelength_bins(30)[0]
+    rgb = run_furnace(stack.at_wavelengths(tuple(float(centres[b]) for b in picks)),
+                      furnace_settings(incident_deg=(0.0, 60.0), rays=4000, seed=77, threads=1))
+    for c, b in enumerate(picks):
+        z = (albedo[:, b] - rgb.albedo[:, c]) / np.hypot(se[:, b], rgb.stderr[:, c])
+        assert np.all(np.abs(z) <= Z_TOL), (b, z)
+    # gold reflects red, not blue: the sRGB albedo is ordered R > G > B
+    sim = np.array(d["simulated"]["albedo"])
+    assert np.all((sim[:, 0] > sim[:, 1]) & (sim[:, 1] > sim[:, 2]))
+
+
+def test_spectral_smooth_gold_is_its_fresnel_reflectance_in_every_bin(tmp_path):
+    """Each bin of a smooth gold mirror is the Fresnel reflectance of gold's index at the bin's
+    centre, exactly (every path keeps the weight F): the bins are where their wavelengths say."""
+    from goniometer.spectral import wavelength_bins
+    config = tmp_path / "gold0.toml"
+    config.write_text((EXAMPLES / "gold-spectral.toml").read_text().replace("roughness = 0.2", "roughness = 0.0"))
+    stack, table = load_toml(config)
+    r = run_furnace(stack, furnace_settings(table, incident_deg=(0.0, 60.0), rays=500, wavelength_bins=12,
+                                            threads=1))
+    centres = wavelength_bins(12)[0]
+    eta, kappa = stack.field_values(0, "ior", centres), stack.field_values(0, "extinction", centres)
+    for m, t in enumerate((0.0, 60.0)):
+        F = optics.np_fresnel_conductor(np.full(12, np.cos(np.radians(t))), eta, kappa)
+        np.testing.assert_allclose(r.spectral.albedo[m], F, rtol=1e-12)
+    assert np.all(r.spectral.stderr < 1e-7)                 # rounding of the second moment, not noise
+    np.testing.assert_allclose(r.spectral.wavelength_nm, centres, rtol=0, atol=0)
+    # the figure's panels are the bins' linear sRGB, and say so
+    import matplotlib.pyplot as plt
+    from models.report.furnace import furnace_figure
+    fig = furnace_figure(r)
+    try:
+        assert [ax.get_title() for ax in fig.axes[:3]] == [f"linear sRGB {c} of 12 wavelength bins" for c in "RGB"]
+    finally:
+        plt.close(fig)
+
+
+def test_spectral_soap_film_json_per_bin(capsys):
+    d = _spectral_json(capsys, EXAMPLES / "soap-film.toml")
+    per = _check_bins(d, 30)
+    albedo = np.array(per["albedo"])
+    assert np.all((albedo > 0) & (albedo < 0.2))            # a film on varnish over a near-black base
+    assert np.ptp(albedo[0]) > 0.01                          # interference: the bins differ
+    assert all("thin films" in why or "thin film" in why for n, why in d["skipped"].items() if not n.endswith("-fit"))
+
+
+def test_spectral_film_white_furnace_conserves_energy_in_every_bin(tmp_path, capsys):
+    """The soap film's non-absorbing film and varnish over a white Lambertian, scattering multiply:
+    nothing is lost to masking, nothing absorbed in expectation (a clear film's single bookings are
+    signed, docs/material-format.md 2.4), so every bin's albedo is 1 within its standard error."""
+    config = tmp_path / "film-white.toml"
+    text = (EXAMPLES / "soap-film.toml").read_text().replace("albedo = 0.02", "albedo = 1.0")
+    config.write_text(text.replace("ior = 1.5\n", "ior = 1.5\nmultiple_scattering = true\n", 1))
+    d = _spectral_json(capsys, config, "--wavelength-bins", "9")
+    per = _check_bins(d, 9)
+    e = {k: np.array(v) for k, v in per["energy"].items()}
+    assert np.all(e["masking_loss"] == 0)
+    absorbed_se = np.array(per["energy_stderr"]["absorbed"])
+    assert np.all(absorbed_se > 0) and np.all(np.abs(e["absorbed"]) <= Z_TOL * absorbed_se)
+    albedo, se = np.array(per["albedo"]), np.array(per["stderr"])
+    assert np.all(se > 0)                                   # the film's choice varies the weights per bin
+    assert np.all(np.abs(albedo - 1.0) <= Z_TOL * se), (albedo, se)
+
+
+def test_spectral_text_table_says_linear_srgb(capsys):
+    assert main(["furnace", str(EXAMPLES / "gold-spectral.toml"), "--incident", SPECTRAL_ANGLES, "--rays",
+                 SPECTRAL_RAYS, "--threads", "1"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert "simulated E (linear sRGB)" in out and "(R G B)" not in out
+    assert "columns in linear sRGB (D65) of 30 wavelength bins" in out and "E over the bins [min, max]" in out
+    assert "minus the simulation in brackets (linear sRGB; the models read the material's RGB equivalent" in out
+    rows = [ln for ln in lines if ln.startswith(("   0.00", "  60.00"))]
+    assert len(rows) == 2
+    for row in rows:   # theta, 3 x (E, s.e., 4 terms), the bins' [min, max]: not 30 numbers per quantity
+        assert len(row.replace("[", " ").replace("]", " ").replace(",", " ").split()) == 1 + 3 * 6 + 2, row
+
+
+def test_rgb_furnace_table_keeps_its_words(capsys):
+    d = _spectral_json(capsys, FURNACE / "metal.toml")
+    assert d["channels"] == "R G B" and "spectral" not in d
+
+
+@pytest.mark.parametrize("edit, extra, expected", [
+    (("spectral = true", "spectral = false"), [], "layers[0].film: a thin film needs a spectral run"),
+    (None, ["--wavelength-bins", "31"], "--wavelength-bins: 31 must be a multiple of 3"),
+])
+def test_spectral_bad_input_is_one_line_exit_2(tmp_path, capsys, edit, extra, expected):
+    config = tmp_path / "film.toml"
+    text = (EXAMPLES / "soap-film.toml").read_text()
+    config.write_text(text.replace(*edit) if edit else text)
+    assert main(["furnace", str(config), "--rays", "100"] + extra) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("gonio: error: ") and expected in err[-1], err
+    assert not any("%" in line for line in err), err   # refused before tracing

@@ -53,9 +53,18 @@ def test_the_file_table_sets_the_grid_and_the_file_records_it(gold, capsys):
 def test_export_both_files_and_info_says_who_reads_them(gold, tmp_path, capsys):
     cfg, out = gold
     rgb, spec = tmp_path / "gold_rgb.bsdf", tmp_path / "gold_spec.bsdf"
-    assert main(["export", str(out), "--format", "rgl", "--out", str(rgb)]) == 0
-    assert main(["export", str(out), "--format", "rgl", "--out", str(spec), "--spectral"]) == 0
     capsys.readouterr()
+    assert main(["export", str(out), "--format", "rgl", "--out", str(rgb)]) == 0
+    said, err = capsys.readouterr()
+    # pbrt-v4 refuses RGB files: no pbrt-v4 line for one, but the export that pbrt-v4 reads
+    assert f"Mitsuba 3 (RGB variants): {{'type': 'measured', 'filename': '{rgb}'}}" in said
+    assert 'Material "measured"' not in said and "pbrt-v4 does not read this file" in said and "--spectral" in said
+    assert "is an RGB run" not in err
+    assert main(["export", str(out), "--format", "rgl", "--out", str(spec), "--spectral"]) == 0
+    said, err = capsys.readouterr()
+    assert "is an RGB run: the file's spectra are its RGB upsampled" in err   # a stand-in, said so
+    assert f'pbrt-v4: Material "measured" "string filename" "{spec}"' in said
+    assert "Mitsuba 3 (spectral variants)" in said and "RGB variants" not in said.split("\n", 1)[1]
     assert main(["info", str(spec), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["readers"]["pbrt-v4"]["takes_it"] and d["readers"]["mitsuba-spectral"]["takes_it"]
@@ -78,11 +87,23 @@ def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
     refused(capsys, ["export", classic, "--format", "rgl", "--out", tmp_path / "c.bsdf"], "not recorded on the RGL grid",
              "--parametrization rgl")
     assert not (tmp_path / "c.bsdf").exists()
+    # an anisotropic stack on a grid of one incident azimuth: refused before tracing (it was traced
+    # with a warning, and then its export refused)
     aniso = tmp_path / "a.h5"
-    capsys.readouterr()
-    assert main(["simulate", str(EXAMPLES / "aniso-metal.toml"), "--out", str(aniso), "--parametrization", "rgl",
-                 "--rgl-grid", "3x1x8", "--rays", "2000", "--threads", "1"]) == 0
-    assert "anisotropic but the RGL grid has one incident azimuth" in capsys.readouterr().err
+    refused(capsys, ["simulate", EXAMPLES / "aniso-metal.toml", "--out", aniso, "--parametrization", "rgl",
+                     "--rgl-grid", "3x1x8", "--rays", "2000", "--threads", "1"],
+            "--rgl-grid: ", "anisotropic but the RGL grid has one incident azimuth", "N_PHI_I >= 3", "3x9x8")
+    assert not aniso.exists() and not (tmp_path / ".a.h5.partial").exists()
+    # the file table's grid says where it comes from
+    cfg_aniso = tmp_path / "aniso.toml"
+    cfg_aniso.write_text((EXAMPLES / "aniso-metal.toml").read_text().split("[simulation]")[0]
+                         + '[simulation]\nparametrization = "rgl"\nrgl_grid = [3, 1, 8]\n')
+    refused(capsys, ["simulate", cfg_aniso, "--out", aniso], f"{cfg_aniso}: simulation.rgl_grid: ", "anisotropic")
+    # such a file written through the library: its export is refused too
+    from goniometer.rgl.grid import grid_for
+    from goniometer.stack import load_toml
+    stack, _ = load_toml(EXAMPLES / "aniso-metal.toml")
+    g.write(aniso, g.simulate(stack, g.SimulationSettings.on_rgl_grid(grid_for(stack, 3, 1, 8), rays=500, threads=1)))
     refused(capsys, ["export", aniso, "--format", "rgl", "--out", tmp_path / "a.bsdf"], "anisotropic", "N_PHI_I >= 3")
     assert not (tmp_path / "a.bsdf").exists()
     refused(capsys, ["export", out, "--format", "merl", "--out", tmp_path / "x.binary", "--spectral"], "--spectral")
