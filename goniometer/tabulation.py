@@ -11,8 +11,10 @@ bits whatever the thread count. Memory: the sums (sum, sum of squares, hits: ~82
 a batch adds 32 bytes per path of its chunks (2 MB per chunk of 65 536 paths).
 
 Resuming: the sums after a whole number of chunks are a checkpoint (``.FILE.h5.partial/`` beside
-the output, saved every :data:`CHECKPOINT_EVERY_S` seconds and on Ctrl-C); a rerun of the same
-run continues from there and ends with the same bits as an uninterrupted run.
+the output, saved compressed every :data:`CHECKPOINT_EVERY_S` seconds and on Ctrl-C); a rerun of
+the same run continues from there and ends with the same bits as an uninterrupted run. A rerun of
+another run (settings, stack, code version) raises
+:class:`~goniometer.checkpoint.CheckpointMismatch` and leaves the checkpoint as it is.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ import numba
 import numpy as np
 
 from goniometer import atomic, halfdiff, tracer
-from goniometer.checkpoint import code_key
+from goniometer.checkpoint import (UNREADABLE, CheckpointMismatch, check_meta, code_key, unreadable_reason,
+                                   write_meta)
 from goniometer.settings import TabulationSettings
 from goniometer.slices import boundary_tables
 from goniometer.stack import Stack, pack
@@ -42,6 +45,8 @@ __all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabul
 TAB_STREAM = 2**32 - 1
 #: seconds between checkpoints of a run that has a checkpoint directory
 CHECKPOINT_EVERY_S = 60.0
+#: the checkpoint's state file in its directory
+STATE = "state.npz"
 
 
 class TabulationError(ValueError):
@@ -98,7 +103,7 @@ class _State:
 
     def save(self, path: Path) -> None:
         nz = np.flatnonzero(self.hits)
-        atomic.write_npz(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz], sums_sq=self.sums_sq[nz],
+        atomic.write_npz_compressed(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz], sums_sq=self.sums_sq[nz],
                          hits=self.hits[nz], energy=self.energy, energy_sq=self.energy_sq, counts=self.counts,
                          elapsed_s=self.elapsed_s)
 
@@ -120,38 +125,46 @@ class _State:
 
 class TabulationCheckpoint:
     """The checkpoint directory of one tabulation: ``meta.json`` (the run and the code key, as
-    :class:`goniometer.checkpoint.Checkpoints`) and ``state.npz`` (the sums after whole chunks)."""
+    :class:`goniometer.checkpoint.Checkpoints`) and ``state.npz`` (the sums after whole chunks,
+    compressed). A state of another run or code version, or one that cannot be read, raises
+    :class:`goniometer.checkpoint.CheckpointMismatch` and is kept: only :meth:`clear`
+    (``--restart``) discards it (the state is all the progress of the run: it is never dropped
+    behind the user's back)."""
 
     def __init__(self, directory: str | Path, meta: dict) -> None:
         self.directory = Path(directory)
         self.meta = dict(meta, code=code_key())
 
-    def _current(self) -> bool:
-        try:
-            return json.loads((self.directory / "meta.json").read_text()) == self.meta
-        except (OSError, ValueError):
-            return False
+    @property
+    def state_path(self) -> Path:
+        return self.directory / STATE
+
+    def kept(self) -> list[Path]:
+        """The state file, if there is one."""
+        return [self.state_path] if self.state_path.is_file() else []
+
+    def check(self) -> None:
+        """Raise :class:`~goniometer.checkpoint.CheckpointMismatch` if the directory holds a state
+        of another run or code version; changes nothing."""
+        check_meta(self.directory, self.meta, self.kept())
 
     def load(self, n_channels: int = 3) -> _State | None:
-        """The saved state of this run, or None (a checkpoint of another run or code is deleted)."""
-        if not self.directory.is_dir():
-            return None
-        if not self._current():
-            self.clear()
+        """The saved state of this run, or None if there is none."""
+        self.check()
+        if not self.kept():
             return None
         try:
-            return _State.load(self.directory / "state.npz", n_channels)
-        except (OSError, ValueError, KeyError):
-            return None
+            return _State.load(self.state_path, n_channels)
+        except UNREADABLE as e:
+            raise CheckpointMismatch(self.directory, reason=f"{STATE} cannot be read "
+                                                            f"({unreadable_reason(self.state_path, e)})") from None
 
     def save(self, state: _State) -> None:
-        if not self._current():
-            self.clear()
-            self.directory.mkdir(parents=True, exist_ok=True)
-            atomic.write_bytes(self.directory / "meta.json", json.dumps(self.meta, indent=1).encode())
-        state.save(self.directory / "state.npz")
+        write_meta(self.directory, self.meta, self.kept())
+        state.save(self.state_path)
 
     def clear(self) -> None:
+        """Discard the checkpoint (``--restart``; after the file is written)."""
         shutil.rmtree(self.directory, ignore_errors=True)
 
 
