@@ -1,7 +1,8 @@
 """Atomic file writes: a file appears under its final name complete or not at all.
 
 Everything the project writes to a user's disk (HDF5 results, checkpoints, manifests, reports,
-cached tables) goes through :func:`atomic_path`: the content is written to a temporary file in the
+cached tables) goes through :func:`atomic_path` (HDF5 files through :func:`hdf5_file`, which builds
+them in memory first): the content is written to a temporary file in the
 same directory (``.<name>.tmp-<pid>-<random>``, see :data:`TEMP_GLOB`), then renamed over the
 final name, which is atomic on POSIX file systems. On any exception (KeyboardInterrupt included)
 the temporary file is removed and the final name is left untouched.
@@ -17,12 +18,16 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import os
 import uuid
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import h5py
 
 #: glob pattern of the temporary files (none should survive a write, finished or failed)
 TEMP_GLOB = ".*.tmp-*"
@@ -66,6 +71,22 @@ def atomic_path(path: str | os.PathLike, commit: Callable[[], None] | None = Non
         if isinstance(e, OSError) and not isinstance(e, WriteError) and e.errno in ENVIRONMENT_ERRNOS:
             raise WriteError(e.errno, os.strerror(e.errno), str(p)) from e
         raise
+
+
+@contextlib.contextmanager
+def hdf5_file(path: str | os.PathLike, commit: Callable[[], None] | None = None) -> Iterator["h5py.File"]:
+    """Yield a new HDF5 file that appears at ``path`` when the block ends (``commit`` as in
+    :func:`atomic_path`). The file is built in memory and written out in one go: the HDF5 library
+    never writes to the disk itself, because when a write of its own fails (a full disk) it cannot
+    close the file, reports errors of objects it cannot free, and may crash the process at exit.
+    The memory is the file's size (a spectral tabulation's 94 MB, ``docs/tabulated-format.md``)."""
+    import h5py
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as f:
+        yield f
+    with atomic_path(path, commit) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(buffer.getbuffer())
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> None:

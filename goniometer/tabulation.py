@@ -19,6 +19,7 @@ another run (settings, stack, code version) raises
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import time
@@ -30,8 +31,8 @@ import numba
 import numpy as np
 
 from goniometer import atomic, halfdiff, tracer
-from goniometer.checkpoint import (UNREADABLE, CheckpointMismatch, check_meta, code_key, unreadable_reason,
-                                   write_meta)
+from goniometer import checkpoint as _checkpoint
+from goniometer.checkpoint import UNREADABLE, CheckpointMismatch, check_meta, unreadable_reason, write_meta
 from goniometer.settings import TabulationSettings
 from goniometer.slices import boundary_tables
 from goniometer.stack import Stack, pack
@@ -85,6 +86,9 @@ def tabulation_description(stack: Stack, settings: TabulationSettings) -> dict:
 class _State:
     """The raw sums after ``next_chunk`` chunks."""
 
+    #: the arrays of a saved state
+    KEYS = ("next_chunk", "cells", "sums", "sums_sq", "hits", "energy", "energy_sq", "counts", "elapsed_s")
+
     def __init__(self, n_channels: int = 3) -> None:
         # [next chunk], updated with the sums (see _commit); a spectral run's chunks are numbered
         # launch after launch (chunk c of launch g is g * chunks per launch + c)
@@ -133,7 +137,7 @@ class TabulationCheckpoint:
 
     def __init__(self, directory: str | Path, meta: dict) -> None:
         self.directory = Path(directory)
-        self.meta = dict(meta, code=code_key())
+        self.meta = dict(meta, code=_checkpoint.code_key())
 
     @property
     def state_path(self) -> Path:
@@ -145,16 +149,29 @@ class TabulationCheckpoint:
 
     def check(self) -> None:
         """Raise :class:`~goniometer.checkpoint.CheckpointMismatch` if the directory holds a state
-        of another run or code version; changes nothing."""
+        of another run or code version, or one that cannot be opened; changes nothing."""
         check_meta(self.directory, self.meta, self.kept())
+        if self.kept():
+            with self._readable():
+                with np.load(self.state_path) as z:
+                    missing = sorted(set(_State.KEYS) - set(z.files))
+                if missing:
+                    raise KeyError(f"no {missing[0]}")
 
     def load(self, n_channels: int = 3) -> _State | None:
         """The saved state of this run, or None if there is none."""
         self.check()
         if not self.kept():
             return None
-        try:
+        with self._readable():
             return _State.load(self.state_path, n_channels)
+
+    @contextlib.contextmanager
+    def _readable(self):
+        """An unreadable state file: CheckpointMismatch (it holds all the run's progress; only
+        :meth:`clear` discards it)."""
+        try:
+            yield
         except UNREADABLE as e:
             raise CheckpointMismatch(self.directory, reason=f"{STATE} cannot be read "
                                                             f"({unreadable_reason(self.state_path, e)})") from None
