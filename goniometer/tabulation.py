@@ -107,9 +107,9 @@ class _State:
 
     def save(self, path: Path) -> None:
         nz = np.flatnonzero(self.hits)
-        atomic.write_npz_compressed(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz], sums_sq=self.sums_sq[nz],
-                         hits=self.hits[nz], energy=self.energy, energy_sq=self.energy_sq, counts=self.counts,
-                         elapsed_s=self.elapsed_s)
+        atomic.write_npz_compressed(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz],
+                                    sums_sq=self.sums_sq[nz], hits=self.hits[nz], energy=self.energy,
+                                    energy_sq=self.energy_sq, counts=self.counts, elapsed_s=self.elapsed_s)
 
     @classmethod
     def load(cls, path: Path, n_channels: int) -> "_State":
