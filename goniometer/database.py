@@ -10,7 +10,9 @@ The definition format and the results directory are contracts of ``docs/database
                                         unfinished material (removed when it is written)
 
 A rerun skips finished materials, resumes unfinished ones from their checkpoints, and refuses a
-directory that holds another database, quality or format (nothing is overwritten). A finished
+directory that holds another database, quality or format (nothing is overwritten); checkpoints that
+a material's run cannot use (another run, another version of the simulator code) are refused too,
+never discarded unless asked (``restart``). A finished
 file that cannot be read is reported and re-simulated only on request. A definition may ask for
 spectral runs (``[simulation] spectral = true``, ``wavelength_bins``; ``docs/spectral.md``):
 every material is then traced in wavelength bins, locally or on a Dask cluster.
@@ -30,7 +32,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from goniometer import atomic, store
-from goniometer.checkpoint import Checkpoints
+from goniometer.checkpoint import CheckpointMismatch, Checkpoints
 from goniometer.results import run_description, same_run
 from goniometer.settings import SettingsError, SimulationSettings
 from goniometer.run import run_incidents
@@ -364,6 +366,33 @@ def checkpointed_incidents(out_dir: Path, material: Material) -> int:
     return len(list(_partial_dir(out_dir, material).glob("m*.npz")))
 
 
+def material_checkpoints(db: Database, out_dir: Path, material: Material, quality: str, threads: int | None = None,
+                         on_discard: Callable[[Path, str], None] | None = None) -> Checkpoints:
+    """The checkpoints of ``material``'s run at ``quality`` in ``out_dir/.partial/<name>/``: their
+    ``meta.json`` holds the database's fingerprint, the quality, the material's name and its run
+    description (``docs/database-format.md`` section 3)."""
+    settings = db.settings_for(material, quality, threads)
+    meta = {"fingerprint": db.fingerprint(), "quality": quality, "material": material.name,
+            "run": run_description(material.stack, settings)}
+    return Checkpoints(_partial_dir(out_dir, material), meta, on_discard)
+
+
+def check_checkpoints(db: Database, out_dir: str | Path, quality: str, materials: list[Material]) -> None:
+    """Raise :class:`~goniometer.checkpoint.CheckpointMismatch` if ``out_dir`` keeps checkpoints of
+    one of ``materials`` that their runs at ``quality`` cannot use (another run, another version of
+    the simulator code): the first such material's differences, and how many more there are.
+    Nothing is changed; ``gonio database simulate --restart`` discards them."""
+    found = []
+    for m in materials:
+        try:
+            material_checkpoints(db, Path(out_dir), m, quality).check()
+        except CheckpointMismatch as e:
+            found.append(e)
+    if found:
+        first = found[0]
+        raise CheckpointMismatch(first.directory, first.differences, first.reason, others=len(found) - 1)
+
+
 def _manifest(db: Database, quality: str) -> dict:
     """The manifest of a results directory (``docs/database-format.md`` section 2.1); a spectral
     database's also says so (an RGB database's keeps its keys)."""
@@ -429,7 +458,8 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
                       resimulate_corrupted: bool = False,
                       progress: Callable[[int], None] | None = None,
                       on_material: Callable[[Material, str], None] | None = None,
-                      client: Any = None, overwrite: bool = False) -> RunSummary:
+                      client: Any = None, overwrite: bool = False, restart: bool = False,
+                      on_discard: Callable[[Path, str], None] | None = None) -> RunSummary:
     """Simulate the selected materials of ``db`` into ``out_dir`` (resumable; see module docstring).
 
     ``progress(rays)`` is called as rays finish (for an overall bar); ``on_material(material,
@@ -442,7 +472,12 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     The kernel is compiled on first use unless the caller has compiled it
     (:func:`goniometer.tasks.warm_up_runs` of :func:`runs`). ``overwrite``: the selected finished
     materials are simulated again and their files replaced (``docs/outputs.md``); without it they
-    are skipped.
+    are skipped. Checkpoints of a material that its run cannot use (another run, another code
+    version) raise :class:`~goniometer.checkpoint.CheckpointMismatch` before anything is written
+    (:func:`check_checkpoints`); ``restart`` discards the checkpoints of the materials to simulate
+    instead, and they are traced from the start. ``on_discard(path, reason)``: told of an
+    unreadable checkpoint file, whose direction is traced again
+    (:class:`~goniometer.checkpoint.Checkpoints`).
     """
     out = Path(out_dir)
     materials = db.select(only)
@@ -453,6 +488,13 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
         raise DatabaseError(f"{out}: {len(corrupt)} finished file(s) cannot be read or do not match the database "
                             f"(first: {material_path(out, next(m for m in materials if m.name == corrupt[0]))}); "
                             f"rerun with --resimulate-corrupted to move them aside and simulate them again")
+    chosen = [m for m in materials if overwrite or statuses[m.name] != "done"]
+    if restart:
+        for m in chosen:
+            material_checkpoints(db, out, m, quality).clear()
+            if statuses[m.name] == "partial":
+                statuses[m.name] = "missing"
+    check_checkpoints(db, out, quality, chosen)
     out.mkdir(parents=True, exist_ok=True)
     mf = out / MANIFEST
     if not mf.exists():
@@ -485,7 +527,7 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
         for m in todo:
             if on_material is not None:
                 on_material(m, statuses[m.name])
-            _simulate_material(db, out, m, quality, threads, progress, client)
+            _simulate_material(db, out, m, quality, threads, progress, client, on_discard)
             summary.simulated.append(m.name)
     finally:
         if own_client is not None:
@@ -501,11 +543,10 @@ def runs(db: Database, materials: list[Material], quality: str) -> list[tuple[St
 
 
 def _simulate_material(db: Database, out: Path, material: Material, quality: str, threads: int | None,
-                       progress: Callable[[int], None] | None, client: Any) -> Path:
+                       progress: Callable[[int], None] | None, client: Any,
+                       on_discard: Callable[[Path, str], None] | None = None) -> Path:
     settings = db.settings_for(material, quality, threads)
-    meta = {"fingerprint": db.fingerprint(), "quality": quality, "material": material.name,
-            "run": run_description(material.stack, settings)}
-    checkpoints = Checkpoints(_partial_dir(out, material), meta)
+    checkpoints = material_checkpoints(db, out, material, quality, threads, on_discard)
     result = run_incidents(material.stack, settings, checkpoints=checkpoints, client=client, progress=progress)
     path = material_path(out, material)
     path.parent.mkdir(parents=True, exist_ok=True)

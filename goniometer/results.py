@@ -180,12 +180,14 @@ class IncidentPart:
         return cls(m, brdf, brdf_sq, btdf, btdf_sq, acc.energy, acc.energy_sq, acc.counts, elapsed_s)
 
     def save(self, path) -> None:
-        """Checkpoint to an ``.npz`` file (atomically: temporary name, then rename)."""
+        """Checkpoint to an ``.npz`` file, compressed (lossless: :meth:`load` gives the same bits) and
+        atomically (temporary name, then rename)."""
         arrays = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
-        atomic.write_npz(path, index=self.index, elapsed_s=self.elapsed_s, **arrays)
+        atomic.write_npz_compressed(path, index=self.index, elapsed_s=self.elapsed_s, **arrays)
 
     @classmethod
     def load(cls, path) -> "IncidentPart":
+        """A part saved by :meth:`save` (compressed or, written before checkpoints were, not)."""
         with np.load(path) as z:
             get = (lambda k: z[k] if k in z.files else None)
             return cls(int(z["index"]), z["brdf"], z["brdf_sq"], get("btdf"), get("btdf_sq"), z["energy"],

@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 
 import goniometer
-from goniometer.atomic import atomic_path  # noqa: F401  (public here too: store.atomic_path)
+from goniometer.atomic import atomic_path, hdf5_file  # noqa: F401  (public here too: store.atomic_path)
 from goniometer.results import ENERGY_TERMS, SimulationResult, SliceData
 from goniometer.settings import SimulationSettings
 from goniometer.slices import SliceGrid
@@ -54,9 +54,8 @@ def write(path: str | Path, result: SimulationResult, commit: Callable[[], None]
     """Write ``result`` to ``path`` atomically; returns the path. ``commit``: see
     :func:`goniometer.atomic.atomic_path`."""
     p = check_writable(path)
-    with atomic_path(p, commit) as tmp:
-        with h5py.File(tmp, "w") as f:
-            _write(f, result)
+    with hdf5_file(p, commit) as f:
+        _write(f, result)
     return p
 
 

@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 
 from goniometer import halfdiff, tracer
-from goniometer.atomic import atomic_path
+from goniometer.atomic import hdf5_file
 from goniometer.results import ENERGY_TERMS
 from goniometer.settings import SettingsError, TabulationSettings
 from goniometer.stack import Stack, StackError
@@ -189,10 +189,9 @@ def write_tabulated(path: str | Path, tab: TabulatedBRDF, commit: Callable[[], N
     see :func:`goniometer.atomic.atomic_path`."""
     from goniometer import store
     p = store.check_writable(path)
-    with atomic_path(p, commit) as tmp:
-        with h5py.File(tmp, "w") as f:
-            store.write_material(f, FORMAT, FORMAT_VERSION, tab.stack)
-            _write(f, tab)
+    with hdf5_file(p, commit) as f:
+        store.write_material(f, FORMAT, FORMAT_VERSION, tab.stack)
+        _write(f, tab)
     return p
 
 

@@ -11,12 +11,15 @@ bits whatever the thread count. Memory: the sums (sum, sum of squares, hits: ~82
 a batch adds 32 bytes per path of its chunks (2 MB per chunk of 65 536 paths).
 
 Resuming: the sums after a whole number of chunks are a checkpoint (``.FILE.h5.partial/`` beside
-the output, saved every :data:`CHECKPOINT_EVERY_S` seconds and on Ctrl-C); a rerun of the same
-run continues from there and ends with the same bits as an uninterrupted run.
+the output, saved compressed every :data:`CHECKPOINT_EVERY_S` seconds and on Ctrl-C); a rerun of
+the same run continues from there and ends with the same bits as an uninterrupted run. A rerun of
+another run (settings, stack, code version) raises
+:class:`~goniometer.checkpoint.CheckpointMismatch` and leaves the checkpoint as it is.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import time
@@ -28,7 +31,8 @@ import numba
 import numpy as np
 
 from goniometer import atomic, halfdiff, tracer
-from goniometer.checkpoint import code_key
+from goniometer import checkpoint as _checkpoint
+from goniometer.checkpoint import UNREADABLE, CheckpointMismatch, check_meta, unreadable_reason, write_meta
 from goniometer.settings import TabulationSettings
 from goniometer.slices import boundary_tables
 from goniometer.stack import Stack, pack
@@ -42,6 +46,8 @@ __all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabul
 TAB_STREAM = 2**32 - 1
 #: seconds between checkpoints of a run that has a checkpoint directory
 CHECKPOINT_EVERY_S = 60.0
+#: the checkpoint's state file in its directory
+STATE = "state.npz"
 
 
 class TabulationError(ValueError):
@@ -80,6 +86,9 @@ def tabulation_description(stack: Stack, settings: TabulationSettings) -> dict:
 class _State:
     """The raw sums after ``next_chunk`` chunks."""
 
+    #: the arrays of a saved state
+    KEYS = ("next_chunk", "cells", "sums", "sums_sq", "hits", "energy", "energy_sq", "counts", "elapsed_s")
+
     def __init__(self, n_channels: int = 3) -> None:
         # [next chunk], updated with the sums (see _commit); a spectral run's chunks are numbered
         # launch after launch (chunk c of launch g is g * chunks per launch + c)
@@ -98,9 +107,9 @@ class _State:
 
     def save(self, path: Path) -> None:
         nz = np.flatnonzero(self.hits)
-        atomic.write_npz(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz], sums_sq=self.sums_sq[nz],
-                         hits=self.hits[nz], energy=self.energy, energy_sq=self.energy_sq, counts=self.counts,
-                         elapsed_s=self.elapsed_s)
+        atomic.write_npz_compressed(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz],
+                                    sums_sq=self.sums_sq[nz], hits=self.hits[nz], energy=self.energy,
+                                    energy_sq=self.energy_sq, counts=self.counts, elapsed_s=self.elapsed_s)
 
     @classmethod
     def load(cls, path: Path, n_channels: int) -> "_State":
@@ -120,38 +129,59 @@ class _State:
 
 class TabulationCheckpoint:
     """The checkpoint directory of one tabulation: ``meta.json`` (the run and the code key, as
-    :class:`goniometer.checkpoint.Checkpoints`) and ``state.npz`` (the sums after whole chunks)."""
+    :class:`goniometer.checkpoint.Checkpoints`) and ``state.npz`` (the sums after whole chunks,
+    compressed). A state of another run or code version, or one that cannot be read, raises
+    :class:`goniometer.checkpoint.CheckpointMismatch` and is kept: only :meth:`clear`
+    (``--restart``) discards it (the state is all the progress of the run: it is never dropped
+    behind the user's back)."""
 
     def __init__(self, directory: str | Path, meta: dict) -> None:
         self.directory = Path(directory)
-        self.meta = dict(meta, code=code_key())
+        self.meta = dict(meta, code=_checkpoint.code_key())
 
-    def _current(self) -> bool:
-        try:
-            return json.loads((self.directory / "meta.json").read_text()) == self.meta
-        except (OSError, ValueError):
-            return False
+    @property
+    def state_path(self) -> Path:
+        return self.directory / STATE
+
+    def kept(self) -> list[Path]:
+        """The state file, if there is one."""
+        return [self.state_path] if self.state_path.is_file() else []
+
+    def check(self) -> None:
+        """Raise :class:`~goniometer.checkpoint.CheckpointMismatch` if the directory holds a state
+        of another run or code version, or one that cannot be opened; changes nothing."""
+        check_meta(self.directory, self.meta, self.kept())
+        if self.kept():
+            with self._readable():
+                with np.load(self.state_path) as z:
+                    missing = sorted(set(_State.KEYS) - set(z.files))
+                if missing:
+                    raise KeyError(f"no {missing[0]}")
 
     def load(self, n_channels: int = 3) -> _State | None:
-        """The saved state of this run, or None (a checkpoint of another run or code is deleted)."""
-        if not self.directory.is_dir():
+        """The saved state of this run, or None if there is none."""
+        self.check()
+        if not self.kept():
             return None
-        if not self._current():
-            self.clear()
-            return None
+        with self._readable():
+            return _State.load(self.state_path, n_channels)
+
+    @contextlib.contextmanager
+    def _readable(self):
+        """An unreadable state file: CheckpointMismatch (it holds all the run's progress; only
+        :meth:`clear` discards it)."""
         try:
-            return _State.load(self.directory / "state.npz", n_channels)
-        except (OSError, ValueError, KeyError):
-            return None
+            yield
+        except UNREADABLE as e:
+            raise CheckpointMismatch(self.directory, reason=f"{STATE} cannot be read "
+                                                            f"({unreadable_reason(self.state_path, e)})") from None
 
     def save(self, state: _State) -> None:
-        if not self._current():
-            self.clear()
-            self.directory.mkdir(parents=True, exist_ok=True)
-            atomic.write_bytes(self.directory / "meta.json", json.dumps(self.meta, indent=1).encode())
-        state.save(self.directory / "state.npz")
+        write_meta(self.directory, self.meta, self.kept())
+        state.save(self.state_path)
 
     def clear(self) -> None:
+        """Discard the checkpoint (``--restart``; after the file is written)."""
         shutil.rmtree(self.directory, ignore_errors=True)
 
 

@@ -9,14 +9,20 @@ The host never imports a plugin's package, so the simulator stands without the m
 
 Every user error prints one line ``gonio: error: ...`` on stderr and exits with status 2 (a value
 the parser refuses: ``gonio CMD: error: --option: ...; see gonio CMD --help``, :class:`Parser`);
-an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output name. Output cut
+an interrupted run (Ctrl-C) exits with 130 and leaves no file under the output name. A failure of
+the environment -- a full disk, a quota, a read-only file system: an OSError of
+:data:`goniometer.atomic.ENVIRONMENT_ERRNOS` that names its file -- prints one line
+``gonio: error: cannot write PATH: No space left on device`` (with what the command kept, if it
+says) and exits with status 1; any other OSError is a bug and keeps its traceback. Output cut
 short by its reader (``gonio database list ... | head``) ends quietly with status 141
-(128 + SIGPIPE, what a shell tool killed by the broken pipe reports).
+(128 + SIGPIPE, what a shell tool killed by the broken pipe reports). ``docs/outputs.md`` lists
+the exit statuses.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 from importlib.metadata import entry_points
@@ -24,12 +30,16 @@ from typing import Callable, NoReturn, Sequence
 
 from goniometer.cli import database, simulate, tabulate
 import goniometer
+from goniometer.atomic import WriteError, is_environment_error
 from goniometer.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 
 #: exit status when stdout's reader went away (128 + SIGPIPE)
 EXIT_BROKEN_PIPE = 141
+#: exit status of a failure of the environment (disk full, quota, read-only file system: docs/outputs.md)
+EXIT_ENVIRONMENT = 1
 
-__all__ = ["ENTRY_POINT_GROUP", "EXIT_INTERRUPTED", "EXIT_USAGE", "Parser", "UsageError", "build_parser", "main"]
+__all__ = ["ENTRY_POINT_GROUP", "EXIT_ENVIRONMENT", "EXIT_INTERRUPTED", "EXIT_USAGE", "Parser", "UsageError",
+           "build_parser", "main"]
 
 #: the entry-point group through which packages contribute ``gonio`` sub-commands
 ENTRY_POINT_GROUP = "goniometer.commands"
@@ -108,6 +118,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         note = f"; nothing written to {out}" if out else ""
         print(f"gonio: interrupted{note}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except OSError as e:
+        if not is_environment_error(e):
+            raise   # a bug: its traceback
+        print(f"gonio: error: {environment_error(e)}", file=sys.stderr)
+        return EXIT_ENVIRONMENT
+
+
+#: the errors that mean a write failed whatever was being done when they came
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
+
+
+def environment_error(e: OSError) -> str:
+    """The line of an OSError of the environment: ``cannot write PATH: No space left on device``
+    (``cannot access PATH: ...`` for an error that need not be a write's), then the notes the
+    command added (what it kept, how to go on), on one line."""
+    verb = "cannot write" if isinstance(e, WriteError) or e.errno in _WRITE_ERRNOS else "cannot access"
+    line = f"{verb} {e.filename}: {os.strerror(e.errno)}"
+    notes = [n for n in getattr(e, "__notes__", ()) if isinstance(n, str)]
+    return "; ".join([line, *notes]).replace("\n", " ")
 
 
 def _silence_stdout() -> None:

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
-from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, compile_kernels, output_path,
-                                   progress_bar, sigint_latch, skip_progress, usage_errors, whole_number)
+from goniometer.cli.common import (EXIT_INTERRUPTED, THREADS_HELP, ResumeAware, UsageError, compile_kernels,
+                                   output_path, progress_bar, sigint_latch, skip_progress, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -38,6 +39,10 @@ def register(sub) -> None:
     q.add_argument("--overwrite", action="store_true",
                    help="simulate the selected finished materials again and replace their files (default: "
                         "finished materials are skipped; docs/outputs.md)")
+    q.add_argument("--restart", action="store_true",
+                   help="discard the checkpoints of the selected unfinished materials (DIR/.partial) and trace them "
+                        "from the start (default: resume them; checkpoints of another run or code version are "
+                        "refused, naming what differs)")
     q.set_defaults(func=cmd_database_simulate)
 
 
@@ -79,11 +84,14 @@ def _is_material_file(path: str) -> bool:
 
 
 def cmd_database_simulate(args: argparse.Namespace) -> int:
-    from goniometer.database import (DatabaseError, load_database, material_status, paths_per_incident, runs,
-                                     simulate_database)
+    from goniometer.atomic import is_environment_error
+    from goniometer.cli.simulate import checkpoint_refusals
+    from goniometer.database import (DatabaseError, check_checkpoints, check_results_dir, load_database,
+                                     material_status, paths_per_incident, runs, simulate_database)
     from goniometer.results import cell_geometries
     from goniometer.settings import SettingsError
     from goniometer.tasks import run_variant, warm_up_runs
+    started = time.time()   # files written after it are this run's (an interrupt says how many)
     with usage_errors(DatabaseError):
         db = load_database(args.config)
         materials = db.select(args.only)
@@ -92,13 +100,19 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
         # paths per material: a spectral run traces its launches' paths (docs/spectral.md section 1)
         rays = {m.name: paths_per_incident(db, m, args.quality) * len(db.incident_deg) for m in materials}
     output_path(args.out, inputs=[args.config], directory=True)
+    # before compiling: another database's directory, or checkpoints this run cannot use, are refused at once
+    with usage_errors(DatabaseError), checkpoint_refusals():
+        check_results_dir(db, Path(args.out), args.quality)
+        if not args.restart:
+            check_checkpoints(db, args.out, args.quality, [m for m in materials if args.overwrite or material_status(
+                db, Path(args.out), m, args.quality) != "done"])
     spectral = (f", spectral: {db.wavelength_bins} wavelength bins ({db.qualities[args.quality]:,} paths per bin "
                 f"and slice)" if db.spectral else f" ({db.qualities[args.quality]:,} rays per slice)")
     print(f"{db.name}: {len(materials)} material(s), quality {args.quality}{spectral}, into {args.out}",
           file=sys.stderr)
 
     try:
-        with sigint_latch() as interrupts:
+        with sigint_latch() as interrupts, checkpoint_refusals():
             todo = [m for m in materials
                     if args.overwrite or material_status(db, Path(args.out), m, args.quality) != "done"]
             if args.scheduler is None and todo:
@@ -113,6 +127,10 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
             bar = progress_bar(sum(rays.values()), db.name, smoothing=0.05)
             progress = ResumeAware(bar, interrupts.check)
 
+            def on_discard(path, reason):
+                bar.write(f"warning: {path}: unreadable checkpoint ({reason}); its incident direction is traced "
+                          f"again", file=sys.stderr)
+
             def on_material(m, status):
                 interrupts.check()
                 if status == "partial":
@@ -124,14 +142,41 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
                     skip_progress(bar, sum(rays.values()) - sum(rays[m.name] for m in todo))
                 summary = simulate_database(db, args.out, args.quality, args.only, threads=args.threads,
                                             scheduler=args.scheduler, resimulate_corrupted=args.resimulate_corrupted,
-                                            progress=progress, on_material=on_material, overwrite=args.overwrite)
+                                            progress=progress, on_material=on_material, overwrite=args.overwrite,
+                                            restart=args.restart, on_discard=on_discard)
                 if bar.total and bar.n < bar.total:
                     bar.update(bar.total - bar.n)
     except (DatabaseError, SettingsError) as e:
         raise UsageError(str(e)) from None
+    except KeyboardInterrupt:
+        # what is on disk is kept: say so, and how to go on (the host's "nothing written" would be wrong)
+        print(f"gonio: interrupted; {_kept(db, Path(args.out), materials, started)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except OSError as e:   # a full disk, say: one line (goniometer.cli.main) saying what is kept
+        if is_environment_error(e):
+            e.add_note(_kept(db, Path(args.out), materials, started))
+        raise
     print(f"{len(summary.simulated)} simulated ({len(summary.resumed)} resumed, {len(summary.resimulated)} "
           f"re-simulated), {len(summary.skipped)} already done, in {summary.elapsed_s:.0f} s; files in {args.out}")
     return 0
+
+
+def _kept(db, out: Path, materials: list, since: float) -> str:
+    """What an interrupted or failed ``database simulate`` leaves in ``out``: the materials finished
+    (and how many of them were written after ``since``, by this run), the unfinished ones with
+    checkpoints, and how to go on."""
+    from goniometer.database import checkpointed_incidents, material_path
+    files = [material_path(out, m) for m in materials]
+    done = [p for p in files if p.exists()]
+    now = sum(1 for p in done if p.stat().st_mtime >= since)
+    partial = {m.name: n for m, p in zip(materials, files) if not p.exists() and (n := checkpointed_incidents(out, m))}
+    words = [f"{len(done)} of {len(materials)} material(s) finished in {out} ({now} by this run)"]
+    if partial:
+        name, n = next(iter(partial.items()))
+        more = f" and {len(partial) - 1} more" if len(partial) > 1 else ""
+        words.append(f"checkpoints of {len(partial)} unfinished material(s) kept in {out / '.partial'} ({name}: {n} "
+                     f"of {len(db.incident_deg)} incident direction(s){more})")
+    return ", ".join(words) + "; rerun the same command to resume"
 
 
 def _checkpointed_rays(db, out: str, material, quality: str) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -56,7 +57,9 @@ def register(sub) -> None:
                         "the file's recorded stack shows it")
     add_spectral(p)
     p.add_argument("--restart", action="store_true",
-                   help="discard the checkpoints an interrupted run of the same command left (.FILE.h5.partial)")
+                   help="discard the checkpoints an interrupted run left (.FILE.h5.partial) and trace from the "
+                        "start (default: resume them; checkpoints of other settings or another code version are "
+                        "refused, naming what differs)")
     add_overwrite(p)
     p.set_defaults(func=cmd_simulate)
 
@@ -78,6 +81,7 @@ def _paths_per_incident(stack, settings) -> int:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from goniometer import store
+    from goniometer.atomic import is_environment_error
     from goniometer.checkpoint import Checkpoints, checkpoint_dir
     from goniometer.first_order import check_supported
     from goniometer.results import cell_geometries, run_description
@@ -126,6 +130,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                 print(f"note: {stack.name} has spectral data; an RGB run traces their RGB equivalents "
                       f"(docs/spectral.md section 3); --spectral traces the spectra", file=sys.stderr)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
+    checkpoints = Checkpoints(checkpoint_dir(out), run_description(stack, settings))
+    if args.restart:
+        checkpoints.clear()
+    with checkpoint_refusals():   # before anything is printed or compiled: a changed setting is refused at once
+        checkpoints.check()
 
     total = per * len(settings.incident_deg)
     spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {per // settings.rays} launch(es) "
@@ -137,11 +146,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         with interrupts.deferred():
             compile_s = compile_kernels(lambda: warm_up(stack, settings))
             cell_geometries(settings)  # the final assembly's numba kernels: compiled and run here
-        checkpoints = Checkpoints(checkpoint_dir(out), run_description(stack, settings))
-        if args.restart:
-            checkpoints.clear()
         bar = progress_bar(total, stack.name)
         progress = ResumeAware(bar, interrupts.check)
+        checkpoints.on_discard = lambda path, reason: bar.write(
+            f"warning: {path}: unreadable checkpoint ({reason}); its incident direction is traced again",
+            file=sys.stderr)
 
         def on_resume(n: int) -> None:
             progress.resumed(n * per)
@@ -149,7 +158,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                       f"(checkpoints in {checkpoints.directory}; --restart to discard them)", file=sys.stderr)
 
         try:
-            with bar:
+            with bar, checkpoint_refusals():
                 result = run_incidents(stack, settings, checkpoints=checkpoints, progress=progress,
                                        on_resume=on_resume)
             result.compile_s = compile_s
@@ -157,15 +166,52 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             with interrupts.writing() as commit:
                 store.write(out, result, commit)  # atomic: interrupted, it leaves nothing under the name
         except KeyboardInterrupt:
-            kept = len(list(checkpoints.directory.glob("m*.npz"))) if checkpoints.directory.is_dir() else 0
+            kept = _kept(checkpoints)
             if kept:
-                print(f"gonio: {kept} finished incident direction(s) kept in {checkpoints.directory}; "
-                      f"rerun the same command to resume", file=sys.stderr)
+                print(f"gonio: {kept}", file=sys.stderr)
+            raise
+        except OSError as e:   # a full disk, say: one line (goniometer.cli.main) saying what is kept
+            kept = _kept(checkpoints)
+            if kept and is_environment_error(e):
+                e.add_note(kept)
             raise
         checkpoints.clear()
     print(f"wrote {out}")
     _print_summary(result)
     return 0
+
+
+def _kept(checkpoints) -> str | None:
+    """What an interrupted or failed run keeps, and how to go on; None if it keeps nothing."""
+    n = len(checkpoints.kept())
+    if not n:
+        return None
+    return f"{n} finished incident direction(s) kept in {checkpoints.directory}; rerun the same command to resume"
+
+
+@contextlib.contextmanager
+def checkpoint_refusals():
+    """Kept checkpoints the run cannot use (:class:`goniometer.checkpoint.CheckpointMismatch`):
+    one line naming every differing key with both values and the way on, exit status 2. Shared by
+    ``simulate``, ``tabulate`` and ``database simulate`` (each has ``--restart``)."""
+    from goniometer.checkpoint import CheckpointMismatch
+    try:
+        yield
+    except CheckpointMismatch as e:
+        raise UsageError(checkpoint_refusal(e)) from None
+
+
+def checkpoint_refusal(e) -> str:
+    """The line of a :class:`goniometer.checkpoint.CheckpointMismatch`: what they are, and how to
+    go on (``docs/outputs.md`` rule 3)."""
+    if e.reason is None and e.other_code:
+        way = ("this version of the simulator cannot resume them (the version that wrote them can); "
+               "add --restart to discard them")
+    elif e.reason is None:
+        way = "rerun the command that wrote them to resume, or add --restart to discard them"
+    else:
+        way = "add --restart to discard them and trace from the start"
+    return f"{e}; {way} (nothing was changed)"
 
 
 def _without_rgl(table: dict) -> dict:

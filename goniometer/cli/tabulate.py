@@ -26,7 +26,9 @@ def register(sub) -> None:
     add_device(p)
     add_spectral(p)
     p.add_argument("--restart", action="store_true",
-                   help="discard the checkpoint an interrupted run of the same command left (.FILE.h5.partial)")
+                   help="discard the checkpoint an interrupted run left (.FILE.h5.partial) and trace from the start "
+                        "(default: resume it; a checkpoint of other settings or another code version is refused, "
+                        "naming what differs)")
     add_overwrite(p)
     p.set_defaults(func=cmd_tabulate)
 
@@ -47,7 +49,9 @@ def register(sub) -> None:
 
 def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer import store
+    from goniometer.atomic import is_environment_error
     from goniometer.checkpoint import checkpoint_dir
+    from goniometer.cli.simulate import checkpoint_refusals
     from goniometer.settings import SettingsError, SimulationSettings, TabulationSettings
     from goniometer.stack import StackError, load_toml
     from goniometer.tabulated import write_tabulated
@@ -67,6 +71,11 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     with usage_errors(DeviceError):
         check_device(settings.device)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
+    checkpoint = TabulationCheckpoint(checkpoint_dir(out), tabulation_description(stack, settings))
+    if args.restart:
+        checkpoint.clear()
+    with checkpoint_refusals():   # before anything is printed or compiled: a changed setting is refused at once
+        checkpoint.check()
     if stack.is_spectral and not settings.spectral:
         print(f"note: {stack.name} has spectral data; an RGB tabulation traces their RGB equivalents "
               f"(docs/spectral.md section 3); --spectral traces the spectra", file=sys.stderr)
@@ -79,9 +88,6 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     with sigint_latch() as interrupts:
         with interrupts.deferred():
             compile_s = compile_kernels(lambda: warm_up(stack, settings))
-        checkpoint = TabulationCheckpoint(checkpoint_dir(out), tabulation_description(stack, settings))
-        if args.restart:
-            checkpoint.clear()
         bar = progress_bar(paths, stack.name)
         progress = ResumeAware(bar, interrupts.check)
 
@@ -91,21 +97,28 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
                       f"{checkpoint.directory}; --restart to discard it)", file=sys.stderr)
 
         try:
-            with bar:
+            with bar, checkpoint_refusals():
                 tab = tabulate(stack, settings, checkpoint=checkpoint, progress=progress, on_resume=on_resume,
                                compile_s=compile_s)
             interrupts.check()
             with interrupts.writing() as commit:
                 write_tabulated(out, tab, commit)  # atomic: interrupted, it leaves nothing under the name
         except KeyboardInterrupt:
-            if (checkpoint.directory / "state.npz").exists():
-                print(f"gonio: progress kept in {checkpoint.directory}; rerun the same command to resume",
-                      file=sys.stderr)
+            if checkpoint.kept():
+                print(f"gonio: {_kept(checkpoint)}", file=sys.stderr)
+            raise
+        except OSError as e:   # a full disk, say: one line (goniometer.cli.main) saying what is kept
+            if checkpoint.kept() and is_environment_error(e):
+                e.add_note(_kept(checkpoint))
             raise
         checkpoint.clear()
     print(f"wrote {out}")
     _print_summary(tab)
     return 0
+
+
+def _kept(checkpoint) -> str:
+    return f"progress kept in {checkpoint.directory}; rerun the same command to resume"
 
 
 def _print_summary(t) -> None:

@@ -497,3 +497,59 @@ def test_dask_cluster_runs_a_spectral_database_with_the_local_bits(spectral_run,
     for m in db.materials:
         _assert_same_result(store.read(material_path(out, m)), store.read(material_path(remote, m)))
         assert material_status(db, remote, m, "quick") == "done"
+
+
+def test_cli_interrupt_words_and_checkpoints_of_another_run(tiny_run, tmp_path, capsys, monkeypatch):
+    """Ctrl-C in `gonio database simulate` says what is kept and how to resume (issue 31 item 6);
+    a rerun whose materials' runs differ from their checkpoints (a quality's rays changed in the
+    definition, another code version) is one line, exit 2, naming the key and both values, and the
+    checkpoints keep their bytes; the same command resumes them to an uninterrupted run's bits;
+    --restart discards them."""
+    import goniometer.checkpoint
+    import goniometer.cli.common
+    import goniometer.cli.database
+    from goniometer.cli import main
+    from tests.conftest import refused
+    from tests.goniometer.resume_helpers import assert_same_datasets, bytes_of, stop_after
+    db, out, _ = tiny_run
+    first, second = db.select("plastic/*")
+    work = tmp_path / "work"
+    argv = ["database", "simulate", str(TINY), "--out", str(work), "--only", "plastic/*", "--threads", "2"]
+    # interrupted in the second material's second direction (30,000 rays a direction)
+    monkeypatch.setattr(goniometer.cli.database, "ResumeAware", stop_after(3 * 30_000))
+    capsys.readouterr()
+    assert main(argv) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (f"gonio: interrupted; 1 of 2 material(s) finished in {work} (1 by this run), checkpoints of 1 "
+                       f"unfinished material(s) kept in {work / '.partial'} ({second.name}: 1 of 2 incident "
+                       f"direction(s)); rerun the same command to resume")
+    assert not any("nothing written" in line for line in err)
+    monkeypatch.setattr(goniometer.cli.database, "ResumeAware", goniometer.cli.common.ResumeAware)
+    kept = bytes_of(work / ".partial")
+    assert sorted(kept) == [f"{second.name}/m00.npz", f"{second.name}/meta.json"]
+    # the definition's quick quality changed: the checkpoints are of another run
+    changed = tmp_path / "changed.toml"
+    changed.write_text(TINY.read_text().replace("quick = 30_000", "quick = 35_000"))
+    refused(capsys, ["database", "simulate", changed, "--out", work, "--only", second.name],
+            f"{work / '.partial' / second.name}: holds checkpoints of another run (rays: checkpoints 30000, "
+            f"this run 35000)", "add --restart to discard them")
+    monkeypatch.setattr(goniometer.checkpoint, "code_key", lambda: "another version")
+    refused(capsys, argv, "written by another version of the simulator code", "add --restart to discard them")
+    monkeypatch.setattr(goniometer.checkpoint, "code_key", goniometer.checkpoint.cache.simulator_key)
+    assert bytes_of(work / ".partial") == kept
+    # the same command resumes: the uninterrupted run's bits
+    assert main(argv) == 0
+    assert "1 simulated (1 resumed, 0 re-simulated), 1 already done" in capsys.readouterr().out
+    for m in (first, second):
+        assert_same_datasets(material_path(work, m), material_path(out, m))
+    # checkpoints of another code version: refused, then discarded by --restart
+    other = tmp_path / "other"
+    monkeypatch.setattr(goniometer.checkpoint, "code_key", lambda: "another version")
+    _interrupt_in_the_second_direction(db, first, other)
+    monkeypatch.setattr(goniometer.checkpoint, "code_key", goniometer.checkpoint.cache.simulator_key)
+    again = ["database", "simulate", str(TINY), "--out", str(other), "--only", first.name]
+    refused(capsys, again, "another version of the simulator code")
+    assert main([*again, "--restart"]) == 0
+    assert "1 simulated (0 resumed, 0 re-simulated)" in capsys.readouterr().out
+    assert_same_datasets(material_path(other, first), material_path(out, first))
+    assert not (other / ".partial" / first.name).exists()

@@ -312,3 +312,66 @@ def test_ctrl_c_at_the_end_of_tabulate_is_one_line_130_and_resumable(where, tmp_
     assert "resuming: 20,000 of 20,000 rays" in capsys.readouterr().err
     a, b = g.read_tabulated(out), g.read_tabulated(ref)
     assert np.array_equal(a.hits, b.hits) and np.array_equal(a.value, b.value) and np.array_equal(a.stderr, b.stderr)
+
+
+# ------------------------------------------------------------------ a rerun with another setting
+
+def test_cli_tabulate_refuses_another_setting_and_keeps_the_checkpoint(tmp_path, capsys, monkeypatch):
+    """Issue 31 item 1 for tabulations: a rerun with another seed (or by another code version) is
+    one line, exit 2, naming the key and both values; the checkpoint keeps its bytes; an unreadable
+    state is refused too (it is all the run's progress); the original command resumes to the bits
+    of an uninterrupted run; --restart discards the checkpoint."""
+    import goniometer.checkpoint
+    import goniometer.cli.common
+    import goniometer.cli.tabulate
+    from tests.conftest import refused
+    from tests.goniometer.resume_helpers import assert_same_datasets, bytes_of, stop_after
+    cfg = EXAMPLES / "plastic.toml"
+    argv = ["--rays", "200000", "--seed", "5", "--threads", "1"]
+    ref = tmp_path / "ref.h5"
+    assert main(["tabulate", str(cfg), "--out", str(ref), *argv]) == 0
+    out, partial = tmp_path / "p.h5", tmp_path / ".p.h5.partial"
+    monkeypatch.setattr(goniometer.cli.tabulate, "ResumeAware", stop_after(0))   # Ctrl-C after the first batch
+    capsys.readouterr()
+    assert main(["tabulate", str(cfg), "--out", str(out), *argv]) == 130
+    assert f"gonio: progress kept in {partial}; rerun the same command to resume" in capsys.readouterr().err
+    monkeypatch.setattr(goniometer.cli.tabulate, "ResumeAware", goniometer.cli.common.ResumeAware)
+    kept = bytes_of(partial)
+    assert sorted(kept) == ["meta.json", "state.npz"]
+    refused(capsys, ["tabulate", cfg, "--out", out, *argv, "--seed", "7"],
+            f"{partial}: holds checkpoints of another run (seed: checkpoints 5, this run 7)",
+            "rerun the command that wrote them to resume, or add --restart to discard them")
+    monkeypatch.setattr(goniometer.checkpoint, "code_key", lambda: "another version")
+    refused(capsys, ["tabulate", cfg, "--out", out, *argv], "written by another version of the simulator code",
+            "add --restart to discard them")
+    monkeypatch.setattr(goniometer.checkpoint, "code_key", goniometer.checkpoint.cache.simulator_key)
+    assert bytes_of(partial) == kept and not out.exists()
+    # the original command resumes (two chunks of 65,536 rays were kept) to the uninterrupted run's bits
+    assert main(["tabulate", str(cfg), "--out", str(out), *argv]) == 0
+    assert "resuming: 131,072 of 200,000 rays" in capsys.readouterr().err and not partial.exists()
+    assert_same_datasets(out, ref)
+    # an unreadable state is refused, not dropped; --restart discards it (and runs the changed setting)
+    out2, partial2 = tmp_path / "q.h5", tmp_path / ".q.h5.partial"
+    monkeypatch.setattr(goniometer.cli.tabulate, "ResumeAware", stop_after(0))
+    assert main(["tabulate", str(cfg), "--out", str(out2), *argv]) == 130
+    monkeypatch.setattr(goniometer.cli.tabulate, "ResumeAware", goniometer.cli.common.ResumeAware)
+    (partial2 / "state.npz").write_bytes(b"damaged")
+    refused(capsys, ["tabulate", cfg, "--out", out2, *argv],
+            f"{partial2}: state.npz cannot be read (not an npz archive: truncated or damaged)",
+            "add --restart to discard them and trace from the start")
+    assert (partial2 / "state.npz").read_bytes() == b"damaged"
+    assert main(["tabulate", str(cfg), "--out", str(out2), *argv, "--seed", "7", "--restart"]) == 0
+    assert "resuming" not in capsys.readouterr().err and not partial2.exists()
+    assert g.read_tabulated(out2).settings.seed == 7
+
+
+def test_tabulation_checkpoint_is_compressed(tmp_path):
+    """The state is saved with zip deflate (lossless: the resume tests check the bits)."""
+    import zipfile
+    stack = g.load_stack(EXAMPLES / "plastic.toml")
+    settings = g.TabulationSettings(rays=20_000, seed=2, chunk_rays=8192, threads=1)
+    cp = TabulationCheckpoint(tmp_path / "cp", tabulation_description(stack, settings))
+    tabulate(stack, settings, checkpoint=cp)   # the last state is saved before the caller writes the file
+    with zipfile.ZipFile(cp.state_path) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_DEFLATED}
+    assert cp.load().next_chunk == 3
