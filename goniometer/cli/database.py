@@ -48,14 +48,8 @@ def register(sub) -> None:
 
 
 def cmd_database_list(args: argparse.Namespace) -> int:
-    from goniometer.database import DatabaseError, list_rows, load_database
-    try:
-        db = load_database(args.config)
-    except DatabaseError as e:
-        if _is_material_file(args.config):
-            raise UsageError(f"{args.config}: a material file (its [[layers]] are one stack: gonio simulate and gonio "
-                             f"furnace take it), not a database definition (docs/database-format.md)") from None
-        raise UsageError(str(e)) from None
+    from goniometer.database import DatabaseError, list_rows
+    db = _load_definition(args.config)
     with usage_errors(DatabaseError):
         rows = list_rows(db, args.out, args.quality) if args.out else list_rows(db)
     if args.json:
@@ -73,6 +67,19 @@ def cmd_database_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _load_definition(path: str):
+    """The database definition at ``path``; a refusal is one line, which for a material file says
+    that it is one."""
+    from goniometer.database import DatabaseError, load_database
+    try:
+        return load_database(path)
+    except DatabaseError as e:
+        if _is_material_file(path):
+            raise UsageError(f"{path}: a material file (its [[layers]] are one stack: gonio simulate and gonio "
+                             f"furnace take it), not a database definition (docs/database-format.md)") from None
+        raise UsageError(str(e)) from None
+
+
 def _is_material_file(path: str) -> bool:
     """True when ``path`` is a TOML file with ``[[layers]]``: a material file (docs/material-format.md),
     which no database definition has."""
@@ -86,14 +93,14 @@ def _is_material_file(path: str) -> bool:
 def cmd_database_simulate(args: argparse.Namespace) -> int:
     from goniometer.atomic import is_environment_error
     from goniometer.cli.simulate import checkpoint_refusals
-    from goniometer.database import (DatabaseError, check_checkpoints, check_results_dir, load_database,
-                                     material_status, paths_per_incident, runs, simulate_database)
+    from goniometer.database import (DatabaseError, check_checkpoints, check_results_dir, material_status,
+                                     paths_per_incident, runs, simulate_database)
     from goniometer.results import cell_geometries
     from goniometer.settings import SettingsError
     from goniometer.tasks import run_variant, warm_up_runs
     started = time.time()   # files written after it are this run's (an interrupt says how many)
+    db = _load_definition(args.config)
     with usage_errors(DatabaseError):
-        db = load_database(args.config)
         materials = db.select(args.only)
         if args.quality not in db.qualities:
             raise DatabaseError(f"--quality: {args.quality!r} is not one of {', '.join(db.qualities)}")

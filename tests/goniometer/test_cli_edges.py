@@ -401,8 +401,10 @@ def test_database_list_of_a_material_file(tmp_path, capsys):
     """It said 'category: unknown key (allowed: ...)'."""
     cfg = tmp_path / "p.toml"
     cfg.write_text(PLASTIC)
-    err = _one_line_error(capsys, ["database", "list", str(cfg)], f"{cfg}: a material file")
-    assert "not a database definition" in err and "unknown key" not in err
+    for verb in (["list"], ["simulate", "--out", str(tmp_path / "out")]):
+        err = _one_line_error(capsys, ["database", verb[0], str(cfg), *verb[1:]], f"{cfg}: a material file")
+        assert "not a database definition" in err and "unknown key" not in err
+    assert not (tmp_path / "out").exists()
     # a definition with a mistake keeps its own word
     (tmp_path / "db.toml").write_text('name = "d"\ncategory = "x"\n')
     _one_line_error(capsys, ["database", "list", str(tmp_path / "db.toml")], "category: unknown key")
