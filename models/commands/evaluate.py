@@ -226,6 +226,7 @@ def noise_cells(internal: dict, total: dict) -> str:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
+    from models.commands.failures import report_failures
     from models.report import ReportError, plot_file
 
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
@@ -241,14 +242,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
         r = plot_file(args.file, args.out, args.model, incidents, subcells=args.subcells, isotropize=args.isotropize)
     except (ReportError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    failed = (r.get("evaluation") or {}).get("failed", {})
     if args.json:
         print(json.dumps(r, indent=2))
-        return 0
+        return report_failures(failed)
     print(f"wrote {len(r['figures'])} figures into {args.out}:")
     for p in r["figures"]:
         print(f"  {p}")
     if "reference" in r:
         print(f"({r['reference']})")
-    return 0
+    return report_failures(failed)
 
 
