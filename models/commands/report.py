@@ -41,18 +41,13 @@ def cmd_report(args: argparse.Namespace) -> int:
     incidents = None
     if args.incidents:
         incidents, _ = incident_list(args.incidents)
-    # at once: loading the models (and, on a first run, compiling them) takes a while before the first
-    # material's progress
-    print(f"report of {args.results}: loading the models ...", file=sys.stderr, flush=True)
     from models.commands.failures import EXIT_MODEL_FAILED
     from models.report import ReportError, build_report
     bar = progress_bar(None, "report", unit="material", unit_scale=False)
-    announced = False
 
     def progress(done: int, total: int, message: str) -> None:
-        nonlocal announced
-        if not announced:   # the first material, where a first run compiles the models' functions
-            announced = True
+        if done == 0:   # loading the models, then the first material (a first run compiles the models'
+            # functions there): said at once, not at the first tenth
             bar.write(f"report: {total} material(s); {message}", file=sys.stderr)
         bar.total = total
         bar.n = done

@@ -35,8 +35,9 @@ from models.report.results import MaterialResult, ReportError, open_results
 from models.report.spheres import FIGURE1_FILE, figure1, is_figure1, material_spheres
 from models.report.tables import category_csv, category_markdown, error_records, errors_figure
 
-#: ``progress(done, total, message)``, called before each material (``done`` = materials finished so
-#: far, message ``"<material>: evaluating ..."``) and once after it
+#: ``progress(done, total, message)``: once the inputs are read (``0``, ``"loading the models ..."``),
+#: before each material (``done`` = materials finished so far, ``"<material>: evaluating ..."``) and
+#: once after it
 Progress = Callable[[int, int, str], None]
 
 
@@ -93,7 +94,8 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
 
     ``models``: model names (default: every model of the registry that applies to each
     material); ``subcells``: sub-cells per cell axis for the model integration;
-    ``progress(done, total, message)``: called before each material and once it is done;
+    ``progress(done, total, message)``: called once the inputs are read, before each material and
+    once it is done (:data:`Progress`);
     ``incidents_for_figures``: incident elevations (degrees) to draw figures for (default all;
     errors always use every incident); ``definition``: the database definition when the one named
     in the manifest has moved; ``fits``: also fit the compact models (hp15-fit, ggx1-fit,
@@ -123,6 +125,8 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
             raise ReportError(str(e)) from None
         models = list(dict.fromkeys(models))
     manifest, materials, missing, warnings = open_results(rd, definition, exclude=out)
+    if progress is not None:
+        progress(0, len(materials), "loading the models ...")
     out.mkdir(parents=True, exist_ok=True)
     summary = ReportSummary(out, out / "index.html", out / "errors.json", missing=missing, warnings=list(warnings))
     code, report_key = model_code_key(), report_code_key()
