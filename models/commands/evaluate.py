@@ -107,10 +107,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
     from models.fitted import fit
+    from models.compare.errors import coverage
     reference = load_reference(args)
     try:
         if reference.brdf is None:
             raise ModelError(f"{args.model}: the file has no BRDF slices to fit")
+        cov = coverage(reference, "brdf")
+        if cov.cells and cov.warning():   # at once, before the fit's minutes (none: fit refuses it)
+            print(f"warning: {args.file}: {cov.warning()}", file=sys.stderr)
 
         def progress(start: int, cost: float) -> None:
             if not args.json:
@@ -120,10 +124,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
                      progress=progress)
     except (store.StoreError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}") from None
-    from models.compare.errors import Coverage
-    cov = Coverage(result.cells, result.cells_total)
-    if cov.warning():
-        print(f"warning: {args.file}: {cov.warning()}", file=sys.stderr)
     d = result.to_json()
     if args.json:
         print(json.dumps(d, indent=2))
