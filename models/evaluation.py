@@ -52,6 +52,11 @@ class Evaluation:
     #: the reference is a measurement (docs/measured.md): no bounce orders, "internal" is the whole BRDF
     measured: bool = False
 
+    def fail(self, name: str, e: ModelFailure) -> None:
+        """Record that model ``name`` failed (its one line under ``failed``; no note of it kept)."""
+        self.failed[name] = e.reason
+        self.approximations.pop(name, None)
+
     @property
     def internal_compares(self) -> str:
         """What the ``internal`` errors compare, in words (``docs/models.md`` §3)."""
@@ -161,8 +166,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         try:
             reason = model.reason(model_stack)
         except ModelFailure as e:
-            result.failed[name] = e.reason
-            result.approximations.pop(name, None)
+            result.fail(name, e)
             continue
         if reason is not None and anisotropic and not model.anisotropic and not isotropize:
             reason += "; --isotropize mean evaluates it with the mean roughness"
@@ -180,8 +184,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         try:
             ms = integrate(model, reference, side, s, stack=model_stack)
         except ModelFailure as e:
-            result.failed[name] = e.reason
-            result.approximations.pop(name, None)
+            result.fail(name, e)
             continue
         result.slices[name] = ms
         result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf") and not result.measured,
@@ -199,7 +202,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         try:
             fr, ms = _fit(reference, name, s)
         except ModelFailure as e:
-            result.failed[name] = e.reason
+            result.fail(name, e)
             continue
         result.slices[name] = ms
         # a fit has no top/internal split: both parts compare the whole BRDF
