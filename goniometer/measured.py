@@ -16,6 +16,14 @@ has no data (MERL's negative cells).
   file is read at 610, 550 and 465 nm as R, G, B (the nodes of the RGB upsampling the export
   states; a measured spectrum is sampled, not integrated, until the project has its colour
   pipeline).
+
+Reading checks the values (``docs/measured.md`` section 1, "What a file must hold"): every number
+finite; no reflectance above :data:`MAX_REFLECTANCE` (MERL: the hemispherical reflectance
+``sum f mu / pi`` over the cells with data, ``mu`` the cells' measure of :mod:`goniometer.halfdiff`;
+RGL: each incident node's mean stored value over the square, which is its directional albedo, the
+stored values being ``f cos / p`` for the warp's density ``p``); for RGL no stored value negative
+beyond :data:`NEGATIVE_TOLERANCE` of the largest, no negative ``ndf`` or ``vndf`` and a positive
+``sigma``. A file that fails is a :class:`MeasuredError` naming the file and what is wrong.
 """
 
 from __future__ import annotations
@@ -32,10 +40,18 @@ from goniometer.merl import MERL_SCALE
 from goniometer.rgl.tensor import MAGIC, TensorError, read_tensor
 from goniometer.rgl.warp import Warp2D, bilinear
 
-__all__ = ["MERL_SCALE", "MeasuredBRDF", "MeasuredError", "measured_reference", "read_measured"]
+__all__ = ["MAX_REFLECTANCE", "MERL_SCALE", "NEGATIVE_TOLERANCE", "MeasuredBRDF", "MeasuredError", "measured_kind",
+           "measured_reference", "read_measured"]
 
 #: where a spectral tensor file is read as R, G, B (nm)
 RGB_NM = (610.0, 550.0, 465.0)
+#: the largest reflectance a file's values may imply: a passive material reflects at most the light
+#: that reaches it (1); measurement noise and the formats' resampling stay far below twice that
+#: (an exported simulation: within 10 %), so a file above it holds broken values (docs/measured.md)
+MAX_REFLECTANCE = 2.0
+#: an RGL stored value below -NEGATIVE_TOLERANCE x the file's largest is negative beyond rounding and
+#: noise (the readers clamp negative values at 0: such a file is broken, not merely noisy)
+NEGATIVE_TOLERANCE = 1e-3
 
 
 class MeasuredError(ValueError):
@@ -114,28 +130,115 @@ class MeasuredBRDF:
         return np.where(ok[..., None], np.maximum(f, 0.0), 0.0)
 
 
-def read_measured(path: str | os.PathLike) -> MeasuredBRDF:
-    """A MERL ``.binary`` or an RGL tensor file, told apart by content. Raises
-    :class:`MeasuredError` (one line) for anything else."""
+def measured_kind(path: str | os.PathLike) -> str | None:
+    """``"merl"`` (the 90x90x180 header and the format's size) or ``"rgl"`` (the tensor file's magic)
+    by content, without reading the values; None for anything else or an unreadable file."""
     p = Path(path)
     try:
         with open(p, "rb") as fh:
             head = fh.read(16)
         size = p.stat().st_size
+    except OSError:
+        return None
+    if head.startswith(MAGIC):
+        return "rgl"
+    if (len(head) >= 12 and tuple(np.frombuffer(head[:12], dtype="<i4")) == halfdiff.SHAPE
+            and size == 12 + 24 * halfdiff.N_CELLS):
+        return "merl"
+    return None
+
+
+def read_measured(path: str | os.PathLike) -> MeasuredBRDF:
+    """A MERL ``.binary`` or an RGL tensor file, told apart by content (:func:`measured_kind`), its
+    values checked (module docstring). Raises :class:`MeasuredError` (one line) for anything else."""
+    p = Path(path)
+    try:
+        p.stat()
     except OSError as e:
         raise MeasuredError(f"{p}: cannot be read ({e.strerror or e})") from None
-    if head.startswith(MAGIC):
+    kind = measured_kind(p)
+    if kind == "rgl":
         return _read_rgl(p)
     n = halfdiff.N_CELLS
-    if len(head) >= 12 and tuple(np.frombuffer(head[:12], dtype="<i4")) == halfdiff.SHAPE and size == 12 + 24 * n:
+    if kind == "merl":
         raw = np.frombuffer(p.read_bytes(), dtype="<f8", offset=12).reshape(3, n)
         planes = raw * np.array(MERL_SCALE)[:, None]
+        _check_merl(p, raw, planes)
         planes = np.where(raw < 0, np.nan, planes)
         return MeasuredBRDF(str(p), "merl", True, None,
                             "MERL cells (theta_h, theta_d, phi_d, 90 x 90 x 180), nearest cell; cells without "
                             "data (negative) masked", {"planes": planes})
     raise MeasuredError(f"{p}: neither a MERL .binary (90x90x180 header, {12 + 24 * n:,} bytes) nor an RGL tensor "
                         f"file (.bsdf)")
+
+
+CHANNELS = ("R", "G", "B")
+
+
+def _cell(k: int) -> tuple[int, int, int]:
+    """The (i_h, i_d, i_p) indices of flat MERL cell ``k``."""
+    return tuple(int(x) for x in np.unravel_index(k, halfdiff.SHAPE))
+
+
+def _check_merl(p: Path, raw: np.ndarray, planes: np.ndarray) -> None:
+    """MeasuredError unless every stored value is finite and the cells with data (stored value >= 0)
+    reflect at most :data:`MAX_REFLECTANCE` of the light: ``sum f mu / pi`` per channel, the
+    hemispherical reflectance of the cells (``mu``: :func:`goniometer.halfdiff.cell_measure`, whose
+    sum is ``pi^2``)."""
+    bad = ~np.isfinite(raw)
+    if bad.any():
+        c, k = (int(x[0]) for x in np.nonzero(bad))
+        raise MeasuredError(f"{p}: {int(bad.sum()):,} stored value(s) are not finite (NaN or infinite), e.g. "
+                            f"{CHANNELS[c]} of cell {_cell(k)} (theta_h, theta_d, phi_d) = "
+                            f"{raw[c, k]}: not a BRDF (a cell without data is stored negative)")
+    mu = halfdiff.cell_measure().reshape(-1)
+    reflectance = np.where(raw >= 0, planes, 0.0) @ mu / math.pi
+    worst = int(np.argmax(reflectance))
+    if reflectance[worst] > MAX_REFLECTANCE:
+        k = int(np.argmax(np.where(raw[worst] >= 0, planes[worst] * mu, 0.0)))
+        raise MeasuredError(f"{p}: implausible values: the cells with data reflect {reflectance[worst]:.3g} times the "
+                            f"light that reaches them ({CHANNELS[worst]}; a measurement of a passive material "
+                            f"reflects at most {MAX_REFLECTANCE:g}), e.g. {planes[worst, k]:.3g} 1/sr in cell "
+                            f"{_cell(k)} (theta_h, theta_d, phi_d)")
+
+
+def _check_rgl(p: Path, f: dict, stored: str) -> None:
+    """MeasuredError unless the fields the readers use are finite, ``ndf`` and ``vndf`` not negative,
+    ``sigma`` positive, the ``stored`` values (``rgb`` or ``spectra``) not negative beyond
+    :data:`NEGATIVE_TOLERANCE` of the largest, and no incident node's directional albedo (the mean
+    stored value over the square, trapezoidal in both axes) above :data:`MAX_REFLECTANCE`."""
+    names = ["theta_i", "phi_i", "ndf", "sigma", "vndf", stored] + (["wavelengths"] if stored == "spectra" else [])
+    for name in names:
+        a = np.asarray(f[name], dtype=np.float64)
+        bad = ~np.isfinite(a)
+        if bad.any():
+            raise MeasuredError(f"{p}: field {name}: {int(bad.sum()):,} value(s) are not finite (NaN or infinite), "
+                                f"e.g. at index {tuple(int(x[0]) for x in np.nonzero(bad))}: not a BRDF")
+    for name in ("ndf", "vndf"):
+        if np.min(f[name]) < 0:
+            raise MeasuredError(f"{p}: field {name} holds a negative density ({float(np.min(f[name])):.3g})")
+    if np.min(f["sigma"]) <= 0:
+        raise MeasuredError(f"{p}: field sigma holds {float(np.min(f['sigma'])):.3g}; the projected area must be "
+                            f"positive (the readers divide by it)")
+    values = np.asarray(f[stored], dtype=np.float64)             # (N_phi_i, N_theta_i, C, n, n)
+    top = float(np.max(np.abs(values))) if values.size else 0.0
+    if values.size and float(np.min(values)) < -NEGATIVE_TOLERANCE * top:
+        raise MeasuredError(f"{p}: field {stored} holds {float(np.min(values)):.3g}, negative beyond rounding (the "
+                            f"largest value is {top:.3g}): a BRDF is not negative")
+    if values.ndim != 5 or min(values.shape[-2:]) < 2:
+        return   # the reader's own shape checks name it
+    n_y, n_x = values.shape[-2:]
+    wy, wx = np.full(n_y, 1.0 / (n_y - 1)), np.full(n_x, 1.0 / (n_x - 1))
+    wy[[0, -1]] *= 0.5
+    wx[[0, -1]] *= 0.5
+    albedo = np.einsum("abcij,i,j->abc", values, wy, wx)
+    a, b, c = np.unravel_index(int(np.argmax(albedo)), albedo.shape)
+    if albedo[a, b, c] > MAX_REFLECTANCE:
+        theta = math.degrees(float(f["theta_i"][b]))
+        what = f"wavelength {float(f['wavelengths'][c]):g} nm" if stored == "spectra" else CHANNELS[c]
+        raise MeasuredError(f"{p}: implausible values: at theta_i = {theta:.4g} deg ({what}) the stored values imply a "
+                            f"directional albedo of {albedo[a, b, c]:.3g} (their mean over the square; a measurement "
+                            f"of a passive material reflects at most {MAX_REFLECTANCE:g}; largest value {top:.3g})")
 
 
 def _read_rgl(p: Path) -> MeasuredBRDF:
@@ -148,6 +251,7 @@ def _read_rgl(p: Path) -> MeasuredBRDF:
     missing = [k for k in need if k not in f]
     if missing or not ("rgb" in f or ("spectra" in f and "wavelengths" in f)):
         raise MeasuredError(f"{p}: not an RGL BRDF file (missing {', '.join(missing) or 'rgb or spectra'})")
+    _check_rgl(p, f, "rgb" if "rgb" in f else "spectra")
     if "rgb" in f:
         values = f["rgb"].astype(np.float64)
         colour = "its rgb field"

@@ -22,7 +22,7 @@ from typing import Any
 _EXPORTS = {
     # the models
     "Model": ("models.base", "Model"), "ModelValue": ("models.base", "ModelValue"),
-    "ModelError": ("models.base", "ModelError"),
+    "ModelError": ("models.base", "ModelError"), "ModelFailure": ("models.base", "ModelFailure"),
     "list_models": ("models.registry", "catalogue"), "get_model": ("models.registry", "get"),
     "FITTED": ("models.registry", "FITTED"),
     # the comparison harness

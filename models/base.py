@@ -36,6 +36,42 @@ class ModelError(ValueError):
     """A model asked for something it cannot do (message names the model and the reason)."""
 
 
+class ModelFailure(ModelError):
+    """A model failed at what it claims to do: its ``support_reason`` or ``_evaluate`` raised, it
+    returned something else than the values :meth:`Model.evaluate` promises, or non-finite values.
+    ``model`` is its name, ``reason`` the failure in one line without the name; the message is
+    ``"<model>: <reason>"``. Raised by :meth:`Model.reason` and :meth:`Model.evaluate` (the one place
+    every harness, command and report calls a model through), it is that model's failure alone: a
+    loop over models records it under ``failed`` and goes on with the others (``docs/models.md`` §3,
+    "A model that fails"). A subclass of :class:`ModelError`, so that a caller that evaluates one
+    model prints it as the one line it prints for any model error."""
+
+    def __init__(self, model: str, reason: str) -> None:
+        super().__init__(f"{model}: {reason}")
+        self.model, self.reason = model, reason
+
+    def __reduce__(self):
+        return type(self), (self.model, self.reason)
+
+
+def one_line(e: BaseException) -> str:
+    """An exception's message on one line (its type's name when it has none)."""
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+def failure(model: str, step: str, e: Exception) -> ModelFailure:
+    """The :class:`ModelFailure` of ``model`` whose ``step`` (``"support_reason"``, ``"_evaluate"``)
+    raised ``e``: a :class:`ModelFailure` as it is, a :class:`ModelError` by its own message (the
+    model's words, without a leading ``"<model>: "``), anything else as
+    ``"<step> raised <Type>: <message>"``."""
+    if isinstance(e, ModelFailure):
+        return e
+    msg = one_line(e)
+    if isinstance(e, ModelError):
+        return ModelFailure(model, msg[len(model) + 2:] if msg.startswith(f"{model}: ") else msg)
+    return ModelFailure(model, f"{step} raised {type(e).__name__}: {msg}")
+
+
 @dataclass
 class ModelValue:
     """Model output for one light direction: ``top`` and ``internal``, each (..., 3), 1/sr.
@@ -92,7 +128,9 @@ class Model(ABC):
         """``None`` if the model can represent ``stack``, otherwise a one-line reason."""
 
     def reason(self, stack: Stack) -> str | None:
-        """:meth:`support_reason` preceded by the checks every model shares (anisotropy, scattering)."""
+        """:meth:`support_reason` preceded by the checks every model shares (anisotropy, scattering,
+        films). A ``support_reason`` that raises, or returns something else than None or a string,
+        is the model's failure: :class:`ModelFailure`."""
         if not self.anisotropic and any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers):
             return "isotropic interfaces only (this stack has an anisotropic roughness)"
         if not self.scattering:
@@ -103,7 +141,14 @@ class Model(ABC):
             reason = film_reason(stack)
             if reason is not None:
                 return reason
-        return self.support_reason(stack)
+        try:
+            reason = self.support_reason(stack)
+        except Exception as e:  # noqa: BLE001 -- any failure of the model's own code is its failure
+            raise failure(self.name, "support_reason", e) from None
+        if reason is not None and not isinstance(reason, str):
+            raise ModelFailure(self.name, f"support_reason returned a {type(reason).__name__}, not None or a "
+                                          f"one-line reason")
+        return reason
 
     def on_request_reason(self) -> str:
         """Why the model is evaluated only when named (``on_request``)."""
@@ -117,7 +162,9 @@ class Model(ABC):
         return self.reason(stack) is None
 
     def evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> ModelValue:
-        """f(l, v) split into top lobe and internal part; raises :class:`ModelError` if unsupported."""
+        """f(l, v) split into top lobe and internal part; raises :class:`ModelError` if unsupported,
+        :class:`ModelFailure` if ``_evaluate`` raises or returns anything but a :class:`ModelValue`
+        whose ``top`` and ``internal`` have the shape ``v.shape[:-1] + (3,)``."""
         if side not in self.sides:
             raise ModelError(f"{self.name}: cannot evaluate the {side.upper()} (it models {', '.join(self.sides)})")
         reason = self.reason(stack)
@@ -127,11 +174,29 @@ class Model(ABC):
         v = np.asarray(v, dtype=np.float64)
         if v.shape[-1] != 3:
             raise ModelError(f"{self.name}: v must have shape (..., 3), got {v.shape}")
-        return self._evaluate(stack, l, v, side)
+        try:
+            value = self._evaluate(stack, l, v, side)
+        except Exception as e:  # noqa: BLE001 -- any failure of the model's own code is its failure
+            raise failure(self.name, "_evaluate", e) from None
+        _check_value(self.name, value, v.shape[:-1] + (3,))
+        return value
 
     @abstractmethod
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         """Evaluate for a supported stack (inputs already checked)."""
+
+
+def _check_value(name: str, value: object, want: tuple[int, ...]) -> None:
+    """:class:`ModelFailure` unless ``value`` is a :class:`ModelValue` whose parts are real arrays of
+    shape ``want``."""
+    if not isinstance(value, ModelValue):
+        raise ModelFailure(name, f"_evaluate returned a {type(value).__name__}, not a ModelValue")
+    for part in ("top", "internal"):
+        a = np.asarray(getattr(value, part))
+        if a.shape != want:
+            raise ModelFailure(name, f"_evaluate returned {part} of shape {a.shape}; expected {want} (RGB last)")
+        if a.dtype.kind not in "biuf":
+            raise ModelFailure(name, f"_evaluate returned {part} of dtype {a.dtype}, not real numbers")
 
 
 def scattering_reason(stack: Stack) -> str | None:

@@ -19,7 +19,8 @@ from goniometer.results import SimulationResult
 from goniometer.stack import Interface, Stack
 from models import registry
 from models.compare import errors
-from models.base import ModelError, require_slices
+from models.base import ModelError, ModelFailure, failure, require_slices
+from models.compare.errors import Coverage, require_cells
 from models.compare.integrate import ModelSlices, integrate
 
 MODEL_SLICES_FORMAT = "goniometer.model-slices"
@@ -32,7 +33,8 @@ def comparison_side(stack: Stack) -> str:
 
 @dataclass
 class Evaluation:
-    """Errors of every evaluated model and the reasons others were skipped."""
+    """Errors of every evaluated model, the reasons others were skipped and the failures of those
+    that failed (``failed``: model -> one line, :class:`models.base.ModelFailure`)."""
 
     material: str
     category: str
@@ -42,14 +44,36 @@ class Evaluation:
     slices: dict[str, ModelSlices] = field(default_factory=dict)
     fits: dict[str, dict] = field(default_factory=dict)
     approximations: dict[str, str] = field(default_factory=dict)
-    #: what the reference is when it is not a simulation (a measured file; docs/measured.md)
+    #: what the reference is when it is not a simulation (a measured file, a spectral run)
     reference_note: str | None = None
+    failed: dict[str, str] = field(default_factory=dict)
+    #: the cells every error is summed over (models.compare.errors.Coverage)
+    coverage: Coverage | None = None
+    #: the reference is a measurement (docs/measured.md): no bounce orders, "internal" is the whole BRDF
+    measured: bool = False
+
+    def fail(self, name: str, e: ModelFailure) -> None:
+        """Record that model ``name`` failed (its one line under ``failed``; no note of it kept)."""
+        self.failed[name] = e.reason
+        self.approximations.pop(name, None)
+
+    @property
+    def internal_compares(self) -> str:
+        """What the ``internal`` errors compare, in words (``docs/models.md`` §3)."""
+        if self.side == "btdf":
+            return "the whole BTDF"
+        if self.measured:
+            return "the whole BRDF (a measurement has no bounce orders)"
+        return "internal paths (order 1 dropped)"
 
     def to_json(self) -> dict:
         """The object printed by ``gonio evaluate --json`` (``fits``: parameters and convergence of
-        fitted models, when any was asked for)."""
+        fitted models, when any was asked for; ``failed``: model -> why it failed; ``cells``,
+        ``cells_total``: the support of every error, as in each error object)."""
         out = {"material": self.material, "category": self.category, "side": self.side,
-               "models": self.errors, "skipped": self.skipped}
+               "models": self.errors, "skipped": self.skipped, "failed": self.failed}
+        if self.coverage is not None:
+            out["cells"], out["cells_total"] = self.coverage.cells, self.coverage.cells_total
         if self.fits:
             out["fits"] = self.fits
         if self.approximations:
@@ -82,14 +106,20 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
 
     ``names=None`` evaluates every registered model (built-in and plugins, :mod:`models.registry`)
     that supports the stack and side and lists the others as skipped with their reason; ``names``
-    may hold adapter specs (``python:MODULE:NAME``, ``mitsuba:FILE``, :mod:`models.adapters`); explicitly named models that cannot represent the stack raise
-    :class:`ModelError` (a user asked for something impossible). Fitted models (``hp15-fit``,
-    ``ggx1-fit``, ``ggx2-fit``) are fitted to this file's BRDF when named (they take seconds to
-    minutes) and listed as skipped otherwise. ``isotropize="mean"`` lets isotropic models evaluate
-    an anisotropic stack through :func:`isotropized` (recorded in ``approximations``); by default
-    they skip it. ``progress(name)`` is called before each model. A spectral reference is judged
-    in linear sRGB (:meth:`SimulationResult.rgb`, ``docs/spectral.md`` section 4) with the models
-    reading the material's RGB equivalent (noted in ``reference_note``).
+    may hold adapter specs (``python:MODULE:NAME``, ``mitsuba:FILE``, :mod:`models.adapters`);
+    explicitly named models that cannot represent the stack raise :class:`ModelError` (a user asked
+    for something impossible), and only the named ones appear in the result. Fitted models
+    (``hp15-fit``, ``ggx1-fit``, ``ggx2-fit``) are fitted to this file's BRDF when named (they take
+    seconds to minutes) and listed as skipped when no model is named. ``isotropize="mean"`` lets
+    isotropic models evaluate an anisotropic stack through :func:`isotropized` (recorded in
+    ``approximations``); by default they skip it. ``progress(name)`` is called before each model. A
+    spectral reference is judged in linear sRGB (:meth:`SimulationResult.rgb`, ``docs/spectral.md``
+    section 4) with the models reading the material's RGB equivalent (noted in ``reference_note``).
+
+    A model that fails (:class:`models.base.ModelFailure`: its own code raised, or it returned
+    non-finite values) is recorded under ``failed`` and the others go on. A reference without a
+    valid cell on the judged side raises :class:`models.compare.errors.NoCellsError` before any
+    model runs; ``coverage`` holds the cells every error is summed over (``docs/models.md`` §3).
     """
     require_slices(reference)
     spectral_note = None
@@ -113,12 +143,14 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         result.reference_note = spectral_note
     sd = reference.brdf if side == "brdf" else reference.btdf
     # a measurement has no bounce orders: "internal" then compares the whole BRDF too
-    measured = "measured" in reference.extra
-    if measured:
+    result.measured = "measured" in reference.extra
+    if result.measured:
         result.reference_note = (f"measured reference {reference.extra['measured']['file']} "
                                  f"({reference.extra['measured']['resampling']}; {reference.extra['measured']['subcells']}"
                                  f"x{reference.extra['measured']['subcells']} sub-cells per cell): no standard errors "
                                  f"(noise floor unknown) and no bounce orders ('internal' compares the whole BRDF)")
+    result.coverage = require_cells(reference, side)
+    cells_total = result.coverage.cells_total
     anisotropic = any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers)
     for name, model in available.items():
         if names and name not in names:
@@ -131,7 +163,11 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             model_stack = isotropized(stack, isotropize)
             result.approximations[name] = (f"isotropic model fed the anisotropic interfaces' {isotropize} "
                                            f"roughness (alpha_x + alpha_y) / 2")
-        reason = model.reason(model_stack)
+        try:
+            reason = model.reason(model_stack)
+        except ModelFailure as e:
+            result.fail(name, e)
+            continue
         if reason is not None and anisotropic and not model.anisotropic and not isotropize:
             reason += "; --isotropize mean evaluates it with the mean roughness"
         if reason is None and side not in model.sides:
@@ -145,25 +181,48 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
             result.approximations[name] = model.approximation
         if progress is not None:
             progress(name)
-        ms = integrate(model, reference, side, s, stack=model_stack)
+        try:
+            ms = integrate(model, reference, side, s, stack=model_stack)
+        except ModelFailure as e:
+            result.fail(name, e)
+            continue
         result.slices[name] = ms
-        result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf") and not measured)
+        result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf") and not result.measured,
+                                             cells_total=cells_total)
     for name in fitted:
-        if not names or name not in names:
+        if not names:
             result.skipped[name] = f"fitted to the file on request only (--model {name})"
+            continue
+        if name not in names:
             continue
         if side != "brdf":
             raise ModelError(f"{name}: fitted models are BRDF models; this stack is judged on its {side.upper()}")
         if progress is not None:
             progress(name)
-        from models.fitted import fit
-        fr = fit(reference, name, errors=False)
-        ms = integrate(fr.model, reference, side, s)
+        try:
+            fr, ms = _fit(reference, name, s)
+        except ModelFailure as e:
+            result.fail(name, e)
+            continue
         result.slices[name] = ms
         # a fit has no top/internal split: both parts compare the whole BRDF
-        result.errors[name] = errors.compare(sd, ms, drop_first_order=False)
-        result.fits[name] = {"params": fr.params, "converged": fr.converged, "message": fr.message}
+        result.errors[name] = errors.compare(sd, ms, drop_first_order=False, cells_total=cells_total)
+        result.fits[name] = {"params": fr.params, "converged": fr.converged, "message": fr.message,
+                             "n_cells": fr.n_cells}
     return result
+
+
+def _fit(reference: SimulationResult, name: str, s: int):
+    """The fit of the fitted model ``name`` to ``reference`` and its slices; whatever the fit or the
+    fitted model raises but a refusal (:class:`ModelError`) is the fitted model's failure."""
+    from models.fitted import fit
+    try:
+        fr = fit(reference, name, errors=False)
+        return fr, integrate(fr.model, reference, "brdf", s)
+    except ModelError:   # a refusal, or already the model's failure
+        raise
+    except Exception as e:  # noqa: BLE001 -- a fit that breaks is that fitted model's failure
+        raise failure(name, "the fit", e) from None
 
 
 def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evaluation) -> Path:

@@ -31,7 +31,7 @@ from functools import lru_cache
 from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 
-from models.base import Model, ModelError
+from models.base import Model, ModelError, one_line
 
 #: the entry-point group through which distributions contribute models
 GROUP = "goniometer.models"
@@ -86,21 +86,17 @@ def _load(ep: EntryPoint) -> Plugin | str:
     try:
         cls = ep.load()
     except Exception as e:  # noqa: BLE001 -- any failure of a third party's import: one warning
-        return f"cannot import {ep.value}: {type(e).__name__}: {_line(e)}"
+        return f"cannot import {ep.value}: {type(e).__name__}: {one_line(e)}"
     if not (isinstance(cls, type) and issubclass(cls, Model)):
         return f"{ep.value} is not a models.base.Model subclass (it is a {type(cls).__name__})"
     try:
         model = cls()
     except Exception as e:  # noqa: BLE001
-        return f"{ep.value}() failed: {type(e).__name__}: {_line(e)}"
+        return f"{ep.value}() failed: {type(e).__name__}: {one_line(e)}"
     name = getattr(model, "name", "")
     if not isinstance(name, str) or not name or any(c in name for c in RESERVED) or name != name.strip():
         return f"{ep.value} has no usable name ({name!r}: a non-empty name without ':' or surrounding spaces)"
     return Plugin(ep.name, ep.value, dist, version, cls, name)
-
-
-def _line(e: BaseException) -> str:
-    return " ".join(str(e).split())
 
 
 @lru_cache(maxsize=1)

@@ -409,6 +409,12 @@ def tensor_info(path: Path) -> dict[str, Any]:
     if "jacobian" in f:
         d["jacobian"] = bool(f["jacobian"].reshape(-1)[0])
     d["readers"] = {k: {"takes_it": not v, "why_not": v} for k, v in check_readers(t).items()}
+    from goniometer.measured import MeasuredError, read_measured
+    try:   # as a reference of gonio evaluate/fit (docs/measured.md): its values checked
+        read_measured(path)
+        d["as_measurement"] = {"reads": True, "why_not": None}
+    except MeasuredError as e:
+        d["as_measurement"] = {"reads": False, "why_not": str(e)}
     return d
 
 
@@ -435,6 +441,8 @@ def _info_tensor(args: argparse.Namespace) -> int:
         print(f"  wavelengths: {n} from {lo:g} to {hi:g} nm")
     for reader, r in d["readers"].items():
         print(f"  {reader:17s} " + ("takes it" if r["takes_it"] else "refuses it: " + "; ".join(r["why_not"])))
+    m = d["as_measurement"]
+    print(f"  {'as a measurement':17s} " + ("reads it" if m["reads"] else f"refuses it: {m['why_not']}"))
     return 0
 
 

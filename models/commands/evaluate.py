@@ -107,10 +107,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
     from models.fitted import fit
+    from models.compare.errors import coverage
     reference = load_reference(args)
     try:
         if reference.brdf is None:
             raise ModelError(f"{args.model}: the file has no BRDF slices to fit")
+        cov = coverage(reference, "brdf")
+        if cov.cells and cov.warning():   # at once, before the fit's minutes (none: fit refuses it)
+            print(f"warning: {args.file}: {cov.warning()}", file=sys.stderr)
 
         def progress(start: int, cost: float) -> None:
             if not args.json:
@@ -126,6 +130,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return 0
     print(f"{reference.stack.name}: {result.model.name} fitted to the BRDF of {len(reference.theta_deg)} incident "
           f"direction(s) ({result.weighting} weighting, {result.starts} start(s), {result.elapsed_s:.1f} s)")
+    grazing = " (the paper weighting leaves out the grazing ones)" if result.weighting == "paper" else ""
+    print(f"fitted on {result.n_cells:,} cells{grazing}; the reference has valid data in {cov.text()} of its grid")
     print(("converged: " if result.converged else "NOT converged: ") + result.message)
     for k, v in result.params.items():
         print(f"  {k:8s} = {v}")
@@ -133,13 +139,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
         e = result.errors["total"]
         print(f"RMSE (eq. 4) mean {e['rmse_mean']:.4e}  (R G B) {' '.join(f'{x:.3e}' for x in e['rmse'])}  "
               f"luminance {e['rmse_luminance']:.3e}  noise floor "
-              + (f"{e['noise_floor_mean']:.2e}" if e["noise_floor_mean"] is not None else "unknown (a measurement)"))
+              + (f"{e['noise_floor_mean']:.2e}" if e["noise_floor_mean"] is not None else "unknown (a measurement)")
+              + f"  over {e['cells']:,} of {e['cells_total']:,} cells")
     return 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
+    from models.commands.failures import report_failures
     from models.evaluation import evaluate, save_slices
 
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
@@ -151,27 +159,32 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                       progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
     except (store.StoreError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    if not ev.errors and not ev.failed:
+        raise UsageError(no_model_applies(str(args.file), ev))
     if args.save_slices:
         save_slices(args.save_slices, reference, ev)
+    warning = ev.coverage.warning() if ev.coverage is not None else None
+    if warning:
+        print(f"warning: {args.file}: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(ev.to_json(), indent=2))
-        return 0
-    what = ("the whole BRDF (a measurement has no bounce orders)" if ev.reference_note else
-            "internal paths (order 1 dropped)" if ev.side == "brdf" else "BTDF")
-    print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}, "
+        return report_failures(ev.failed)
+    support = f" over {ev.coverage.text()}" if ev.coverage is not None else ""
+    print(f"{ev.material} ({ev.category}): RMSE of eq. 4 on the {ev.side.upper()}{support}, "
           f"{len(reference.theta_deg)} incident direction(s), {args.subcells}x{args.subcells} sub-cells")
-    width = max([16] + [len(n) for n in ev.errors])
-    noisy = any("model_noise_mean" in e["total"] for e in ev.errors.values())
-    print(f"{'model':{width}s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
-          f"{'total mean':>11s} {'its floor':>9s}" + (f" {'model noise':>11s} {'(total)':>9s}" if noisy else ""))
-    for name, e in ev.errors.items():
-        print(table_row(name, e["internal"], e["total"], width) + (noise_cells(e["internal"], e["total"]) if noisy
-                                                                    else ""))
-    print(f"('internal' = {what}; each floor = the error a perfect model would show against this reference "
-          f"on the part beside it, channel mean)")
-    if noisy:
-        print("(model noise = a stochastic model's own noise on the internal part and on the total, computed as the "
-              "floor; '-' for an exact model)")
+    if ev.errors:
+        width = max([16] + [len(n) for n in ev.errors])
+        noisy = any("model_noise_mean" in e["total"] for e in ev.errors.values())
+        print(f"{'model':{width}s} {'internal mean':>13s} {'(R G B)':>30s} {'luminance':>10s} {'its floor':>9s} "
+              f"{'total mean':>11s} {'its floor':>9s}" + (f" {'model noise':>11s} {'(total)':>9s}" if noisy else ""))
+        for name, e in ev.errors.items():
+            print(table_row(name, e["internal"], e["total"], width) + (noise_cells(e["internal"], e["total"]) if noisy
+                                                                        else ""))
+        print(f"('internal' = {ev.internal_compares}; each floor = the error a perfect model would show against this "
+              f"reference on the part beside it, channel mean)")
+        if noisy:
+            print("(model noise = a stochastic model's own noise on the internal part and on the total, computed as "
+                  "the floor; '-' for an exact model)")
     for name, note in ev.approximations.items():
         print(f"note {name}: {note}")
     if ev.reference_note:
@@ -180,7 +193,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"skipped {name}: {reason}")
     if args.save_slices:
         print(f"wrote {args.save_slices}")
-    return 0
+    return report_failures(ev.failed)
+
+
+def no_model_applies(file: str, ev) -> str:
+    """The one line of an evaluation where every model was skipped (none evaluated, none failed)."""
+    hint = ("; --isotropize mean lets the isotropic models evaluate it with the mean roughness"
+            if any("--isotropize mean" in r for r in ev.skipped.values()) else "")
+    fitted = "; or fit a compact model to it (--model ggx1-fit)" if ev.side == "brdf" else ""
+    return (f"{file}: no model applies to {ev.material} (judged on its {ev.side.upper()}): all {len(ev.skipped)} "
+            f"model(s) skip it{hint}; name one (--model NAME) to see why it does not apply{fitted}")
 
 
 def table_row(name: str, internal: dict, total: dict, width: int = 16) -> str:
@@ -204,6 +226,7 @@ def noise_cells(internal: dict, total: dict) -> str:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
+    from models.commands.failures import report_failures
     from models.report import ReportError, plot_file
 
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
@@ -219,14 +242,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
         r = plot_file(args.file, args.out, args.model, incidents, subcells=args.subcells, isotropize=args.isotropize)
     except (ReportError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    failed = (r.get("evaluation") or {}).get("failed", {})
     if args.json:
         print(json.dumps(r, indent=2))
-        return 0
+        return report_failures(failed)
     print(f"wrote {len(r['figures'])} figures into {args.out}:")
     for p in r["figures"]:
         print(f"  {p}")
     if "reference" in r:
         print(f"({r['reference']})")
-    return 0
+    return report_failures(failed)
 
 

@@ -28,24 +28,10 @@ def add_reference_options(p: argparse.ArgumentParser) -> None:
 
 
 def is_measured(path: str | Path) -> bool:
-    """True for a MERL ``.binary`` or an RGL tensor file (by content)."""
-    from goniometer.measured import MeasuredError, read_measured
-    from goniometer.outputs import TENSOR_MAGIC
-    p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            head = fh.read(12)
-    except OSError:
-        return False
-    if head == TENSOR_MAGIC:
-        return True
-    if p.suffix.lower() == ".binary":
-        try:
-            read_measured(p)
-            return True
-        except MeasuredError:
-            return False
-    return False
+    """True for a MERL ``.binary`` or an RGL tensor file (by content, whatever its values: reading
+    it checks them, :func:`goniometer.measured.read_measured`)."""
+    from goniometer.measured import measured_kind
+    return measured_kind(path) is not None
 
 
 def load_reference(args: argparse.Namespace, subcells: int = 5):

@@ -35,6 +35,7 @@ def _number(text: str, flag: str, kind: type, allowed: str):
 def cmd_render(args: argparse.Namespace) -> int:
     from goniometer import store
     from models.base import ModelError
+    from models.commands.failures import report_failures
     from models.render import RenderError, SphereView, model_names, render_file
 
     angle = _number(args.light_angle, "--light-angle", float, "degrees in [0, 90]")
@@ -55,7 +56,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     doc = spheres.to_json()
     if args.json:
         print(json.dumps({**doc, "out": str(args.out)}, indent=2))
-        return 0
+        return report_failures(doc["failed"])
     print(f"{doc['material']}: {doc['side'].upper()} sphere, {doc['size']} px, light at {doc['light_angle_deg']:g} deg; "
           f"reference: {doc['reference']}")
     if doc["no_value_fraction"] > 0:
@@ -66,4 +67,4 @@ def cmd_render(args: argparse.Namespace) -> int:
     for name, reason in doc["skipped"].items():
         print(f"skipped {name}: {reason}")
     print(f"wrote {args.out}")
-    return 0
+    return report_failures(doc["failed"])

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from goniometer.cli.common import (UsageError, add_overwrite, at_least_one, incident_list, output_path, progress_bar,
-                                   whole_number)
+from goniometer.cli.common import (EXIT_INTERRUPTED, UsageError, add_overwrite, at_least_one, incident_list,
+                                   output_path, progress_bar, whole_number)
 
 
 def register(sub) -> None:
@@ -33,7 +34,6 @@ def register(sub) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from models.report import ReportError, build_report
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     # a finished report holds index.html (written last); an unfinished one is resumed from its cache
     inputs = [args.results] + [x for x in (args.definition, args.compare_to) if x]
@@ -41,12 +41,17 @@ def cmd_report(args: argparse.Namespace) -> int:
     incidents = None
     if args.incidents:
         incidents, _ = incident_list(args.incidents)
+    from models.commands.failures import EXIT_MODEL_FAILED
+    from models.report import ReportError, build_report
     bar = progress_bar(None, "report", unit="material", unit_scale=False)
 
     def progress(done: int, total: int, message: str) -> None:
+        if done == 0:   # loading the models, then the first material (a first run compiles the models'
+            # functions there): said at once, not at the first tenth
+            bar.write(f"report: {total} material(s); {message}", file=sys.stderr)
         bar.total = total
         bar.n = done
-        bar.set_postfix_str(message[:80])
+        bar.set_postfix_str(message)
         bar.refresh()
 
     try:
@@ -57,6 +62,9 @@ def cmd_report(args: argparse.Namespace) -> int:
                                    compare_to=args.compare_to)
     except ReportError as e:
         raise UsageError(str(e)) from None
+    except KeyboardInterrupt:
+        print(f"gonio: interrupted; {interrupted_note(Path(args.out))}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{len(summary.materials)} material(s), {summary.records} (material, model) record(s); "
@@ -65,6 +73,20 @@ def cmd_report(args: argparse.Namespace) -> int:
     if summary.multiple_scattering is not None:
         print(f"multiple scattering: {summary.out_dir / 'multiple-scattering.md'}")
     print(f"open: {summary.index_html}")
+    if summary.failed:
+        n = sum(len(v) for v in summary.failed.values())
+        print(f"{n} (material, model) pair(s) failed (the warnings above; marked in the report)", file=sys.stderr)
+        return EXIT_MODEL_FAILED
     return 0
+
+
+def interrupted_note(out: Path) -> str:
+    """What an interrupted report leaves in ``out`` and how it goes on: the cached evaluations
+    (written whole, one file per material) and figures; a rerun resumes from them."""
+    from models.report.evaluation import cached_evaluations
+    n = cached_evaluations(out)
+    held = (f"{out / 'cache'} holds the cached evaluations of {n} material(s) and the figures drawn so far"
+            if n else f"no material evaluation was cached in {out / 'cache'} yet")
+    return f"{held}; index.html is not (re)written; rerun the same command to resume from the cache"
 
 

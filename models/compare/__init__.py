@@ -7,7 +7,8 @@ above the model families (it asks the registry).
 """
 
 from models.compare.albedo import HemisphereRule, directional_albedo, hemisphere_rule
-from models.compare.errors import compare, error_object, noise_floor, reference_parts, rmse
+from models.compare.errors import (LOW_COVERAGE, Coverage, NoCellsError, compare, coverage, error_object, noise_floor,
+                                   reference_parts, require_cells, rmse)
 from models.compare.integrate import ModelSlices, integrate, integrate_slice
 
 __all__ = [
@@ -15,6 +16,8 @@ __all__ = [
     "ModelSlices", "integrate", "integrate_slice",
     # errors
     "compare", "error_object", "rmse", "noise_floor", "reference_parts",
+    # the support of an error (docs/models.md section 3)
+    "Coverage", "coverage", "require_cells", "NoCellsError", "LOW_COVERAGE",
     # directional albedo (docs/furnace.md)
     "directional_albedo", "hemisphere_rule", "HemisphereRule",
 ]

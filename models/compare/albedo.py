@@ -31,7 +31,7 @@ from functools import lru_cache
 import numpy as np
 
 from goniometer.stack import Interface, Stack
-from models.base import Model, ModelError
+from models.base import Model, ModelFailure
 
 #: Gauss-Legendre points per panel (default)
 ORDER = 8
@@ -166,12 +166,13 @@ def directional_albedo(model: Model, stack: Stack, light: np.ndarray, side: str,
                        max_panel: float = MAX_PANEL) -> np.ndarray:
     """``E_side(l)`` of ``model`` for ``stack`` (RGB, shape (3,)): the integral of the model's
     total (top + internal) value times ``|cos theta_v|`` over the side's hemisphere. Raises
-    :class:`ModelError` if the model refuses the stack or side or returns non-finite values."""
+    :class:`ModelError` if the model refuses the stack or side, :class:`ModelFailure` if it fails or
+    returns non-finite values."""
     light = np.asarray(light, dtype=np.float64).reshape(3)
     theta, phi = lobe_centre(stack, light, side)
     breaks = transmission_horizon(stack, light) if side == "btdf" else ()
     rule = hemisphere_rule(theta, phi, lobe_scale(stack), side, order, max_panel, breaks)
     value = model.evaluate(stack, light, rule.directions, side).total
     if not np.all(np.isfinite(value)):
-        raise ModelError(f"{model.name}: produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
+        raise ModelFailure(model.name, f"produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
     return rule.weights @ value

@@ -17,16 +17,109 @@ the error an exact reference would show against this noisy model (``docs/models.
 "internal" compares the internal paths only (bounce order 1 dropped from the reference and the
 top lobe from the model: plastics, metals); "total" compares everything. For a BTDF both are the
 whole BTDF.
+
+Every error states its support: ``cells``, the cells it sums over, and ``cells_total``, the cells
+the grid holds on the judged side (:class:`Coverage`). An error over no cell is refused
+(:class:`NoCellsError`, :func:`require_cells`); one over less than :data:`LOW_COVERAGE` of the grid
+comes with a warning (:meth:`Coverage.warning`; ``docs/models.md`` §3, "Support").
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from goniometer.results import SliceData
+from goniometer.results import SimulationResult, SliceData
+from goniometer.slices import light_direction
+from models.base import ModelError
 from models.compare.integrate import ModelSlices
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+#: an error summed over fewer than this fraction of the cells its grid holds on the judged side is
+#: reported with a warning: it then judges the models where the reference has data (e.g. near the
+#: peak of a sparse measurement), not over the BSDF its name suggests (``docs/models.md`` §3)
+LOW_COVERAGE = 0.5
+
+
+class NoCellsError(ModelError):
+    """A comparison over no cell: the reference has no valid cell on the judged side, so every error
+    would be 0 whatever the model (the message says how many cells the grid holds and why);
+    ``coverage``: the reference's :class:`Coverage` when known."""
+
+    def __init__(self, message: str, coverage: "Coverage | None" = None) -> None:
+        super().__init__(message)
+        self.coverage = coverage
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """The support of a reference's errors: ``cells`` valid cells (mask True, projected solid angle
+    > 0) over the ``cells_total`` cells that its grid holds on the judged side, summed over the
+    incident directions (every cell of a classic grid; on a half grid those whose directions lie on
+    the side, :meth:`goniometer.slices.SliceGrid.mask`). A simulation covers its whole grid; a
+    measurement only the cells where it has data."""
+
+    cells: int
+    cells_total: int
+
+    @property
+    def fraction(self) -> float:
+        return self.cells / self.cells_total if self.cells_total else 0.0
+
+    @property
+    def low(self) -> bool:
+        """Fewer valid cells than :data:`LOW_COVERAGE` of the grid."""
+        return self.cells < LOW_COVERAGE * self.cells_total
+
+    def text(self) -> str:
+        """``"1,234 of 3,600 cells (34.3 %)"``."""
+        return f"{self.cells:,} of {self.cells_total:,} cells ({100.0 * self.fraction:.1f} %)"
+
+    def warning(self) -> str | None:
+        """One line when :attr:`low` (None otherwise)."""
+        if not self.low:
+            return None
+        return (f"the reference has valid data in {self.text()} of its grid, under {100 * LOW_COVERAGE:g} %: the "
+                f"errors are summed over those cells only, so they judge the models where the reference has "
+                f"data, not over the whole BSDF")
+
+
+def _subcells(reference: SimulationResult) -> int | None:
+    """The sub-cells per axis the reference's mask was computed with: a measurement's resampling
+    (``extra["measured"]``); None for a simulation (the grid's default, as the simulator uses it)."""
+    measured = reference.extra.get("measured") if isinstance(reference.extra, dict) else None
+    return int(measured["subcells"]) if measured and "subcells" in measured else None
+
+
+def coverage(reference: SimulationResult, side: str) -> Coverage:
+    """The :class:`Coverage` of ``reference``'s ``side`` ("brdf" or "btdf") slices."""
+    sd = reference.brdf if side == "brdf" else reference.btdf
+    if sd is None:
+        raise ModelError(f"the reference file has no {side.upper()} slices")
+    s = _subcells(reference)
+    valid = sd.mask & (sd.proj_solid_angle > 0)
+    total = 0
+    for m, (t, p) in enumerate(zip(reference.theta_deg, reference.phi_deg)):
+        light = light_direction(float(t), float(p))
+        grid = sd.grid.mask(light) if s is None else sd.grid.mask(light, s)
+        total += int(np.count_nonzero((grid | sd.mask[m]) & (sd.proj_solid_angle[m] > 0)))
+    return Coverage(int(np.count_nonzero(valid)), total)
+
+
+def require_cells(reference: SimulationResult, side: str) -> Coverage:
+    """:func:`coverage`, or :class:`NoCellsError` when no cell is valid: an error over no cell is 0
+    whatever the model, a perfect score over no data."""
+    cov = coverage(reference, side)
+    if cov.cells == 0:
+        s = _subcells(reference)
+        why = (f"; a cell of a measurement is valid when all of its {s}x{s} sub-cells fall where the file has "
+               f"data: fewer sub-cells (evaluate --subcells) or larger cells (--resolution) cover more"
+               if s is not None else "")
+        raise NoCellsError(f"the reference has no valid cell on its {side.upper()} (0 of {cov.cells_total:,} cells "
+                           f"of the grid): an error over no cell would be 0 for any model{why}", cov)
+    return cov
 
 
 def rmse(ref: np.ndarray, model: np.ndarray, omega: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -52,10 +145,12 @@ def luminance(rgb: np.ndarray, axis: int = 1, keepdims: bool = True) -> np.ndarr
 
 
 def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, omega: np.ndarray,
-                 mask: np.ndarray, model_stderr: np.ndarray | None = None) -> dict:
+                 mask: np.ndarray, model_stderr: np.ndarray | None = None, cells_total: int | None = None) -> dict:
     """The JSON error object ``E`` of ``gonio evaluate --json``. ``reference_norm`` is eq. 4 of the
     reference against zero (per channel): the error of a model that predicts no light, the scale
-    against which an error is small or large.
+    against which an error is small or large. ``cells`` is the number of cells the sums run over
+    (mask True, ``omega`` > 0, over all incident directions); ``cells_total`` the cells of the grid
+    on the judged side (:attr:`Coverage.cells_total`; when not given, every cell of the arrays).
 
     The luminance noise floor uses ``sum_c w_c stderr_c`` per cell, an upper bound on the
     standard error of the luminance (the channels of a simulation share their paths, so their
@@ -81,6 +176,8 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
         "noise_floor_mean": float(np.mean(nf)) if known else None,
         "noise_floor_luminance": float(noise_floor(lum_se, omega, mask)[0]) if known else None,
         "reference_norm": [float(x) for x in size],
+        "cells": int(np.count_nonzero(mask & (omega > 0))),
+        "cells_total": int(mask.size if cells_total is None else cells_total),
     }
     if model_stderr is not None:
         mn = noise_floor(model_stderr, omega, mask)
@@ -105,15 +202,17 @@ def reference_parts(sd: SliceData, internal: bool) -> tuple[np.ndarray, np.ndarr
     return value, se
 
 
-def compare(sd: SliceData, ms: ModelSlices, drop_first_order: bool) -> dict:
+def compare(sd: SliceData, ms: ModelSlices, drop_first_order: bool, cells_total: int | None = None) -> dict:
     """``{"internal": E, "total": E}`` for one model on one side.
 
     ``drop_first_order``: plastics and metals (BRDF) compare internal paths for "internal";
-    for a BTDF "internal" and "total" are the same comparison.
+    for a BTDF "internal" and "total" are the same comparison. ``cells_total``: the grid's cells on
+    the side (:func:`coverage`), recorded in each error object.
     """
-    total = error_object(sd.value, sd.stderr, ms.total, sd.proj_solid_angle, sd.mask, ms.stderr("total"))
+    total = error_object(sd.value, sd.stderr, ms.total, sd.proj_solid_angle, sd.mask, ms.stderr("total"),
+                         cells_total)
     if not drop_first_order:
         return {"internal": total, "total": total}
     ref, se = reference_parts(sd, internal=True)
-    internal = error_object(ref, se, ms.internal, sd.proj_solid_angle, sd.mask, ms.stderr("internal"))
+    internal = error_object(ref, se, ms.internal, sd.proj_solid_angle, sd.mask, ms.stderr("internal"), cells_total)
     return {"internal": internal, "total": total}

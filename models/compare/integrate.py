@@ -17,7 +17,7 @@ import numpy as np
 from goniometer.results import SimulationResult, SliceData
 from goniometer.slices import SliceGrid, light_direction
 from goniometer.stack import Stack
-from models.base import Model, ModelError
+from models.base import Model, ModelError, ModelFailure
 
 SIDE_OF_GRID = {"reflection": "brdf", "transmission": "btdf"}
 
@@ -77,7 +77,7 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
     for part in (value.top, value.internal):
         f = part.reshape(w.shape + (3,))
         if not np.all(np.isfinite(f)):
-            raise ModelError(f"{model.name}: produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
+            raise ModelFailure(model.name, f"produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
         cells = np.einsum("ijabc,ijab->cij", f, w, optimize=True) * inv
         out.append(cells)
     for se in (value.stderr_top, value.stderr_internal):
@@ -86,8 +86,8 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
             continue
         e = np.broadcast_to(np.asarray(se, dtype=np.float64), value.top.shape).reshape(w.shape + (3,))
         if not np.all(np.isfinite(e)):
-            raise ModelError(f"{model.name}: produced non-finite standard errors for {side} at "
-                             f"l = {np.round(light, 6).tolist()}")
+            raise ModelFailure(model.name, f"produced non-finite standard errors for {side} at "
+                                           f"l = {np.round(light, 6).tolist()}")
         out.append(np.sqrt(np.einsum("ijabc,ijab->cij", e**2, w**2, optimize=True)) * inv)
     return out[0], out[1], out[2], out[3]
 

@@ -19,6 +19,7 @@ from goniometer.results import SimulationResult, SliceData
 from models._jit import njit
 from models.base import ModelError
 from models.compare import compare, integrate
+from models.compare.errors import NoCellsError, require_cells
 from models.fitted.data import FitData, fit_data
 from models.fitted.family import Family
 from models.fitted.ggx import GGXFamily
@@ -39,7 +40,9 @@ class FitResult:
     ``cost``: ``0.5 sum r^2`` of the best start (the weighting: :mod:`models.fitted.data`);
     ``converged``/``message``: from ``least_squares`` for the best start; ``errors``:
     ``{"internal": E, "total": E}`` (eq. 4, the same comparison twice) of the fitted model
-    integrated onto the reference cells with ``s = 5``.
+    integrated onto the reference cells with ``s = 5``. ``n_cells``: the cells fitted (the paper
+    weighting leaves out grazing ones); ``cells``, ``cells_total``: the reference's valid cells of
+    its grid's (:class:`models.compare.errors.Coverage`).
     """
 
     kind: str
@@ -58,6 +61,8 @@ class FitResult:
     weighting: str = "paper"
     elapsed_s: float = 0.0
     costs: list[float] = field(default_factory=list)
+    cells: int = 0
+    cells_total: int = 0
 
     @property
     def name(self) -> str:
@@ -69,7 +74,8 @@ class FitResult:
             "model": self.model.name, "kind": self.kind, "params": self.params,
             "param_stderr": self.param_stderr, "cost": self.cost, "converged": self.converged,
             "message": self.message, "errors": self.errors, "starts": self.starts, "nfev": self.nfev,
-            "n_cells": self.n_cells, "subcells": self.subcells, "peak_subcells": self.peak_subcells,
+            "n_cells": self.n_cells, "cells": self.cells, "cells_total": self.cells_total,
+            "subcells": self.subcells, "peak_subcells": self.peak_subcells,
             "weighting": self.weighting,
             "elapsed_s": self.elapsed_s,
         }
@@ -333,7 +339,8 @@ def fit(reference: SimulationResult, kind: str, *, side: str = "brdf", starts: i
     ``weighting``: "paper" (eq. 29, grazing directions left out) or "eq4". ``max_nfev``:
     evaluation budget per start. ``errors``: also integrate the fitted model (s = 5) and compute
     eq. 4 errors. ``progress(start, cost)`` is called after each start. Raises
-    :class:`ModelError` for a BTDF request or a reference without BRDF slices. A spectral reference
+    :class:`ModelError` for a BTDF request or a reference without BRDF slices, and
+    :class:`models.compare.errors.NoCellsError` for a reference without a valid BRDF cell. A spectral reference
     is fitted in linear sRGB (:meth:`SimulationResult.rgb`, docs/spectral.md).
     """
     reference = reference.rgb()
@@ -344,6 +351,10 @@ def fit(reference: SimulationResult, kind: str, *, side: str = "brdf", starts: i
         raise ModelError(f"{cls.name}: the file has no BRDF slices to fit (fitted models are BRDF-only)")
     if starts < 1:
         raise ModelError(f"{cls.name}: starts = {starts} must be >= 1")
+    try:
+        cov = require_cells(reference, "brdf")
+    except NoCellsError as e:
+        raise NoCellsError(f"{cls.name}: {e}", e.coverage) from None
     t0 = time.perf_counter()
     data = fit_data(reference, subcells, weighting, peak_subcells=peak_subcells)
     family = FAMILIES[cls.kind]()
@@ -385,10 +396,11 @@ def fit(reference: SimulationResult, kind: str, *, side: str = "brdf", starts: i
         kind=cls.kind, params=model.params, cost=problem.cost(z_sorted), converged=converged, message=msg,
         model=model, param_stderr=_stderr_dict(family, se), starts=len(points), nfev=int(nfev),
         n_cells=data.samples.n_cells, subcells=data.subcells, peak_subcells=data.peak_subcells, weighting=weighting,
-        costs=[float(r.cost) for r in results],
+        costs=[float(r.cost) for r in results], cells=cov.cells, cells_total=cov.cells_total,
     )
     if errors:
         ms = integrate(model, reference, "brdf", s=5)
-        result.errors = compare(_finite_slices(reference.brdf), ms, drop_first_order=False)
+        result.errors = compare(_finite_slices(reference.brdf), ms, drop_first_order=False,
+                                cells_total=cov.cells_total)
     result.elapsed_s = time.perf_counter() - t0
     return result

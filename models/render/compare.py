@@ -11,7 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from models import registry
-from models.base import ModelError
+from models.base import ModelError, ModelFailure
 from models.render.figure import fill, figure, ring, split, write_png
 from models.render.modelbsdf import ModelBSDF, node_step_deg
 from models.render.reference import Reference, open_reference
@@ -29,6 +29,8 @@ class SphereSet:
     reference: Reference
     images: dict[str, np.ndarray]
     skipped: dict[str, str] = field(default_factory=dict)
+    #: models that failed (:class:`models.base.ModelFailure`): name -> one line
+    failed: dict[str, str] = field(default_factory=dict)
 
     @cached_property
     def _tone(self) -> tuple[float, str | None]:
@@ -93,7 +95,7 @@ class SphereSet:
                 "exposure": self.exposure, "reference_note": self.reference_note,
                 "no_value_fraction": self.no_value(REFERENCE),
                 "models": {n: {"rmse": num(self.rmse(n)), "no_value_fraction": self.no_value(n)} for n in self.models},
-                "skipped": dict(self.skipped)}
+                "skipped": dict(self.skipped), "failed": dict(self.failed)}
 
 
 def model_names(names: Sequence[str] | None) -> list[str] | None:
@@ -116,7 +118,8 @@ def model_names(names: Sequence[str] | None) -> list[str] | None:
 
 def render_spheres(reference: Reference, models: Sequence[str] | None, view: SphereView) -> SphereSet:
     """The reference and ``models`` (names; None: every model of the registry) on ``view``. Models
-    that refuse the stack or the side are skipped with their reason."""
+    that refuse the stack or the side are skipped with their reason; a model that fails
+    (:class:`models.base.ModelFailure`) is recorded under ``failed`` and the others are rendered."""
     return render_views(reference, models, [view])[0]
 
 
@@ -129,16 +132,18 @@ def render_views(reference: Reference, models: Sequence[str] | None, views: Sequ
             raise ModelError(f"view side {view.side} differs from the reference's {reference.side}")
     images = {REFERENCE: shade_views(views, reference.bsdf)}
     skipped: dict[str, str] = {}
+    failed: dict[str, str] = {}
     step = min(node_step_deg(v.size) for v in views)
     for name in (list(registry.all_models()) if models is None else models):
         try:
             f = ModelBSDF(registry.get(name), reference.stack, reference.side, step)
+            images[name] = shade_views(views, f)
+        except ModelFailure as e:
+            failed[name] = e.reason
         except ModelError as e:
             msg = str(e)
             skipped[name] = msg[len(name) + 2:] if msg.startswith(f"{name}: ") else msg
-            continue
-        images[name] = shade_views(views, f)
-    return [SphereSet(view, reference, {n: imgs[k] for n, imgs in images.items()}, dict(skipped))
+    return [SphereSet(view, reference, {n: imgs[k] for n, imgs in images.items()}, dict(skipped), dict(failed))
             for k, view in enumerate(views)]
 
 
@@ -189,6 +194,8 @@ def comparison_figure(spheres: SphereSet, *, splits: bool = True, caption: bool 
                   f"Hatched: no value (light outside the recorded incident range, or only masked cells)."]
         if spheres.skipped:
             lines.append("Not rendered: " + "; ".join(f"{n} ({r})" for n, r in spheres.skipped.items()) + ".")
+        if spheres.failed:
+            lines.append("Failed: " + "; ".join(f"{n} ({r})" for n, r in spheres.failed.items()) + ".")
     text = "\n".join(lines) or None
     return figure(rows, title, text)
 

@@ -35,7 +35,9 @@ from models.report.results import MaterialResult, ReportError, open_results
 from models.report.spheres import FIGURE1_FILE, figure1, is_figure1, material_spheres
 from models.report.tables import category_csv, category_markdown, error_records, errors_figure
 
-#: ``progress(done, total, message)``, called once per material
+#: ``progress(done, total, message)``: once the inputs are read (``0``, ``"loading the models ..."``),
+#: before each material (``done`` = materials finished so far, ``"<material>: evaluating ..."``) and
+#: once after it
 Progress = Callable[[int, int, str], None]
 
 
@@ -92,7 +94,8 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
 
     ``models``: model names (default: every model of the registry that applies to each
     material); ``subcells``: sub-cells per cell axis for the model integration;
-    ``progress(done, total, message)``: called once per material, after it is done;
+    ``progress(done, total, message)``: called once the inputs are read, before each material and
+    once it is done (:data:`Progress`);
     ``incidents_for_figures``: incident elevations (degrees) to draw figures for (default all;
     errors always use every incident); ``definition``: the database definition when the one named
     in the manifest has moved; ``fits``: also fit the compact models (hp15-fit, ggx1-fit,
@@ -100,7 +103,10 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     evaluate anisotropic stacks with the mean roughness (noted per material); ``compare_to``: the
     results directory of the single-scattering twin of this (multiple-scattering) database, which
     adds ``multiple-scattering.md`` / ``.json`` (:mod:`models.report.multiple_scattering`). Raises
-    :class:`ReportError` on bad input.
+    :class:`ReportError` on bad input, and when no (material, model) pair could be judged because
+    the references have no valid cell. A model that fails on a material (or a material whose
+    reference has no valid cell) is recorded under ``failed`` and in ``warnings`` (one line per
+    material and reason), and the report goes on.
     """
     if fits:
         models = list(dict.fromkeys([*(models or registry.all_models()), *registry.FITTED]))
@@ -119,12 +125,16 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
             raise ReportError(str(e)) from None
         models = list(dict.fromkeys(models))
     manifest, materials, missing, warnings = open_results(rd, definition, exclude=out)
+    if progress is not None:
+        progress(0, len(materials), "loading the models ...")
     out.mkdir(parents=True, exist_ok=True)
     summary = ReportSummary(out, out / "index.html", out / "errors.json", missing=missing, warnings=list(warnings))
     code, report_key = model_code_key(), report_code_key()
     styles = model_style([*registry.all_models(), *(models or ())])
     results: list[MaterialResult] = []
     for k, mat in enumerate(materials):
+        if progress is not None:
+            progress(k, len(materials), f"{mat.name}: evaluating ...")
         t1 = time.perf_counter()
         res, ref = evaluate_material(mat, out, models, subcells, code, isotropize)
         t2 = time.perf_counter()
@@ -146,14 +156,21 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
             (summary.figures_drawn if drawn else summary.figures_reused).append(mat.name)
         if res.evaluation.get("failed"):
             summary.failed[mat.name] = dict(res.evaluation["failed"])
-            summary.warnings.extend(f"{mat.name}: {n} failed: {msg}" for n, msg in res.evaluation["failed"].items())
+            summary.warnings.extend(failure_warnings(mat.name, res.evaluation["failed"]))
         if progress is not None:
             n_models = len(res.evaluation["models"])
             ev = "from cache" if res.from_cache else f"evaluated in {t2 - t1:.1f} s"
             fg = (f"drawn in {t3 - t2:.1f} s" if drawn else "up to date" if drawn is not None else "not drawn")
             if res.not_drawn:
                 fg += f" ({len(res.not_drawn)} not drawn or without their reference)"
-            progress(k + 1, len(materials), f"{mat.name}: {n_models} model(s) {ev}; figures {fg}")
+            failed = len(res.evaluation.get("failed", {}))
+            progress(k + 1, len(materials), f"{mat.name}: {n_models} model(s) {ev}"
+                     + (f", {failed} failed" if failed else "") + f"; figures {fg}")
+    no_cells = [r.material.name for r in results if r.evaluation.get("cells") == 0]
+    if no_cells and not any(r.evaluation["models"] for r in results):
+        raise ReportError(f"{rd}: nothing to report: no (material, model) pair was judged, as the reference of "
+                          f"{len(no_cells)} material(s) ({', '.join(no_cells[:3])}{' ...' if len(no_cells) > 3 else ''}) "
+                          f"has no valid cell; the evaluations are cached in {out / 'cache'}")
     if incidents_for_figures is not None:
         drawn_at = {i["theta"] for r in results for i in r.figures.get("incidents", [])}
         unknown_angles = [w for w in incidents_for_figures if not any(abs(w - t) < 1e-6 for t in drawn_at)]
@@ -184,6 +201,15 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         summary.multiple_scattering = sec
     summary.elapsed_s = time.perf_counter() - t0
     return summary
+
+
+def failure_warnings(material: str, failed: dict[str, str]) -> list[str]:
+    """The warnings of one material's failed models: one line per distinct reason, naming the models
+    that failed for it (a reference without a valid cell fails every model for one reason)."""
+    by_reason: dict[str, list[str]] = {}
+    for name, msg in failed.items():
+        by_reason.setdefault(msg, []).append(name)
+    return [f"{material}: {', '.join(names)} failed: {msg}" for msg, names in by_reason.items()]
 
 
 def _write_outputs(results: list[MaterialResult], manifest: dict, out: Path, styles: dict, summary: ReportSummary,

@@ -23,6 +23,7 @@ from goniometer.results import SimulationResult
 from models import registry
 from models._jit import models_key
 from models.base import ModelError
+from models.compare.errors import NoCellsError, require_cells
 from models.evaluation import comparison_side, evaluate, group_name
 from models.report.files import material_dir, read_json, write_json
 from models.report.results import MaterialResult, ReportError, ReportMaterial
@@ -93,9 +94,12 @@ def judged_side(reference: SimulationResult, where: str) -> str:
 
 def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int,
                    isotropize: str | None = None) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
-    """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time so
-    that one failing model does not lose the others. Returns the ``gonio evaluate --json``
-    object (with ``failed``: model -> message for models that raised) and model -> (top, internal).
+    """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time.
+    Returns the ``gonio evaluate --json`` object (with ``failed``: model -> message for the models
+    that failed, :class:`models.base.ModelFailure`, which :func:`models.evaluation.evaluate`
+    records, and ``cells``, ``cells_total``: the support of every error) and model -> (top,
+    internal). A reference without a valid cell on its side judges no model: each model is failed
+    with the reason (``docs/report.md``), and the other materials stand.
     """
     stack = reference.stack
     side = judged_side(reference, stack.name)
@@ -110,6 +114,13 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
                 names.append(name)
     else:
         names = list(models)
+    try:
+        cov = require_cells(reference, side)
+    except NoCellsError as e:
+        doc["cells"], doc["cells_total"] = 0, e.coverage.cells_total if e.coverage is not None else 0
+        doc["failed"] = {name: str(e) for name in names}
+        return doc, {}
+    doc["cells"], doc["cells_total"] = cov.cells, cov.cells_total
     slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
         try:
@@ -118,8 +129,8 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
             msg = str(e)
             doc["skipped"][name] = msg[len(name) + 2:] if msg.startswith(f"{name}: ") else msg
             continue
-        except Exception as e:  # a model's bug must not sink the whole report; it is shown
-            doc["failed"][name] = f"{type(e).__name__}: {e}"
+        if name in ev.failed:
+            doc["failed"][name] = ev.failed[name]
             continue
         doc["models"][name] = ev.errors[name]
         for key in ("fits", "approximations"):
@@ -128,6 +139,13 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
         ms = ev.slices[name]
         slices[name] = (ms.top, ms.internal)
     return doc, slices
+
+
+def cached_evaluations(out: Path) -> int:
+    """How many materials' evaluations the cache of report ``out`` holds (its ``cache/**/<material>.json``
+    entries): what an interrupted report leaves, and a rerun resumes from."""
+    root = Path(out) / "cache"
+    return sum(1 for p in root.rglob("*.json") if p.is_file()) if root.is_dir() else 0
 
 
 def round_mantissa(a: np.ndarray, bits: int = SLICE_CACHE_MANTISSA_BITS) -> np.ndarray:

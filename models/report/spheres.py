@@ -62,14 +62,15 @@ def _rendered_models(res: MaterialResult) -> list[str]:
     return [n for n in res.evaluation["models"] if n in analytic or registry.is_spec(n)]
 
 
-def _load(path: Path, tag: str, key: str) -> tuple[dict[str, np.ndarray], dict[str, str], str] | None:
+def _load(path: Path, tag: str, key: str) -> tuple[dict[str, np.ndarray], dict[str, str], str, dict[str, str]] | None:
     try:
         with h5py.File(path, "r") as f:
             if tag not in f or f[tag].attrs.get("key") != key:
                 return None
             g = f[tag]
             images = {n: g[group_name(n)][()].astype(np.float64) for n in json.loads(g.attrs["order"])}
-            return images, json.loads(g.attrs["skipped"]), str(g.attrs["description"])
+            failed = json.loads(g.attrs["failed"]) if "failed" in g.attrs else {}
+            return images, json.loads(g.attrs["skipped"]), str(g.attrs["description"]), failed
     except (OSError, KeyError, ValueError):
         return None
 
@@ -95,7 +96,8 @@ def _save(path: Path, tag: str, key: str, spheres: SphereSet) -> None:
                     g.create_dataset(n, data=a, compression="gzip", compression_opts=4, shuffle=True)
             g = f.create_group(tag)
             g.attrs.update({"key": key, "order": json.dumps(list(spheres.images)),
-                            "skipped": json.dumps(spheres.skipped), "description": spheres.reference.description})
+                            "skipped": json.dumps(spheres.skipped), "failed": json.dumps(spheres.failed),
+                            "description": spheres.reference.description})
             for n, img in spheres.images.items():
                 g.create_dataset(group_name(n), data=img.astype(np.float32), compression="gzip", compression_opts=4, shuffle=True)
 
@@ -125,9 +127,9 @@ def sphere_sets(res: MaterialResult, lazy: _Lazy, out: Path, specs: Sequence[tup
         stack = store.describe(res.material.path)[0] if lazy.ref is None else lazy.ref.stack
         side = "btdf" if stack.transmits else "brdf"
         out_sets = []
-        for (tag, angle, size), (images, skipped, description) in zip(specs, hits):
+        for (tag, angle, size), (images, skipped, description, failed) in zip(specs, hits):
             reference = Reference(stack, side, None, description)   # the images are cached: no BSDF needed
-            out_sets.append(SphereSet(SphereView(size, angle, side), reference, images, skipped))
+            out_sets.append(SphereSet(SphereView(size, angle, side), reference, images, skipped, failed))
         return out_sets, False
     reference = lazy.reference()
     sets = render_views(reference, list(names), [SphereView(size, angle, reference.side) for _, angle, size in specs])
@@ -177,6 +179,9 @@ def material_spheres(res: MaterialResult, ref: SimulationResult | None, out: Pat
         write_json(stamp_path, {"key": fkey})
     skipped = drawn_sets[SPHERE_ANGLES_DEG[0]].skipped if drawn_sets else {}
     notes += [f"{n}: {r}" for n, r in skipped.items()]
+    failed = drawn_sets[SPHERE_ANGLES_DEG[0]].failed if drawn_sets else {}
+    notes += [f"{n} failed: {r}" for n, r in failed.items()]
+    not_drawn += [{"figure": "spheres", "reason": f"{n} not rendered: it failed: {r}"} for n, r in failed.items()]
     for e in entries:
         e["rmse"] = {n: (v if np.isfinite(v) else None) for n, v in e["rmse"].items()}
     return {"spheres": entries, "spheres_note": "; ".join(notes), "not_drawn": not_drawn}

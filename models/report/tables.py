@@ -42,11 +42,13 @@ def error_records(results: list[MaterialResult]) -> list[dict]:
 CSV_COLUMNS = ("material", "category", "paper_name", *PARAM_KEYS, "model", "side",
                "internal_rmse_mean", "internal_rmse_r", "internal_rmse_g", "internal_rmse_b",
                "internal_rmse_luminance", "internal_noise_floor_mean", "internal_noise_floor_luminance",
-               "total_rmse_mean", "total_rmse_luminance", "total_noise_floor_mean", "rank_internal")
+               "total_rmse_mean", "total_rmse_luminance", "total_noise_floor_mean", "rank_internal", "cells",
+               "cells_total")
 
 
 def category_csv(results: list[MaterialResult]) -> str:
-    """The CSV table of one category (columns :data:`CSV_COLUMNS`), one row per (material, model)."""
+    """The CSV table of one category (columns :data:`CSV_COLUMNS`), one row per (material, model);
+    ``cells`` / ``cells_total``: the cells every RMSE of the row is summed over, of the grid's."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
@@ -60,7 +62,7 @@ def category_csv(results: list[MaterialResult]) -> str:
                         name, r.evaluation["side"], _g(i["rmse_mean"]), *[_g(x) for x in i["rmse"]],
                         _g(i["rmse_luminance"]), _g(i["noise_floor_mean"]), _g(i["noise_floor_luminance"]),
                         _g(t["rmse_mean"]), _g(t["rmse_luminance"]), _g(t["noise_floor_mean"]),
-                        ranked.index(name) + 1])
+                        ranked.index(name) + 1, t.get("cells", ""), t.get("cells_total", "")])
     return buf.getvalue()
 
 
@@ -69,35 +71,55 @@ def _g(x: float) -> str:
 
 
 def category_markdown(category: str, results: list[MaterialResult]) -> str:
-    """Markdown tables (materials x models) of the channel-mean RMSE, best per row in bold."""
+    """Markdown tables (materials x models) of the channel-mean RMSE, best per row in bold, ``failed``
+    where a model failed on the material, and the cells every error of a row is summed over."""
     results = sorted(results, key=lambda r: material_sort_key(r.material))
     side = results[0].evaluation["side"] if results else "brdf"
-    models = _ordered_models(results)
+    models = _ordered_models(results, with_failed=True)
     keys = [k for k in PARAM_KEYS if any(k in r.material.params for r in results)]
     parts = [f"# {category}: RMSE of Bati 2019 eq. 4, mean over R, G, B\n",
              f"{len(results)} material(s). Side compared: {side.upper()}. Lower is better; the best model of "
              f"each row is in bold; `noise floor` is the error a perfect model would show against this "
-             f"reference. Full numbers (per channel, luminance): `{category}.csv`, `../errors.json`.\n"]
+             f"reference; `cells`: the cells every error of the row is summed over, of the grid's on that side. "
+             f"Full numbers (per channel, luminance): `{category}.csv`, `../errors.json`.\n"]
     sections = [("internal", "internal paths (bounce order 1 and the models' top lobe dropped)")] \
         if side == "brdf" else [("internal", "BTDF")]
     if side == "brdf":
         sections.append(("total", "total BRDF"))
     for part, label in sections:
         parts.append(f"\n## {label}\n")
-        head = ["material", "name", *[PARAM_LABELS[k] for k in keys], *models, "noise floor"]
+        head = ["material", "name", *[PARAM_LABELS[k] for k in keys], *models, "noise floor", "cells"]
         parts.append("| " + " | ".join(head) + " |")
         parts.append("|" + "---|" * len(head))
         for r in results:
             errs = r.evaluation["models"]
             vals = {n: errs[n][part]["rmse_mean"] for n in models if n in errs}
             best = min(vals, key=vals.get) if vals else None
+            failed = r.evaluation.get("failed", {})
             cells = [(f"**{vals[n]:.3e}**" if n == best else f"{vals[n]:.3e}") + _model_noise(errs[n][part])
-                     if n in vals else "–" for n in models]
+                     if n in vals else "failed" if n in failed else "–" for n in models]
             nf = next(iter(errs.values()))[part]["noise_floor_mean"] if errs else float("nan")
             row = [r.material.name, r.material.paper_name,
-                   *[param_text(r.material.params, k) or "" for k in keys], *cells, f"{nf:.1e}"]
+                   *[param_text(r.material.params, k) or "" for k in keys], *cells, _floor(nf),
+                   _cells(r.evaluation, part)]
             parts.append("| " + " | ".join(row) + " |")
     return "\n".join(parts) + "\n"
+
+
+def _floor(x: float | None) -> str:
+    """A noise floor in a Markdown cell: ``unknown`` when the reference has no standard errors."""
+    return "unknown" if x is None else f"{x:.1e}"
+
+
+def _cells(evaluation: dict, part: str) -> str:
+    """``N of T`` cells the errors of one material are summed over (those of its first model: every
+    model of a material shares the reference's cells), or the reference's own count, ``0 of T`` for
+    a reference without a valid cell."""
+    errs = evaluation["models"]
+    e = next(iter(errs.values()))[part] if errs else evaluation
+    if "cells" not in e:
+        return "–"
+    return f"{e['cells']:,} of {e['cells_total']:,}"
 
 
 def _model_noise(e: dict) -> str:
@@ -106,9 +128,13 @@ def _model_noise(e: dict) -> str:
     return f" (model noise {e['model_noise_mean']:.1e})" if "model_noise_mean" in e else ""
 
 
-def _ordered_models(results: list[MaterialResult]) -> list[str]:
+def _ordered_models(results: list[MaterialResult], with_failed: bool = False) -> list[str]:
+    """The models evaluated on any of ``results`` (and, ``with_failed``, those that failed on one), in
+    the registry's order, then the others by name."""
     order = list(registry.all_models())
     seen = {n for r in results for n in r.evaluation["models"]}
+    if with_failed:
+        seen |= {n for r in results for n in r.evaluation.get("failed", {})}
     return [n for n in order if n in seen] + sorted(seen - set(order))
 
 

@@ -6,6 +6,7 @@ resampling error of the simulation's own."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -115,3 +116,66 @@ def test_gonio_evaluate_and_fit_a_measured_file(exported, tmp_path, capsys):
     err = capsys.readouterr()
     assert main(["evaluate", str(rgb), "--resolution", "18x36"]) == 2
     assert "--stack" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- what a file must hold
+
+def _merl_bytes(value: float, bad: float | None = None) -> bytes:
+    """A MERL file of a constant BRDF ``value`` (1/sr) in every cell, one cell of R set to ``bad``."""
+    from goniometer import halfdiff
+    from goniometer.merl import MERL_SCALE
+    data = np.stack([np.full(halfdiff.N_CELLS, value / s) for s in MERL_SCALE])
+    if bad is not None:
+        data[0, 12345] = bad
+    return np.array(halfdiff.SHAPE, dtype="<i4").tobytes() + data.astype("<f8").tobytes()
+
+
+def test_a_merl_file_with_broken_values_is_refused(tmp_path):
+    ok = tmp_path / "ok.binary"
+    ok.write_bytes(_merl_bytes(0.5 / np.pi, bad=-1.0))         # a Lambertian of albedo 0.5, one cell without data
+    assert read_measured(ok).kind == "merl"
+    cases = {"nan": (_merl_bytes(0.5 / np.pi, np.nan), "1 stored value(s) are not finite"),
+             "inf": (_merl_bytes(0.5 / np.pi, np.inf), "1 stored value(s) are not finite"),
+             "huge": (_merl_bytes(0.5 / np.pi, 1e30), "implausible values"),
+             # every cell 3 / pi: a Lambertian of albedo 3 reflects three times the light it receives
+             "bright": (_merl_bytes(3.0 / np.pi), "reflect 3 times the light")}
+    for name, (content, needle) in cases.items():
+        p = tmp_path / f"{name}.binary"
+        p.write_bytes(content)
+        with pytest.raises(MeasuredError, match=re.escape(needle)) as e:
+            read_measured(p)
+        assert str(e.value).startswith(str(p)) and "\n" not in str(e.value), name
+
+
+def _broken_rgl(exported, tmp_path, name: str, field: str, index: tuple, value: float):
+    from goniometer.rgl.tensor import read_tensor, write_tensor
+    fields = dict(read_tensor(exported[1]).fields)
+    a = fields[field].copy()
+    a[index] = value
+    fields[field] = a
+    return write_tensor(tmp_path / f"{name}.bsdf", fields)
+
+
+def test_an_rgl_file_with_broken_values_is_refused_and_info_says_so(exported, tmp_path, capsys):
+    import json
+    from goniometer.cli import main
+    stack = exported[0]
+    cfg = tmp_path / "gold.toml"
+    cfg.write_text(stack.to_toml())
+    cases = {"nan": ("rgb", (0, 2, 1, 3, 4), np.nan, "field rgb: 1 value(s) are not finite"),
+             "huge": ("rgb", (0, 2, 1, 3, 4), 1e30, "implausible values: at theta_i ="),
+             "negative": ("rgb", (0, 2, 1, 3, 4), -1.0, "negative beyond rounding"),
+             "sigma": ("sigma", (3, 3), 0.0, "field sigma holds 0"),
+             "vndf": ("vndf", (0, 1, 2, 2), np.inf, "field vndf: 1 value(s) are not finite")}
+    for name, (field, index, value, needle) in cases.items():
+        p = _broken_rgl(exported, tmp_path, name, field, index, value)
+        with pytest.raises(MeasuredError, match=re.escape(needle)):
+            read_measured(p)
+        capsys.readouterr()
+        assert main(["evaluate", str(p), "--stack", str(cfg), "--resolution", "6x12", "--incident", "31"]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and err.startswith(f"gonio: error: {p}: ") and needle in err and len(err.splitlines()) == 1
+        assert main(["info", str(p)]) == 0
+        assert f"as a measurement  refuses it: {p}: " in capsys.readouterr().out
+    assert main(["info", str(exported[1]), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["as_measurement"] == {"reads": True, "why_not": None}

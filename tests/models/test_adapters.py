@@ -168,6 +168,41 @@ def test_bad_python_specs_are_one_line_naming_the_spec(files, on_path, capsys, s
         registry.get(spec).evaluate(PLASTIC, np.array([0.0, 0.0, 1.0]), np.array([[0.0, 0.0, 1.0]] * 2))
 
 
+FAILING = '''
+import numpy as np
+from models.base import Model, ModelValue
+
+
+def fails_past_the_probe(l, v, stack):
+    if v.shape[0] > 2:
+        raise ValueError("too many directions")
+    return np.zeros(v.shape[:-1] + (3,))
+
+
+class WrongShape(Model):
+    name = "wrong-shape"
+
+    def support_reason(self, stack):
+        return None
+
+    def _evaluate(self, stack, l, v, side):
+        return ModelValue(np.zeros(3), np.zeros(3))
+'''
+
+
+def test_adapters_that_fail_past_their_probe_are_one_line_each(files, tmp_path, capsys):
+    module = tmp_path / "failing_adapters.py"
+    module.write_text(FAILING)
+    function, cls = f"python:{module}:fails_past_the_probe", f"python:{module}:WrongShape"
+    capsys.readouterr()
+    assert main(["evaluate", str(files["plastic"]), "--model", "ww09", "--model", function, "--model", cls]) == 1
+    out, err = capsys.readouterr()
+    assert out.splitlines()[2].split()[0] == "ww09" and "Traceback" not in err
+    failed = sorted(x for x in err.splitlines() if x.startswith("failed "))
+    assert failed == sorted([f"failed {function}: the function raised ValueError: too many directions",
+                             f"failed {cls}: _evaluate returned top of shape (3,); expected ({9 * 18 * 25}, 3) (RGB last)"]), err
+
+
 def test_specs_work_wherever_model_names_do(files, on_path, tmp_path, capsys):
     spec = "python:adapter_mod:lambert"
     assert main(["render", str(files["plastic"]), "--out", str(tmp_path / "s.png"), "--model", spec,

@@ -209,6 +209,102 @@ def test_the_failure_is_one_line_on_the_cli_stderr(installer):
     assert "ww09" in json.loads(run.stdout)
 
 
+# ---------------------------------------------------------------------- models that fail (d)
+
+FAILING = '''
+import numpy as np
+from models.base import Model, ModelValue
+
+class BadEvaluate(Model):
+    name = "bad-evaluate"
+    description = "a model whose _evaluate raises"
+
+    def support_reason(self, stack):
+        return None
+
+    def _evaluate(self, stack, l, v, side):
+        raise ZeroDivisionError("boom in _evaluate")
+
+
+class BadSupport(Model):
+    name = "bad-support"
+    description = "a model whose support_reason raises"
+
+    def support_reason(self, stack):
+        raise KeyError("boom in support_reason")
+
+    def _evaluate(self, stack, l, v, side):
+        z = np.zeros(v.shape[:-1] + (3,))
+        return ModelValue(z, z)
+'''
+FAILED = {"bad-evaluate": "_evaluate raised ZeroDivisionError: boom in _evaluate",
+          "bad-support": "support_reason raised KeyError: 'boom in support_reason'"}
+
+
+@pytest.fixture
+def failing(installer, monkeypatch):
+    """Two failing plugins beside the built-in ww09 alone (for speed)."""
+    from models.weidlich_wilkie import WW09
+    installer.install("failing-plugin", "0.6", {"bad-evaluate": "failing_mod:BadEvaluate",
+                                                "bad-support": "failing_mod:BadSupport"}, {"failing_mod": FAILING})
+    monkeypatch.setattr(registry, "_built_in_models", lambda: [WW09()])
+    return installer
+
+
+def _failed_lines(err: str) -> dict[str, str]:
+    lines = [x for x in err.strip().splitlines() if x.startswith("failed ")]
+    assert "Traceback" not in err and len(lines) == len({x.split(":")[0] for x in lines}), err
+    return {x.split(":")[0][len("failed "):]: x.split(": ", 1)[1] for x in lines}
+
+
+def test_a_failing_model_is_one_line_in_evaluate_and_the_others_stand(failing, plastic_file, capsys):
+    for argv in (["evaluate", str(plastic_file)],
+                 ["evaluate", str(plastic_file), "--model", "ww09", "--model", "bad-evaluate", "--model", "bad-support"]):
+        capsys.readouterr()
+        assert main(argv) == 1, argv
+        out, err = capsys.readouterr()
+        assert [x.split()[0] for x in out.splitlines()[2:3]] == ["ww09"], out
+        assert "bad-" not in out.split("(\'internal\'")[0]
+        assert _failed_lines(err) == FAILED
+    assert main(["evaluate", str(plastic_file), "--json"]) == 1
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    assert list(d["models"]) == ["ww09"] and d["failed"] == FAILED and d["models"]["ww09"]["total"]["rmse_mean"] > 0
+    assert _failed_lines(err) == FAILED
+    # the library records the failures and goes on
+    ev = evaluate(store.read(plastic_file))
+    assert list(ev.errors) == ["ww09"] and ev.failed == FAILED
+
+
+def test_a_failing_model_is_one_line_in_render_and_the_others_stand(failing, plastic_file, tmp_path, capsys):
+    png = tmp_path / "s.png"
+    assert main(["render", str(plastic_file), "--out", str(png), "--size", "32", "--model", "ww09",
+                 "--model", "bad-evaluate", "--model", "bad-support"]) == 1
+    out, err = capsys.readouterr()
+    assert png.is_file() and "ww09" in out and "image RMSE" in out and "bad-" not in out
+    assert _failed_lines(err) == FAILED
+    assert main(["render", str(plastic_file), "--out", str(tmp_path / "j.png"), "--size", "32", "--model", "all",
+                 "--json"]) == 1
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    assert list(d["models"]) == ["ww09"] and d["failed"] == FAILED and _failed_lines(err) == FAILED
+
+
+def test_a_failing_model_is_a_warning_of_the_report_and_its_status_is_1(failing, tmp_path, capsys):
+    results = tmp_path / "results"
+    simulate_database(load_database(TINY), results, "quick", only="plastic/P1-a0_0.2")
+    out = tmp_path / "report"
+    capsys.readouterr()
+    assert main(["report", str(results), "--out", str(out), "--incidents", "60"]) == 1
+    _, err = capsys.readouterr()
+    warnings = [x for x in err.splitlines() if x.startswith("warning: ")]
+    assert sorted(w.split(": ")[2] for w in warnings) == ["bad-evaluate failed", "bad-support failed"], warnings
+    records = json.loads((out / "errors.json").read_text())
+    assert [r["model"] for r in records] == ["ww09"] and (out / "index.html").is_file()
+    table = (out / "tables" / "plastic.md").read_text()
+    assert "| failed |" in table and "bad-evaluate" in table
+
+
 # ---------------------------------------------------------------------- the documented example
 
 def test_the_documented_example_is_the_example_package():

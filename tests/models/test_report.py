@@ -84,8 +84,14 @@ def test_errors_json_matches_evaluate(report, results_dir):
             assert rec["alpha1"] == 0.2 and "eta1" not in rec
         if rec["category"] == "plastic":
             assert "alpha1" not in rec and rec["rho"] == [0.2, 0.5, 0.8]   # literal in the definition
-    assert [c[0] for c in calls] == [1, 2, 3, 4, 5] and all(c[1] == 5 for c in calls)
-    assert all(m in c[2] for c, m in zip(calls, summary.materials))
+    # progress once the inputs are read, before each material (done so far, "evaluating ...") and once
+    # it is done
+    assert calls[0] == (0, 5, "loading the models ...")
+    calls = calls[1:]
+    assert [c[0] for c in calls] == [0, 1, 1, 2, 2, 3, 3, 4, 4, 5] and all(c[1] == 5 for c in calls)
+    assert all(m in c[2] for c, m in zip(calls[::2], summary.materials))
+    assert all(m in c[2] for c, m in zip(calls[1::2], summary.materials))
+    assert all(c[2].endswith(": evaluating ...") for c in calls[::2])
 
 
 def test_tables_per_category(report):

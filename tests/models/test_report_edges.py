@@ -96,3 +96,93 @@ def test_gonio_render_explains_a_black_reference(edges, tmp_path, capsys):
     assert (tmp_path / "s.png").read_bytes()[:8] == PNG
     doc = json.loads(out)
     assert "black" in doc["reference_note"] and doc["models"] == {}
+
+
+# ---------------------------------------------------------------------- a reference without a valid cell
+
+TINY = Path(__file__).resolve().parents[1] / "data" / "tiny_database.toml"
+PLASTICS = ("plastic/P1-a0_0.05", "plastic/P1-a0_0.2")
+
+
+def _mask_out(path: Path) -> None:
+    """Mark every cell of a simulated file's BRDF as invalid (a reference without a valid cell)."""
+    import h5py
+    with h5py.File(path, "r+") as f:
+        f["brdf/mask"][...] = 0
+
+
+@pytest.fixture
+def plastics(tmp_path):
+    results = tmp_path / "results"
+    db = load_database(TINY)
+    for name in PLASTICS:
+        simulate_database(db, results, "quick", only=name)
+    return results
+
+
+def test_a_material_without_a_valid_cell_is_its_records_failure(plastics, tmp_path, capsys):
+    empty = plastics / "plastic" / "P1-a0_0.05.h5"
+    _mask_out(empty)
+    out = tmp_path / "report"
+    capsys.readouterr()
+    assert gonio(["report", str(plastics), "--out", str(out), "--model", "ww09", "--model", "elek10",
+                  "--incidents", "60"]) == 1
+    _, err = capsys.readouterr()
+    # one warning for the material (both models fail for one reason; its spheres, without a value,
+    # are warnings of their own), the other material judged
+    warnings = [x for x in err.splitlines() if x.startswith("warning: ") and " failed: " in x]
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith("warning: plastic/P1-a0_0.05: ww09, elek10 failed: the reference has no valid cell")
+    records = json.loads((out / "errors.json").read_text())
+    assert {r["material"] for r in records} == {"plastic/P1-a0_0.2"} and len(records) == 2
+    assert all(r[p]["cells"] == r[p]["cells_total"] == 2 * 9 * 18 for r in records for p in ("internal", "total"))
+    table = (out / "tables" / "plastic.md").read_text()
+    row = next(x for x in table.splitlines() if x.startswith("| plastic/P1-a0_0.05 "))
+    assert row.count("| failed ") == 2 and "| 0 of " in row, row
+    assert "cells" in (out / "tables" / "plastic.csv").read_text().splitlines()[0].split(",")
+
+
+def test_a_report_that_judges_nothing_is_refused(plastics, tmp_path, capsys):
+    for name in PLASTICS:
+        _mask_out(plastics / f"{name}.h5")
+    out = tmp_path / "report"
+    capsys.readouterr()
+    assert gonio(["report", str(plastics), "--out", str(out), "--model", "ww09"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-1].startswith("gonio: error: ") and "nothing to report" in lines[-1] and "no valid cell" in lines[-1]
+    assert not any(x.startswith("gonio: error") for x in lines[:-1])
+    assert not (out / "index.html").exists() and len(list((out / "cache").rglob("*.json"))) == 2
+
+
+def test_an_interrupted_report_says_what_it_cached(plastics, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "report"
+    real = build_module.evaluate_material
+    calls = []
+
+    def second_interrupts(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(build_module, "evaluate_material", second_interrupts)
+    capsys.readouterr()
+    assert gonio(["report", str(plastics), "--out", str(out), "--model", "ww09", "--incidents", "60"]) == 130
+    err = capsys.readouterr().err
+    assert err.splitlines()[0] == "report: 2 material(s); loading the models ..."
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("gonio: interrupted; ") and "cached evaluations of 1 material(s)" in line
+    assert "rerun the same command to resume" in line and "nothing written" not in err
+    monkeypatch.setattr(build_module, "evaluate_material", real)
+    summary = build_report(plastics, out, models=["ww09"], incidents_for_figures=[60.0])
+    assert summary.reused == ["plastic/P1-a0_0.05"] and summary.evaluated == ["plastic/P1-a0_0.2"]
+
+
+def test_the_report_progress_keeps_its_last_words(plastics, tmp_path, capsys):
+    assert gonio(["report", str(plastics), "--out", str(tmp_path / "report"), "--model", "ww09",
+                  "--incidents", "60"]) == 0
+    lines = capsys.readouterr().err.splitlines()
+    # at once: the models load, then the first material (a first run compiles the models there)
+    assert lines[:2] == ["report: 2 material(s); loading the models ...",
+                         "report: 2 material(s); plastic/P1-a0_0.05: evaluating ..."]
+    last = [x for x in lines if x.startswith("report: 100%")][-1]
+    assert last.endswith(" s]") and "figures drawn in" in last, last
