@@ -43,6 +43,7 @@ from goniometer.settings import SimulationSettings
 from goniometer.slices import light_direction
 from goniometer.stack import Stack
 from models import registry
+from models.base import ModelFailure
 from models.compare.albedo import MAX_PANEL, ORDER, directional_albedo, lobe_scale, smooth_interface
 
 #: default incident elevations of ``gonio furnace`` (degrees): 0, 5, ..., 85
@@ -112,32 +113,39 @@ def model_reason(model, stack: Stack) -> str | None:
 
 @dataclass
 class ModelAlbedos:
-    """Models' directional albedos: ``albedo[name]`` (M, 3), ``sides[name][side]`` (M, 3), and the
-    models that were not evaluated with the reason."""
+    """Models' directional albedos: ``albedo[name]`` (M, 3), ``sides[name][side]`` (M, 3), the
+    models that were not evaluated with the reason (``skipped``) and those that failed
+    (``failed``: :class:`models.base.ModelFailure`'s reason; ``docs/models.md`` §3)."""
 
     albedo: dict[str, np.ndarray] = field(default_factory=dict)
     sides: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
 
 
 def model_albedos(stack: Stack, theta_deg: tuple[float, ...], phi_deg: tuple[float, ...] | None = None,
                   order: int = ORDER, progress: Callable[[str], None] | None = None) -> ModelAlbedos:
     """Directional albedo of every registered analytic model that can represent ``stack``, at the
     incident directions (``theta_deg``, ``phi_deg``); the others under ``skipped`` with their
-    reason. A model that fails while being evaluated raises :class:`models.base.ModelError`."""
+    reason. A model that fails (:class:`models.base.ModelFailure`) is recorded under ``failed`` and
+    the others go on."""
     phi_deg = phi_deg if phi_deg is not None else tuple(0.0 for _ in theta_deg)
     out = ModelAlbedos()
     for name, model in registry.all_models().items():
-        reason = model_reason(model, stack)
-        if reason is not None:
-            out.skipped[name] = reason
+        try:
+            reason = model_reason(model, stack)
+            if reason is not None:
+                out.skipped[name] = reason
+                continue
+            if progress is not None:
+                progress(name)
+            per_side = {}
+            for side in needed_sides(stack):
+                per_side[side] = np.array([directional_albedo(model, stack, light_direction(t, p), side, order)
+                                           for t, p in zip(theta_deg, phi_deg)])
+        except ModelFailure as e:
+            out.failed[name] = e.reason
             continue
-        if progress is not None:
-            progress(name)
-        per_side = {}
-        for side in needed_sides(stack):
-            per_side[side] = np.array([directional_albedo(model, stack, light_direction(t, p), side, order)
-                                       for t, p in zip(theta_deg, phi_deg)])
         out.sides[name] = per_side
         out.albedo[name] = sum(per_side.values())
     for name in registry.fitted_models():
@@ -254,6 +262,7 @@ class FurnaceResult:
             "models": {n: rows(a) for n, a in self.models.albedo.items()},
             "model_sides": {n: {s: rows(a) for s, a in d.items()} for n, d in self.models.sides.items()},
             "skipped": dict(self.models.skipped),
+            "failed": dict(self.models.failed),
             "quadrature": dict(self.quadrature),
             **({} if self.spectral is None else {"spectral": self.spectral.to_json()}),
         }

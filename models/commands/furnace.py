@@ -45,6 +45,7 @@ def cmd_furnace(args: argparse.Namespace) -> int:
     from goniometer.stack import StackError, load_toml
     from goniometer.tasks import warm_up
     from models.base import ModelError
+    from models.commands.failures import report_failures
     from models.furnace import furnace_settings, model_albedos, run_furnace
 
     try:
@@ -99,11 +100,11 @@ def cmd_furnace(args: argparse.Namespace) -> int:
         plot_furnace(result, args.plot)
     if args.json:
         print(json.dumps(result.to_json(), indent=2))
-        return 0
-    _print_table(result)
-    if args.plot:
-        print(f"wrote {args.plot}")
-    return 0
+    else:
+        _print_table(result)
+        if args.plot:
+            print(f"wrote {args.plot}")
+    return report_failures(result.models.failed)
 
 
 def _paths_per_incident(stack, settings) -> int:

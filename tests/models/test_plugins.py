@@ -305,6 +305,20 @@ def test_a_failing_model_is_a_warning_of_the_report_and_its_status_is_1(failing,
     assert "| failed |" in table and "bad-evaluate" in table
 
 
+def test_a_failing_model_is_one_line_in_furnace_and_the_others_stand(failing, tmp_path, capsys):
+    """It stopped the furnace with one line (exit 2) and lost the other models' albedos."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC.to_toml())
+    capsys.readouterr()
+    assert main(["furnace", str(cfg), "--rays", "2000", "--incident", "30", "--json"]) == 1
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    assert list(d["models"]) == ["ww09"] and d["failed"] == FAILED and _failed_lines(err) == FAILED
+    assert main(["furnace", str(cfg), "--rays", "2000", "--incident", "30"]) == 1
+    out, err = capsys.readouterr()
+    assert "ww09" in out and "bad-" not in out and _failed_lines(err) == FAILED
+
+
 # ---------------------------------------------------------------------- the documented example
 
 def test_the_documented_example_is_the_example_package():

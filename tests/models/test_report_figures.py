@@ -49,7 +49,7 @@ def test_the_furnace_legend_is_beside_the_curves():
     import matplotlib.pyplot as plt
     t = np.arange(0.0, 90.0, 5.0)
     albedo = np.ones((len(t), 3))
-    res = SimpleNamespace(material="m", incident_deg=t, albedo=albedo, stderr=0.01 * albedo, rays=1000,
+    res = SimpleNamespace(material="m", incident_deg=t, albedo=albedo, stderr=0.01 * albedo, rays=1000, spectral=None,
                           models=SimpleNamespace(albedo={f"model{i}": albedo * (0.5 + 0.1 * i) for i in range(8)}))
     fig = furnace_figure(res)
     try:
