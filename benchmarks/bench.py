@@ -37,13 +37,13 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from goniometer.results import cell_geometry
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
-from goniometer.tasks import warm_up
+from goniometer.run.results import cell_geometry
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.run.tasks import warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack, pack
-from goniometer.tracer import kernel_flags
-from goniometer.slices import light_direction
+from goniometer.kernel.tracer import kernel_flags
+from goniometer.grids.slice_grid import light_direction
 
 from models.compare import noise_floor, reference_parts
 from reference_kernel import trace_reference
@@ -98,7 +98,8 @@ def cpu_model() -> str:
 
 def compile_times() -> dict[str, float]:
     """Seconds to compile the kernel into an empty cache, and to load it from that cache."""
-    code = "import time; t=time.perf_counter(); from goniometer.tasks import warm_up; warm_up(); print(time.perf_counter()-t)"
+    code = ("import time; t=time.perf_counter(); from goniometer.run.tasks import warm_up; warm_up(); "
+            "print(time.perf_counter()-t)")
     with tempfile.TemporaryDirectory() as d:
         env = dict(os.environ, NUMBA_CACHE_DIR=d)
         cold = float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -112,7 +113,7 @@ def run(rays_per_incident: int, threads: list[int]) -> list[dict]:
     """Per material and thread count: the tracing alone (all tasks of the 7 incident directions,
     histogram merging included) and the whole ``simulate`` call (plus cell solid angles, masks
     and the conversion to cell values)."""
-    from goniometer.tasks import trace_incident
+    from goniometer.run.tasks import trace_incident
     warm_up()
     rows = []
     t_first = min(threads) if threads else None
@@ -194,8 +195,8 @@ def bench_rgl(rays_per_incident: int, repeats: int = 5) -> list[dict]:
     """Recording on the RGL grid against a classic 90 x 360 run of the same rays and incident
     directions (the grid's 8 elevations), one thread, whole simulate, alternated ``repeats`` times
     (median ratio), and the export of the default-size file (docs/rgl-format.md)."""
-    from goniometer.rgl.export import bsdf_fields
-    from goniometer.rgl.grid import grid_for
+    from goniometer.files.rgl_export import bsdf_fields
+    from goniometer.grids.rgl import grid_for
     rows = []
     for name in ("metal/M2-a0_0.05-a1_0.2", "plastic/P1-a0_0.05"):
         stack = MATERIALS[name]
@@ -274,8 +275,8 @@ def bench_spectral(rays_per_incident: int, repeats: int = 3, bins: int = 30) -> 
 
 def _integrable(stack) -> bool:
     """True when ``first_order = "integrated"`` applies (a single-scattering interface on top)."""
-    from goniometer.first_order import check_supported
-    from goniometer.settings import SettingsError
+    from goniometer.run.first_order import check_supported
+    from goniometer.run.settings import SettingsError
     try:
         check_supported(stack)
     except SettingsError:

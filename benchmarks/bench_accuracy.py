@@ -31,10 +31,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from goniometer.results import cell_geometry
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
-from goniometer.tasks import warm_up
+from goniometer.run.results import cell_geometry
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.run.tasks import warm_up
 
 from bench import INCIDENT, MATERIALS, cpu_model, floor_of
 

@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from goniometer import tracer  # noqa: E402
-from goniometer.slices import boundary_tables, light_direction  # noqa: E402
+from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
 from goniometer.stack import pack  # noqa: E402
 
 

@@ -39,9 +39,9 @@ import numba
 import numpy as np
 
 from goniometer.optics import np_microfacet_transmission, np_ggx_lambda
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
-from goniometer.slices import light_direction
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.compare import integrate, noise_floor, rmse
 from models.compare import integrate

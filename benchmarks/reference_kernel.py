@@ -5,9 +5,9 @@ Deliberately simple, written by us, and never used for results: float64 everywhe
 trigonometry (``cos``/``sin`` of the VNDF azimuth, ``acos``/``atan2`` of the exit cell), one
 private histogram per chunk holding only the exit weights per cell and channel (no bounce orders,
 no second moments, no per-path energy records beyond the reflected and transmitted sums), the
-random numbers of :mod:`goniometer.rng` drawn from the same per-chunk streams.
+random numbers of :mod:`goniometer.kernel.rng` drawn from the same per-chunk streams.
 
-Physics (the same as :func:`goniometer.tracer.trace_chunk` for single-scattering stacks without
+Physics (the same as :func:`goniometer.kernel.tracer.trace_chunk` for single-scattering stacks without
 scattering media; ``docs/material-format.md``, transport): a path starts along ``-l`` with weight
 (1, 1, 1); at an interface a GGX visible normal is drawn (spherical-cap construction) and the
 path reflects with probability F (dielectric) or always with weight *= F (conductor base); the
@@ -31,8 +31,8 @@ import time
 import numba
 import numpy as np
 
-from goniometer.rng import next_float, stream_state
-from goniometer.slices import cell_index
+from goniometer.kernel.rng import next_float, stream_state
+from goniometer.grids.slice_grid import cell_index
 from goniometer.stack import Stack, pack
 
 _TWO_PI = 2.0 * math.pi
@@ -261,14 +261,14 @@ def issue15_metal() -> Stack:
 def main() -> int:
     ap = argparse.ArgumentParser(description="time the yardstick kernel (or, with --simulator, the simulator's kernel) on issue 15's metal")
     ap.add_argument("--rays", type=int, default=4_000_000)
-    ap.add_argument("--simulator", action="store_true", help="time goniometer.tasks.trace_incident instead")
+    ap.add_argument("--simulator", action="store_true", help="time goniometer.run.tasks.trace_incident instead")
     args = ap.parse_args()
-    from goniometer.settings import SimulationSettings
-    from goniometer.slices import light_direction
+    from goniometer.run.settings import SimulationSettings
+    from goniometer.grids.slice_grid import light_direction
     stack = issue15_metal()
     numba.set_num_threads(1)
     if args.simulator:
-        from goniometer.tasks import trace_incident
+        from goniometer.run.tasks import trace_incident
         s = SimulationSettings(incident_deg=(30.0,), rays=args.rays, parametrization="classic", threads=1, seed=1)
         trace_incident(stack, SimulationSettings(incident_deg=(30.0,), rays=1000, parametrization="classic",
                                                  threads=1), 0)

@@ -57,7 +57,7 @@ def main() -> int:
     args = ap.parse_args()
 
     import goniometer as g
-    from goniometer.rgl.grid import grid_for
+    from goniometer.grids.rgl import grid_for
     from matplotlib.figure import Figure
     from models.render import SphereView, slices_reference
     from models.render.tonemap import display, exposure

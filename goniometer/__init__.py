@@ -19,10 +19,8 @@ Contracts: ``docs/material-format.md``, ``docs/slices-format.md``, ``docs/databa
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
-
 from goniometer import cache as _cache
+from goniometer._lazy import lazy_face
 
 __version__ = "0.1.0"
 
@@ -35,23 +33,24 @@ _EXPORTS = {
     "Lambertian": "goniometer.stack", "StackError": "goniometer.stack", "stack_from_dict": "goniometer.stack",
     "load_stack": "goniometer.stack",
     # running
-    "SimulationSettings": "goniometer.settings", "SettingsError": "goniometer.settings",
-    "simulate": "goniometer.run", "run_incidents": "goniometer.run",
-    "Checkpoints": "goniometer.checkpoint",
+    "SimulationSettings": "goniometer.run.settings", "SettingsError": "goniometer.run.settings",
+    "simulate": "goniometer.run.loop", "run_incidents": "goniometer.run.loop",
+    "Checkpoints": "goniometer.run.checkpoints",
     # results and files
-    "SimulationResult": "goniometer.results", "SliceData": "goniometer.results", "SliceGrid": "goniometer.slices",
-    "light_direction": "goniometer.slices",
-    "read": "goniometer.store", "write": "goniometer.store", "describe": "goniometer.store",
-    "StoreError": "goniometer.store",
+    "SimulationResult": "goniometer.run.results", "SliceData": "goniometer.run.results",
+    "SliceGrid": "goniometer.grids.slice_grid", "light_direction": "goniometer.grids.slice_grid",
+    "read": "goniometer.files.slices", "write": "goniometer.files.slices", "describe": "goniometer.files.slices",
+    "StoreError": "goniometer.files.slices",
     # tabulated BRDFs (the MERL grid)
-    "TabulationSettings": "goniometer.settings", "tabulate": "goniometer.tabulation",
-    "TabulatedBRDF": "goniometer.tabulated", "read_tabulated": "goniometer.tabulated",
-    "write_tabulated": "goniometer.tabulated", "write_merl": "goniometer.merl",
+    "TabulationSettings": "goniometer.run.settings", "tabulate": "goniometer.run.tabulation",
+    "TabulatedBRDF": "goniometer.files.tabulated", "read_tabulated": "goniometer.files.tabulated",
+    "write_tabulated": "goniometer.files.tabulated", "write_merl": "goniometer.files.merl",
     # the RGL tensor format (Mitsuba 3's and pbrt-v4's measured materials; docs/rgl-format.md)
-    "read_tensor": "goniometer.rgl.tensor", "write_tensor": "goniometer.rgl.tensor",
-    "TensorError": "goniometer.rgl.tensor", "RGLGrid": "goniometer.rgl.grid", "export_rgl": "goniometer.rgl.export",
+    "read_tensor": "goniometer.files.rgl_tensor", "write_tensor": "goniometer.files.rgl_tensor",
+    "TensorError": "goniometer.files.rgl_tensor", "RGLGrid": "goniometer.grids.rgl",
+    "export_rgl": "goniometer.files.rgl_export",
     # xarray views (optional extra "xarray")
-    "open_dataset": "goniometer.dataset", "open_datatree": "goniometer.dataset",
+    "open_dataset": "goniometer.files.dataset", "open_datatree": "goniometer.files.dataset",
     # databases
     "load_database": "goniometer.database", "simulate_database": "goniometer.database",
     "DatabaseError": "goniometer.database",
@@ -60,14 +59,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__", "NUMBA_CACHE_DIR"]
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'goniometer' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_face(__name__, _EXPORTS)

@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from goniometer import atomic, store
-from goniometer.checkpoint import CheckpointMismatch, Checkpoints
-from goniometer.results import run_description, same_run
-from goniometer.settings import SettingsError, SimulationSettings
-from goniometer.run import run_incidents
+from goniometer import atomic
+from goniometer.files import slices as store
+from goniometer.run.checkpoints import CheckpointMismatch, Checkpoints
+from goniometer.run.results import run_description, same_run
+from goniometer.run.settings import SettingsError, SimulationSettings
+from goniometer.run.loop import run_incidents
 from goniometer.stack import Interface, Stack, StackError, check_films, stack_from_dict
 from goniometer.tomlfile import read_toml
 
@@ -216,7 +217,7 @@ def _check_runs(p: Path, db: Database) -> None:
                     raise DatabaseError(f"{p}: {m.name}: layers[{i}].film: a thin film needs a spectral run "
                                         f"(set spectral = true in [simulation]; docs/spectral.md)")
             continue
-        from goniometer.spectral.launches import launch_stacks
+        from goniometer.run.launches import launch_stacks
         try:
             for _, stack, _ in launch_stacks(m.stack, settings):
                 check_films(stack)
@@ -357,7 +358,7 @@ def paths_per_incident(db: Database, material: Material, quality: str) -> int:
     settings = db.settings_for(material, quality)
     if not settings.spectral:
         return settings.rays
-    from goniometer.spectral.launches import launches
+    from goniometer.run.launches import launches
     return settings.rays * len(launches(material.stack, settings))
 
 
@@ -378,7 +379,7 @@ def material_checkpoints(db: Database, out_dir: Path, material: Material, qualit
 
 
 def check_checkpoints(db: Database, out_dir: str | Path, quality: str, materials: list[Material]) -> None:
-    """Raise :class:`~goniometer.checkpoint.CheckpointMismatch` if ``out_dir`` keeps checkpoints of
+    """Raise :class:`~goniometer.run.checkpoints.CheckpointMismatch` if ``out_dir`` keeps checkpoints of
     one of ``materials`` that their runs at ``quality`` cannot use (another run, another version of
     the simulator code): the first such material's differences, and how many more there are.
     Nothing is changed; ``gonio database simulate --restart`` discards them."""
@@ -467,17 +468,17 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
     address such as ``tcp://host:8786``) or ``client`` (a ``distributed.Client``) runs the
     (material, incident, task) tasks on a Dask cluster; results are bit-identical to a local run.
     A spectral database (``spectral = true``) runs every material spectrally, through the same
-    :func:`goniometer.run.run_incidents` (and so on a cluster with a local run's bits;
+    :func:`goniometer.run.loop.run_incidents` (and so on a cluster with a local run's bits;
     ``progress`` then counts the paths of its launches, :func:`paths_per_incident`).
     The kernel is compiled on first use unless the caller has compiled it
-    (:func:`goniometer.tasks.warm_up_runs` of :func:`runs`). ``overwrite``: the selected finished
+    (:func:`goniometer.run.tasks.warm_up_runs` of :func:`runs`). ``overwrite``: the selected finished
     materials are simulated again and their files replaced (``docs/outputs.md``); without it they
     are skipped. Checkpoints of a material that its run cannot use (another run, another code
-    version) raise :class:`~goniometer.checkpoint.CheckpointMismatch` before anything is written
+    version) raise :class:`~goniometer.run.checkpoints.CheckpointMismatch` before anything is written
     (:func:`check_checkpoints`); ``restart`` discards the checkpoints of the materials to simulate
     instead, and they are traced from the start. ``on_discard(path, reason)``: told of an
     unreadable checkpoint file, whose direction is traced again
-    (:class:`~goniometer.checkpoint.Checkpoints`).
+    (:class:`~goniometer.run.checkpoints.Checkpoints`).
     """
     out = Path(out_dir)
     materials = db.select(only)
@@ -518,7 +519,7 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
         todo.append(m)
     own_client = None
     if scheduler is not None and client is None:
-        from goniometer.distributed import ClusterError, dask_client
+        from goniometer.run.distributed import ClusterError, dask_client
         try:
             client = own_client = dask_client(scheduler)
         except ClusterError as e:
@@ -538,7 +539,7 @@ def simulate_database(db: Database, out_dir: str | Path, quality: str = "quick",
 
 def runs(db: Database, materials: list[Material], quality: str) -> list[tuple[Stack, SimulationSettings]]:
     """The (stack, settings) of each material's run at ``quality`` (to compile their kernel
-    variants before tracing: :func:`goniometer.tasks.warm_up_runs`)."""
+    variants before tracing: :func:`goniometer.run.tasks.warm_up_runs`)."""
     return [(m.stack, db.settings_for(m, quality)) for m in materials]
 
 

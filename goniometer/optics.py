@@ -560,7 +560,7 @@ def sample_vndf(wx: float, wy: float, wz: float, ax: float, ay: float, u1: float
 @numba.njit(cache=True, error_model='numpy', inline='always')
 def sample_vndf_disk(wx: float, wy: float, wz: float, ax: float, ay: float, x: float, y: float):
     """:func:`sample_vndf` from a point ``(x, y)`` uniform in the unit disk (the walks draw it by
-    rejection, :func:`goniometer.rng.next_disk`: no trigonometry).
+    rejection, :func:`goniometer.kernel.rng.next_disk`: no trigonometry).
 
     Spherical-cap construction of Dupuy & Benyoub 2023, which draws exactly the visible-normal
     density: in the stretched (alpha = 1) configuration the visible normals of ``w`` are
@@ -739,7 +739,7 @@ def microfacet_transmission(
 # uniform heights on [-1, 1], ``c = (h + 1) / 2``): a ray at height ``c`` travelling along ``w``
 # leaves the microsurface without a hit with probability ``G1(w, c) = c ** Lambda(w)`` (upward),
 # and seen from below the same surface has ``c' = 1 - c``. The walk loop itself is
-# :func:`goniometer.tracer.microsurface_walk` (it draws the random numbers).
+# :func:`goniometer.kernel.tracer.microsurface_walk` (it draws the random numbers).
 
 
 @numba.njit(cache=True, error_model='numpy')

@@ -358,7 +358,7 @@ class PackedStack:
         return bool(np.any(self.if_film[:, FL_ON] != 0.0))
 
     def as_tuple(self) -> tuple:
-        """The stack arguments of the kernels (:func:`goniometer.tracer.trace_batch`), in
+        """The stack arguments of the kernels (:func:`goniometer.kernel.tracer.trace_batch`), in
         :data:`KERNEL_FIELDS` order."""
         return tuple(getattr(self, f) for f in self.KERNEL_FIELDS)
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from goniometer import store
-from goniometer.results import SimulationResult
+from goniometer.files import slices as store
+from goniometer.run.results import SimulationResult
 from goniometer.stack import Interface, Stack
 from models import registry
 from models.compare import errors

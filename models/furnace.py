@@ -37,10 +37,10 @@ import dataclasses
 
 import numpy as np
 
-from goniometer.results import ENERGY_TERMS as SLICE_ENERGY_TERMS, SimulationResult
-from goniometer.run import run_incidents
-from goniometer.settings import SimulationSettings
-from goniometer.slices import light_direction
+from goniometer.run.results import ENERGY_TERMS as SLICE_ENERGY_TERMS, SimulationResult
+from goniometer.run.loop import run_incidents
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Stack
 from models import registry
 from models.base import ModelFailure
@@ -62,7 +62,7 @@ def furnace_settings(table: Mapping[str, Any] | None = None, *, incident_deg: tu
                      wavelength_bins: int | None = None, source: str = "simulation") -> SimulationSettings:
     """The settings of a furnace run: the furnace defaults (:data:`INCIDENT_DEG`, :data:`RAYS`),
     then a material file's ``[simulation]`` table, then the given values; the slice grid is
-    always :data:`GRID`. Raises :class:`goniometer.settings.SettingsError` naming the field."""
+    always :data:`GRID`. Raises :class:`goniometer.run.settings.SettingsError` naming the field."""
     base: dict[str, Any] = {"incident_deg": list(INCIDENT_DEG), "rays": RAYS}
     base.update(table or {})
     s = SimulationSettings.from_mapping(base, source=source)
@@ -77,7 +77,7 @@ def simulated_albedo(result: SimulationResult) -> tuple[np.ndarray, np.ndarray]:
     """(albedo, standard error), each (M, C): ``reflected + transmitted`` and the standard error
     of that mean from the per-path second moments (a path exits once, so ``E[(r + t)^2] =
     E[r^2] + E[t^2]``; the second moments are recovered from the means and standard errors
-    :func:`goniometer.results.assemble` stores). ``C`` is 3 (RGB) or, for a spectral result, the
+    :func:`goniometer.run.results.assemble` stores). ``C`` is 3 (RGB) or, for a spectral result, the
     wavelength bins, each estimated from ``rays`` paths (``docs/spectral.md`` section 1); not for a
     spectral result reduced to sRGB, whose standard errors are bounds (:func:`albedo_in_srgb`)."""
     n = result.settings.rays
@@ -200,7 +200,7 @@ class SpectralBins:
 
 def spectral_bins(result: SimulationResult) -> SpectralBins:
     """The per-bin table of a spectral run's ``result``."""
-    from goniometer.spectral.launches import launches
+    from goniometer.run.launches import launches
     albedo, stderr = simulated_albedo(result)
     energy = {k: result.energy[k] for k in SLICE_ENERGY_TERMS}
     energy["roulette"] = result.roulette
@@ -275,7 +275,7 @@ def run_furnace(stack: Stack, settings: SimulationSettings, progress: Callable[[
     :data:`GRID`) and evaluate every model that applies. The models run first, so a model that
     fails does so before the simulation; ``models`` (from :func:`model_albedos` at the same
     directions) are taken as they are. ``progress(paths)`` as in
-    :func:`goniometer.run.run_incidents` (which compiles the kernel on first use; a spectral run
+    :func:`goniometer.run.loop.run_incidents` (which compiles the kernel on first use; a spectral run
     reports the paths of all its launches), ``model_progress(name)`` before each model. A
     spectral ``settings`` gives the table in linear sRGB and the bins in ``spectral``."""
     if settings.resolution != GRID[1] or settings.parametrization != GRID[0]:

@@ -69,17 +69,17 @@ def add_spectral(parser) -> None:
 
 def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--out", directory: bool = False,
                 marker: str | None = None):
-    """:func:`goniometer.outputs.check_output` with its refusal as a :class:`UsageError`; returns the
+    """:func:`goniometer.files.outputs.check_output` with its refusal as a :class:`UsageError`; returns the
     path. Also refuses a file whose directory does not exist or cannot be written."""
     from pathlib import Path
 
-    from goniometer import outputs
+    from goniometer.files import outputs
     _check_ancestors(Path(path), option)
     with usage_errors(outputs.OutputError):
         out = outputs.check_output(path, inputs=inputs, overwrite=overwrite, option=option, directory=directory,
                                    marker=marker)
     if not directory:
-        from goniometer import store
+        from goniometer.files import slices as store
         with usage_errors(store.StoreError, prefix=option):
             store.check_writable(out)
     return Path(out)
@@ -88,7 +88,7 @@ def output_path(path, *, inputs=(), overwrite: bool = False, option: str = "--ou
 def _check_ancestors(path, option: str) -> None:
     """A :class:`UsageError` when the nearest existing directory above ``path`` is a file
     (``--out m.h5/x.h5``: ``m.h5 is a file, not a directory``, not "does not exist")."""
-    from goniometer.outputs import describe_existing
+    from goniometer.files.outputs import describe_existing
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
@@ -454,7 +454,7 @@ def skip_progress(bar, n: int) -> None:
 
 
 class ResumeAware:
-    """A progress callback for :func:`goniometer.run.run_incidents` and the like, which report the
+    """A progress callback for :func:`goniometer.run.loop.run_incidents` and the like, which report the
     rays of finished work they load (checkpoints) through ``progress`` too: those, announced by
     :meth:`resumed`, go to :func:`skip_progress`; the rest updates the bar."""
 

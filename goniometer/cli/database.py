@@ -95,9 +95,9 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
     from goniometer.cli.simulate import checkpoint_refusals
     from goniometer.database import (DatabaseError, check_checkpoints, check_results_dir, material_status,
                                      paths_per_incident, runs, simulate_database)
-    from goniometer.results import cell_geometries
-    from goniometer.settings import SettingsError
-    from goniometer.tasks import run_variant, warm_up_runs
+    from goniometer.run.results import cell_geometries
+    from goniometer.run.settings import SettingsError
+    from goniometer.run.tasks import run_variant, warm_up_runs
     started = time.time()   # files written after it are this run's (an interrupt says how many)
     db = _load_definition(args.config)
     with usage_errors(DatabaseError):

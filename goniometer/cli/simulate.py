@@ -75,21 +75,21 @@ def _paths_per_incident(stack, settings) -> int:
     spectral table that does not cover the run's bins)."""
     if not settings.spectral:
         return settings.rays
-    from goniometer.spectral.launches import launch_stacks
+    from goniometer.run.launches import launch_stacks
     return settings.rays * len(launch_stacks(stack, settings))
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from goniometer import store
+    from goniometer.files import slices as store
     from goniometer.atomic import is_environment_error
-    from goniometer.checkpoint import Checkpoints, checkpoint_dir
-    from goniometer.first_order import check_supported
-    from goniometer.results import cell_geometries, run_description
-    from goniometer.settings import SettingsError, SimulationSettings
-    from goniometer.run import run_incidents
+    from goniometer.run.checkpoints import Checkpoints, checkpoint_dir
+    from goniometer.run.first_order import check_supported
+    from goniometer.run.results import cell_geometries, run_description
+    from goniometer.run.settings import SettingsError, SimulationSettings
+    from goniometer.run.loop import run_incidents
     from goniometer.stack import StackError, load_toml
-    from goniometer.tasks import warm_up
-    from goniometer.rgl.grid import RGLGridError
+    from goniometer.run.tasks import warm_up
+    from goniometer.grids.rgl import RGLGridError
 
     with usage_errors(StackError, SettingsError):
         stack, table = load_toml(args.config)
@@ -118,7 +118,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             settings = base.with_overrides(**over)
         if settings.first_order == "integrated":
             check_supported(stack)
-    from goniometer.tracer import DeviceError, check_device
+    from goniometer.kernel.tracer import DeviceError, check_device
     with usage_errors(DeviceError):
         check_device(settings.device)
     with usage_errors(StackError):
@@ -191,10 +191,10 @@ def _kept(checkpoints) -> str | None:
 
 @contextlib.contextmanager
 def checkpoint_refusals():
-    """Kept checkpoints the run cannot use (:class:`goniometer.checkpoint.CheckpointMismatch`):
+    """Kept checkpoints the run cannot use (:class:`goniometer.run.checkpoints.CheckpointMismatch`):
     one line naming every differing key with both values and the way on, exit status 2. Shared by
     ``simulate``, ``tabulate`` and ``database simulate`` (each has ``--restart``)."""
-    from goniometer.checkpoint import CheckpointMismatch
+    from goniometer.run.checkpoints import CheckpointMismatch
     try:
         yield
     except CheckpointMismatch as e:
@@ -202,7 +202,7 @@ def checkpoint_refusals():
 
 
 def checkpoint_refusal(e) -> str:
-    """The line of a :class:`goniometer.checkpoint.CheckpointMismatch`: what they are, and how to
+    """The line of a :class:`goniometer.run.checkpoints.CheckpointMismatch`: what they are, and how to
     go on (``docs/outputs.md`` rule 3)."""
     if e.reason is None and e.other_code:
         way = ("this version of the simulator cannot resume them (the version that wrote them can); "
@@ -223,8 +223,8 @@ def _without_rgl(table: dict) -> dict:
 def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     """The settings of a run on the RGL grid: the grid from --rgl-grid, else the file's, else the
     default for the stack; the other settings from the file and the command line."""
-    from goniometer.rgl.grid import grid_for, parse_grid
-    from goniometer.settings import SimulationSettings
+    from goniometer.grids.rgl import grid_for, parse_grid
+    from goniometer.run.settings import SimulationSettings
     for option, key in (("--incident", "incident_deg"), ("--resolution", "resolution")):
         if key in over:
             raise UsageError(f"{option}: the RGL grid sets it (its theta_i, phi_i nodes and n x n); "
@@ -244,7 +244,7 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
 
 
 def _print_summary(r) -> None:
-    from goniometer.results import ENERGY_TERMS
+    from goniometer.run.results import ENERGY_TERMS
     print(f"{r.rays_per_s:,.0f} rays/s with {r.threads} thread(s) ({r.rays_per_s / r.threads:,.0f} per thread); "
           f"compile/load {r.compile_s:.1f} s")
     if r.settings.spectral:
@@ -267,7 +267,7 @@ def _print_summary(r) -> None:
 def _print_spectral_energies(r) -> None:
     """Per incident direction and energy term: the fraction's CIE Y (D65 weights of the bins, a
     luminance: within [0, 1] as every bin is) and its smallest and largest bin."""
-    from goniometer.results import ENERGY_TERMS
+    from goniometer.run.results import ENERGY_TERMS
     from goniometer.spectral import wavelength_bins, xyz_weights
     y = xyz_weights(wavelength_bins(r.settings.wavelength_bins)[1])[:, 1]
     y = y / y.sum()
@@ -287,8 +287,8 @@ def _print_spectral_energies(r) -> None:
 
 def info_dict(path: Path) -> dict[str, Any]:
     """The JSON summary printed by ``gonio info --json``."""
-    from goniometer.results import ENERGY_TERMS
-    from goniometer import store
+    from goniometer.run.results import ENERGY_TERMS
+    from goniometer.files import slices as store
     spectral = store.read(path)
     r = spectral.rgb()   # a spectral file's energies are shown in linear sRGB; "spectral" lists the bins
     s = spectral.settings
@@ -333,9 +333,9 @@ INFO_READS = ("gonio info reads a goniometer.slices file (gonio simulate), a gon
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from goniometer.results import ENERGY_TERMS
-    from goniometer import store
-    from goniometer.outputs import describe_existing
+    from goniometer.run.results import ENERGY_TERMS
+    from goniometer.files import slices as store
+    from goniometer.files.outputs import describe_existing
     path = Path(args.file)
     if path.is_dir():
         raise UsageError(f"{path}: a directory, not a file; {INFO_READS}")
@@ -381,7 +381,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def _is_tensor(path: Path) -> bool:
-    from goniometer.outputs import TENSOR_MAGIC
+    from goniometer.files.outputs import TENSOR_MAGIC
     try:
         with open(path, "rb") as fh:
             return fh.read(len(TENSOR_MAGIC)) == TENSOR_MAGIC
@@ -391,8 +391,8 @@ def _is_tensor(path: Path) -> bool:
 
 def tensor_info(path: Path) -> dict[str, Any]:
     """The JSON summary ``gonio info FILE.bsdf --json`` prints: fields, grids, which readers take it."""
-    from goniometer.rgl.export import check_readers
-    from goniometer.rgl.tensor import read_tensor
+    from goniometer.files.rgl_export import check_readers
+    from goniometer.files.rgl_tensor import read_tensor
     t = read_tensor(path)
     f = t.fields
     d: dict[str, Any] = {"file": str(path), "format": "rgl-tensor", "version": list(t.version),
@@ -409,7 +409,7 @@ def tensor_info(path: Path) -> dict[str, Any]:
     if "jacobian" in f:
         d["jacobian"] = bool(f["jacobian"].reshape(-1)[0])
     d["readers"] = {k: {"takes_it": not v, "why_not": v} for k, v in check_readers(t).items()}
-    from goniometer.measured import MeasuredError, read_measured
+    from goniometer.files.measured import MeasuredError, read_measured
     try:   # as a reference of gonio evaluate/fit (docs/measured.md): its values checked
         read_measured(path)
         d["as_measurement"] = {"reads": True, "why_not": None}
@@ -420,7 +420,7 @@ def tensor_info(path: Path) -> dict[str, Any]:
 
 def _info_tensor(args: argparse.Namespace) -> int:
     """``gonio info`` of an RGL tensor file (``docs/rgl-format.md``)."""
-    from goniometer.rgl.tensor import TensorError
+    from goniometer.files.rgl_tensor import TensorError
     with usage_errors(TensorError):
         d = tensor_info(Path(args.file))
     if args.json:
@@ -458,14 +458,14 @@ def _hdf5_format(path: Path) -> str | None:
 
 
 def _is_tabulated(path: Path) -> bool:
-    from goniometer.tabulated import FORMAT
+    from goniometer.files.tabulated import FORMAT
     return _hdf5_format(path) == FORMAT
 
 
 def _info_tabulated(args: argparse.Namespace) -> int:
     """``gonio info`` of a tabulated file (``docs/tabulated-format.md``)."""
-    from goniometer.results import ENERGY_TERMS
-    from goniometer.tabulated import TabulatedError, read_tabulated
+    from goniometer.run.results import ENERGY_TERMS
+    from goniometer.files.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
         spectral = read_tabulated(args.file)
     t = spectral.rgb()   # a spectral file's energies are shown in linear sRGB; "spectral" lists the bins

@@ -14,7 +14,7 @@ from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_over
 
 def register(sub) -> None:
     """Add ``tabulate`` and ``export`` to the ``gonio`` sub-command parser."""
-    from goniometer.settings import TABULATE_RAYS
+    from goniometer.run.settings import TABULATE_RAYS
     p = sub.add_parser("tabulate", help="tabulate a material's whole isotropic BRDF on the MERL grid (HDF5)")
     p.add_argument("config", metavar="CONFIG.toml")
     p.add_argument("--out", required=True, metavar="FILE.h5",
@@ -48,17 +48,17 @@ def register(sub) -> None:
 
 
 def cmd_tabulate(args: argparse.Namespace) -> int:
-    from goniometer import store
+    from goniometer.files import slices as store
     from goniometer.atomic import is_environment_error
-    from goniometer.checkpoint import checkpoint_dir
+    from goniometer.run.checkpoints import checkpoint_dir
     from goniometer.cli.simulate import checkpoint_refusals
-    from goniometer.settings import SettingsError, SimulationSettings, TabulationSettings
+    from goniometer.run.settings import SettingsError, SimulationSettings, TabulationSettings
     from goniometer.stack import StackError, load_toml
-    from goniometer.tabulated import write_tabulated
-    from goniometer.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable, launches as _launches,
-                                       tabulate, tabulation_description, warm_up)
+    from goniometer.files.tabulated import write_tabulated
+    from goniometer.run.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable,
+                                           launches as _launches, tabulate, tabulation_description, warm_up)
 
-    from goniometer.tracer import DeviceError, check_device
+    from goniometer.kernel.tracer import DeviceError, check_device
     with usage_errors(StackError, SettingsError, TabulationError, store.StoreError):
         stack, table = load_toml(args.config)
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
@@ -122,7 +122,7 @@ def _kept(checkpoint) -> str:
 
 
 def _print_summary(t) -> None:
-    from goniometer.results import ENERGY_TERMS
+    from goniometer.run.results import ENERGY_TERMS
     n_data = int(np.count_nonzero(t.hits))
     print(f"{t.rays_per_s:,.0f} rays/s with {t.threads} thread(s); compile/load {t.compile_s:.1f} s")
     print(f"cells with data: {n_data:,} of {t.hits.size:,}")
@@ -144,8 +144,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         return _export_rgl(args)
     if args.spectral:
         raise UsageError("--spectral: goes with --format rgl (a MERL file is RGB)")
-    from goniometer.merl import write_merl
-    from goniometer.tabulated import TabulatedError, read_tabulated
+    from goniometer.files.merl import write_merl
+    from goniometer.files.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
         tab = read_tabulated(args.file)
     out = output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
@@ -162,10 +162,10 @@ def _export_rgl(args: argparse.Namespace) -> int:
     """``gonio export F.h5 --format rgl --out NAME.bsdf [--spectral]`` (``docs/rgl-format.md``)."""
     import time
 
-    from goniometer import store
-    from goniometer.rgl.export import ExportError, bsdf_fields, check_readers
-    from goniometer.rgl.tensor import write_tensor
-    from goniometer.tabulated import FORMAT as TAB_FORMAT
+    from goniometer.files import slices as store
+    from goniometer.files.rgl_export import ExportError, bsdf_fields, check_readers
+    from goniometer.files.rgl_tensor import write_tensor
+    from goniometer.files.tabulated import FORMAT as TAB_FORMAT
     if _format_of(args.file) == TAB_FORMAT:
         raise UsageError(f"{args.file}: a tabulated file (MERL grid) exports as --format merl; for rgl simulate the "
                          f"material with --parametrization rgl")

@@ -1,4 +1,4 @@
-"""The parts of the tracer's lane kernel (``docs/kernel.md``); :mod:`goniometer.tracer` drives them.
+"""The parts of the tracer's lane kernel (``docs/kernel.md``); :mod:`goniometer.kernel.tracer` drives them.
 
 * :mod:`~goniometer.kernel.layout` -- the lane state (one flat array, a row per field) and the
   stack's table read by the vectorised event;
@@ -11,5 +11,5 @@
   prefetch, the vector-width hint).
 """
 
-#: no public names: the kernel's parts are the tracer's internals (``goniometer.tracer`` is the face)
+#: no public names: the kernel's parts are the tracer's internals (``goniometer.kernel.tracer`` is the face)
 __all__: list[str] = []

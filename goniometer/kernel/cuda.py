@@ -15,7 +15,7 @@ bits on every launch on the same device and compiler. A block first sums into it
 :data:`SHARED_BYTES`), then adds what it holds to global memory; otherwise it adds to global
 memory directly. The integers are turned into float64 at the end (``/ 2^32``).
 
-This module imports ``numba.cuda``; :func:`goniometer.tracer.check_device` says why a run cannot
+This module imports ``numba.cuda``; :func:`goniometer.kernel.tracer.check_device` says why a run cannot
 use it (no numba-cuda, no GPU) before anything imports it. Under numba-cuda's simulator
 (``NUMBA_ENABLE_CUDASIM=1``, set before ``numba.cuda`` is first imported) the kernel runs as Python
 threads calling the CPU's compiled functions: the tests' way to run it without a GPU.
@@ -30,8 +30,8 @@ from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, 
                                       E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, N_COUNTS, N_ENERGY,
                                       N_ENERGY_SQ, P_TABULATE)
 from goniometer.kernel.onepath import FIXED_SCALE, X_NONE, X_REFLECTED, X_TRANSMITTED, fixed_point, path_state, trace_path
-from goniometer.halfdiff import cell_of as halfdiff_cell
-from goniometer.slices import cell_index_fast
+from goniometer.grids.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.slice_grid import cell_index_fast
 
 #: threads per block
 BLOCK = 128
@@ -183,8 +183,8 @@ def _trace_kernel(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, r
 
 def trace_batch(run, first_chunk: int, outs: tuple, exits: tuple) -> None:
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` of ``run`` (a
-    :class:`goniometer.tracer.Launch`) on the GPU into the CPU arrays ``outs`` / ``exits``, as
-    :func:`goniometer.tracer.launch` documents (each slot's sums are the integers' values)."""
+    :class:`goniometer.kernel.tracer.Launch`) on the GPU into the CPU arrays ``outs`` / ``exits``, as
+    :func:`goniometer.kernel.tracer.launch` documents (each slot's sums are the integers' values)."""
     brdf, btdf, energy, energy_sq, counts = outs
     exit_cell, exit_w = exits
     B = brdf.shape[0]

@@ -1,7 +1,7 @@
 """Exits to histogram cells (``docs/kernel.md``, deposits).
 
 The kernel collects the exits of a chunk in a small buffer, in the order the paths leave, and
-flushes it here: a vectorised loop finds the cells (:func:`goniometer.slices.cell_index_lanes`),
+flushes it here: a vectorised loop finds the cells (:func:`goniometer.grids.slice_grid.cell_index_lanes`),
 a pass prefetches their cache lines, a last one adds the weights in buffer order. The order of additions
 to a cell is thus the order of exits within the chunk, which does not depend on threads.
 
@@ -16,8 +16,8 @@ import numba
 import numpy as np
 
 from goniometer.kernel.codegen import STACK_BLOCK, prefer_wide_vectors, prefetch, stack_block
-from goniometer.rgl.warp import invert_point
-from goniometer.slices import RGL, cell_index_fast, cell_index_lanes
+from goniometer.grids.warp import invert_point
+from goniometer.grids.slice_grid import RGL, cell_index_fast, cell_index_lanes
 
 #: exits a buffer holds: rows d_x, d_y, d_z, w_0, w_1, w_2, order row, 1.0 if transmitted (one
 #: column per exit)
@@ -44,7 +44,7 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
     ht = btdf.reshape(-1)
     if param == RGL:
         # the RGL grid: the node of each reflected exit through the incident direction's warp (the
-        # tables' slots hold it, goniometer.rgl.warp.pack_kernel_tables); transmitted exits are
+        # tables' slots hold it, goniometer.grids.warp.pack_kernel_tables); transmitted exits are
         # booked in the energies only
         for e in range(n_exit):
             transmission = xbuf[7, e] != 0.0

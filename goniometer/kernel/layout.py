@@ -35,7 +35,7 @@ N_COUNTS = 2
 
 #: ``param`` of :func:`trace_chunk` for a tabulation (``docs/tabulated-format.md``): every path
 #: draws its own incident direction (cosine-weighted), and a reflected exit is recorded per path as
-#: its MERL cell (:func:`goniometer.halfdiff.cell_of`) and weight instead of in a slice histogram
+#: its MERL cell (:func:`goniometer.grids.halfdiff.cell_of`) and weight instead of in a slice histogram
 P_TABULATE = 2
 
 
@@ -66,7 +66,7 @@ F_WVX, F_WVY, F_WVZ = 33, 34, 35
 F_WC = 36
 F_WIN = 37
 #: 1 when the path's last walk on a multiple-scattering top interface made more than one bounce
-#: (its order-1 exit is then not the closed form of goniometer.first_order)
+#: (its order-1 exit is then not the closed form of goniometer.run.first_order)
 F_MULTI = 38
 # ---- per-lane sums over the lane's ended paths (summed over lanes at the end of the chunk)
 A_RE = 39       # reflected weight (3 channels), then its squares at A_RE + 3

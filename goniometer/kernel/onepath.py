@@ -6,7 +6,7 @@ the same events, written the same way, calling the same :mod:`goniometer.optics`
 :func:`goniometer.kernel.steps.free_flight` and :func:`goniometer.kernel.steps.microsurface_walk`)
 with two differences: it returns the path's exit and its totals instead of depositing and booking
 them, and it draws from a xoshiro256** stream seeded from the path's own key
-(:func:`goniometer.rng.path_key` of :func:`goniometer.rng.chunk_key` ``(seed, incident, chunk)``),
+(:func:`goniometer.kernel.rng.path_key` of :func:`goniometer.kernel.rng.chunk_key` ``(seed, incident, chunk)``),
 so a path draws the same numbers whichever thread, block or device traces it.
 
 It is a plain ``numba.njit`` function: numba-cuda compiles the CPU dispatchers a CUDA kernel calls
@@ -24,13 +24,13 @@ import numba
 import numpy as np
 
 from goniometer import optics
-from goniometer.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
                                       E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER)
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
-from goniometer.rng import chunk_key, next_disk, next_float, path_key, seed_state
-from goniometer.slices import cell_index_fast
+from goniometer.kernel.rng import chunk_key, next_disk, next_float, path_key, seed_state
+from goniometer.grids.slice_grid import cell_index_fast
 from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 #: how a path ended (:func:`trace_path`'s first value)
@@ -309,7 +309,7 @@ def trace_path(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, regi
 @numba.njit(cache=True, error_model='numpy', inline='always')
 def path_state(state, seed, stream, chunk, path) -> None:
     """Seed ``state`` (uint64[4]) from the key of path ``path`` of chunk ``chunk`` of incident
-    ``stream`` of a run seeded ``seed`` (:mod:`goniometer.rng`)."""
+    ``stream`` of a run seeded ``seed`` (:mod:`goniometer.kernel.rng`)."""
     seed_state(state, path_key(chunk_key(np.uint64(seed), np.uint64(stream), np.uint64(chunk)), np.uint64(path)))
 
 
@@ -320,7 +320,7 @@ def trace_keyed_chunk(if_alpha, if_rot, if_ms, if_film, region_tau, region_albed
                       energy, energy_sq, counts, exit_cell, exit_w):
     """The CUDA kernel's chunk on the CPU: the same paths (:func:`trace_path`, the same keys), their
     exits and totals summed in float64 in path order into the layouts of
-    :func:`goniometer.tracer.trace_chunk` (which the caller zeroes). For tests: the CUDA kernel's
+    :func:`goniometer.kernel.tracer.trace_chunk` (which the caller zeroes). For tests: the CUDA kernel's
     transport checked against the lane kernel with as many paths as the CPU affords."""
     state = np.zeros(4, dtype=np.uint64)
     tabulate = param == P_TABULATE

@@ -1,8 +1,8 @@
 """The per-path kernel (``docs/kernel.md``, two kernels): each path of a chunk is traced from start
 to end before the next, all from the chunk's one random stream: the transport written the plain
-way, the reference the lane kernel (:func:`goniometer.tracer.trace_chunk`, which traces every
+way, the reference the lane kernel (:func:`goniometer.kernel.tracer.trace_chunk`, which traces every
 stack) is checked against, forced with ``KERNEL_PATHS``. Physics, bookkeeping and outputs as the
-lane kernel's (the transport rules: :mod:`goniometer.tracer`).
+lane kernel's (the transport rules: :mod:`goniometer.kernel.tracer`).
 
 A histogram exit is deposited when the next exit happens (or at the end of the chunk), its cell
 being prefetched meanwhile: each cell still receives its additions in path order.
@@ -20,13 +20,13 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from goniometer import optics
-from goniometer.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
                                       E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE, TAU_SCATTER)
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
-from goniometer.rng import next_disk, next_float
-from goniometer.slices import cell_index_fast
+from goniometer.kernel.rng import next_disk, next_float
+from goniometer.grids.slice_grid import cell_index_fast
 from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 @intrinsic
@@ -105,9 +105,9 @@ def trace_paths(stack, lx, ly, lz, n_rays, state, param, n_theta, n_phi, tables,
                 event_cap, skip_first, outs):
     """Trace ``n_rays`` paths one after the other for light direction ``l``, drawing from the
     chunk's xoshiro256** stream ``state``, and accumulate into the given arrays (arguments as
-    :func:`goniometer.tracer.trace_chunk`'s: ``stack``, ``tables`` and ``outs`` tuples).
+    :func:`goniometer.kernel.tracer.trace_chunk`'s: ``stack``, ``tables`` and ``outs`` tuples).
 
-    ``param`` is the slice parametrization (:data:`goniometer.slices.CLASSIC`, ``HALF``) or
+    ``param`` is the slice parametrization (:data:`goniometer.grids.slice_grid.CLASSIC`, ``HALF``) or
     :data:`P_TABULATE`: then path ``r`` first draws its own light direction ``l`` with density
     ``cos theta_l / pi`` (a disk point of the stream, :func:`goniometer.optics.cosine_from_disk`), and
     its reflected exit, if any, is written to ``exit_cell[r]`` (MERL cell, -1 if none) and
@@ -122,7 +122,7 @@ def trace_paths(stack, lx, ly, lz, n_rays, state, param, n_theta, n_phi, tables,
     (N_COUNTS,) int64. ``state`` is the chunk's RNG state (advanced). ``skip_first``: reflected
     exits of bounce order 1 whose top event was one microfacet reflection (on a multiple-scattering
     top, a walk of one bounce) are booked in ``energy`` but not deposited (``first_order =
-    "integrated"``, :mod:`goniometer.first_order`).
+    "integrated"``, :mod:`goniometer.run.first_order`).
 
     A histogram exit is deposited when the next exit happens (or at the end of the chunk), its
     cell being prefetched meanwhile: each cell still receives its additions in path order, so the
@@ -189,7 +189,7 @@ def trace_paths(stack, lx, ly, lz, n_rays, state, param, n_theta, n_phi, tables,
         events = 0
         based = False  # the path has had an event at the base
         # the top interface's last walk had one microfacet bounce (always True without walks):
-        # an order-1 exit then has the closed form of goniometer.first_order
+        # an order-1 exit then has the closed form of goniometer.run.first_order
         single = True
         # path-level spectral MIS in chromatic scattering media: hero channel, technique shares
         hero = -1

@@ -3,7 +3,7 @@ flights in scattering media and random walks on multiple-scattering interfaces, 
 kernel (:mod:`goniometer.kernel.paths`) takes them, and the lane kernel's per-lane step: the
 continuation of a walk whose first bounce the vectorised event (:mod:`goniometer.kernel.event`)
 made. A lane's random numbers there come from the path's own xoshiro256** stream, seeded from its
-key the first time (:func:`goniometer.rng.seed_state`).
+key the first time (:func:`goniometer.kernel.rng.seed_state`).
 
 Directions as in :mod:`goniometer.kernel.event` (world frame, direction of travel).
 """
@@ -21,7 +21,7 @@ from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_DZ, F_EV, F_HPOS, F_KEY, F_MULTI, F_REG,
                                       F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, LANES,
                                       ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED, ST_TRANSMITTED)
-from goniometer.rng import next_disk, next_float, seed_state
+from goniometer.kernel.rng import next_disk, next_float, seed_state
 from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 LN = LANES

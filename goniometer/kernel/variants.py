@@ -4,7 +4,7 @@
 :func:`stack_facts` reads a :class:`goniometer.stack.PackedStack` once: anisotropy, conductor
 channels that share their complex index, multiple-scattering and scattering regions, films, the
 regions' modes (:func:`goniometer.kernel.layout.tau_modes`) and the relative indices. The lane
-kernel's variant arguments (:func:`variant_flags`, what :func:`goniometer.tracer.kernel_flags`
+kernel's variant arguments (:func:`variant_flags`, what :func:`goniometer.kernel.tracer.kernel_flags`
 returns) and the CUDA kernel's table both come from these facts, so the two never disagree about a
 stack.
 """
@@ -74,7 +74,7 @@ def stack_facts(packed: PackedStack) -> StackFacts:
 
 
 def variant_flags(facts: StackFacts, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
-    """The variant arguments of :func:`goniometer.tracer.trace_batch`, each None or True:
+    """The variant arguments of :func:`goniometer.kernel.tracer.trace_batch`, each None or True:
     ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms,
     film)``. ``kernel``: ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or ``KERNEL_PATHS``.
     numba dispatches on None versus bool, so each variant is compiled (and cached) only when some

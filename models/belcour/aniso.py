@@ -7,7 +7,7 @@ Conventions: as :mod:`models.base` (``l`` towards the light, ``l_z > 0``; ``v`` 
 values without cosine in 1/sr, RGB last; ``top`` = lobe 0, ``internal`` = the other lobes).
 Covariances live in the **macro tangent plane** (x towards phi = 0, y towards phi = 90 deg) and are
 stored as their three distinct entries ``(xx, xy, yy)``; an interface's tangent frame is rotated by
-``psi = rotation_deg`` about z (as the simulator, :mod:`goniometer.tracer`).
+``psi = rotation_deg`` about z (as the simulator, :mod:`goniometer.kernel.tracer`).
 
 Equations, the choices where Y19 is vague (lobe GGX from a covariance, FGD lookup roughness of an
 anisotropic interface, channels, the ``incident="view"`` table) and the reduction to

@@ -104,7 +104,7 @@ def cmd_models(args: argparse.Namespace) -> int:
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    from goniometer import store
+    from goniometer.files import slices as store
     from models.base import ModelError
     from models.fitted import fit
     from models.compare.errors import coverage
@@ -145,7 +145,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from goniometer import store
+    from goniometer.files import slices as store
     from models.base import ModelError
     from models.commands.failures import report_failures
     from models.evaluation import evaluate, save_slices

@@ -41,9 +41,9 @@ def _check_plot_path(path: str, config: str, overwrite: bool) -> None:
 
 
 def cmd_furnace(args: argparse.Namespace) -> int:
-    from goniometer.settings import SettingsError
+    from goniometer.run.settings import SettingsError
     from goniometer.stack import StackError, load_toml
-    from goniometer.tasks import warm_up
+    from goniometer.run.tasks import warm_up
     from models.base import ModelError
     from models.commands.failures import report_failures
     from models.furnace import furnace_settings, model_albedos, run_furnace
@@ -115,7 +115,7 @@ def _paths_per_incident(stack, settings) -> int:
         from goniometer.stack import check_films
         check_films(stack)
         return settings.rays
-    from goniometer.spectral.launches import launch_stacks
+    from goniometer.run.launches import launch_stacks
     return settings.rays * len(launch_stacks(stack, settings))
 
 
@@ -138,7 +138,7 @@ def _rgb(a) -> str:
 def _print_table(r) -> None:
     """The text table (``docs/furnace.md`` section 4): RGB columns, or for a spectral run the
     bins' linear sRGB with each albedo's smallest and largest bin."""
-    from goniometer.results import ENERGY_TERMS
+    from goniometer.run.results import ENERGY_TERMS
     sp = r.spectral
     print(f"{r.material} ({r.category}, {r.base} base): directional albedo E = reflected + transmitted, "
           f"{r.rays:,} rays per angle{' and wavelength bin' if sp is not None else ''}, seed {r.seed}")

@@ -34,7 +34,7 @@ def _check_out(path: str | None, suffix: str, option: str, create_parent: bool =
         raise _usage(f"{option}: {path!r} should end in {suffix}")
     if p.exists() and p.is_dir():
         raise _usage(f"{option}: {path!r} is a directory")
-    from goniometer.outputs import OutputError, check_output
+    from goniometer.files.outputs import OutputError, check_output
     try:
         check_output(p, inputs=inputs, overwrite=overwrite, option=option)
     except OutputError as e:
@@ -156,7 +156,7 @@ def _invert_measured(args: argparse.Namespace) -> int:
     optionally simulate the stack against the measurement (docs/inverse.md, "From a measurement")."""
     from goniometer import atomic
     from goniometer.cli.common import usage_errors
-    from goniometer.measured import MeasuredError, read_measured
+    from goniometer.files.measured import MeasuredError, read_measured
     from models import inverse
     from models.inverse import InverseError, forward_check
     from models.inverse import measured as M
@@ -252,7 +252,7 @@ def cmd_validate_inverse(args: argparse.Namespace) -> int:
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise _usage(f"--report: {args.report!r} exists and is not a directory")
     if args.report:
-        from goniometer.outputs import OutputError, check_output
+        from goniometer.files.outputs import OutputError, check_output
         try:
             check_output(args.report, inputs=[args.cases], overwrite=args.overwrite, option="--report",
                          directory=True, marker="index.html")

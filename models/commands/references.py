@@ -29,8 +29,8 @@ def add_reference_options(p: argparse.ArgumentParser) -> None:
 
 def is_measured(path: str | Path) -> bool:
     """True for a MERL ``.binary`` or an RGL tensor file (by content, whatever its values: reading
-    it checks them, :func:`goniometer.measured.read_measured`)."""
-    from goniometer.measured import measured_kind
+    it checks them, :func:`goniometer.files.measured.read_measured`)."""
+    from goniometer.files.measured import measured_kind
     return measured_kind(path) is not None
 
 
@@ -38,9 +38,9 @@ def load_reference(args: argparse.Namespace, subcells: int = 5):
     """The reference of ``args.file``: the simulation it holds, or for a measured file the
     measurement on the slices that ``--incident`` / ``--parametrization`` / ``--resolution`` ask
     for, with ``--stack``'s material. UsageError (one line) for what cannot be."""
-    from goniometer import store
-    from goniometer.measured import MeasuredError, measured_reference, read_measured
-    from goniometer.settings import SettingsError, SimulationSettings
+    from goniometer.files import slices as store
+    from goniometer.files.measured import MeasuredError, measured_reference, read_measured
+    from goniometer.run.settings import SettingsError, SimulationSettings
     from goniometer.stack import StackError, load_toml
     given = [o for o, v in (("--stack", args.stack), ("--incident", args.measured_incident),
                             ("--parametrization", args.measured_parametrization),

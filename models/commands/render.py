@@ -33,7 +33,7 @@ def _number(text: str, flag: str, kind: type, allowed: str):
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from goniometer import store
+    from goniometer.files import slices as store
     from models.base import ModelError
     from models.commands.failures import report_failures
     from models.render import RenderError, SphereView, model_names, render_file

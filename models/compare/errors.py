@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.results import SimulationResult, SliceData
-from goniometer.slices import light_direction
+from goniometer.run.results import SimulationResult, SliceData
+from goniometer.grids.slice_grid import light_direction
 from models.base import ModelError
 from models.compare.integrate import ModelSlices
 
@@ -58,7 +58,7 @@ class Coverage:
     """The support of a reference's errors: ``cells`` valid cells (mask True, projected solid angle
     > 0) over the ``cells_total`` cells that its grid holds on the judged side, summed over the
     incident directions (every cell of a classic grid; on a half grid those whose directions lie on
-    the side, :meth:`goniometer.slices.SliceGrid.mask`). A simulation covers its whole grid; a
+    the side, :meth:`goniometer.grids.slice_grid.SliceGrid.mask`). A simulation covers its whole grid; a
     measurement only the cells where it has data."""
 
     cells: int
@@ -155,7 +155,7 @@ def error_object(ref: np.ndarray, ref_stderr: np.ndarray, model: np.ndarray, ome
     The luminance noise floor uses ``sum_c w_c stderr_c`` per cell, an upper bound on the
     standard error of the luminance (the channels of a simulation share their paths, so their
     errors are correlated; the bound is exact when they are fully correlated). A reference without
-    standard errors (a measurement, ``goniometer.measured``: NaN) has the noise floors None.
+    standard errors (a measurement, ``goniometer.files.measured``: NaN) has the noise floors None.
 
     ``model_stderr`` (a stochastic model's standard errors of ``model``) adds ``model_noise``,
     ``model_noise_mean`` and ``model_noise_luminance``: :func:`noise_floor` of the model's errors,

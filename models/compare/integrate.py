@@ -2,7 +2,7 @@
 
 Every cell is split into ``s x s`` sub-cells uniform in the slice's own coordinates; the model is
 evaluated at the sub-cell centres and weighted by each sub-cell's projected solid angle
-(:meth:`goniometer.slices.SliceGrid.subcells`), so a model cell value is
+(:meth:`goniometer.grids.slice_grid.SliceGrid.subcells`), so a model cell value is
 ``sum_k f(l, v_k) w_k / sum_k w_k`` -- the same average the simulator estimates. Geometry (grid,
 incident directions) comes from the reference; masks and projected solid angles for the errors
 are the reference file's.
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.results import SimulationResult, SliceData
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.run.results import SimulationResult, SliceData
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Stack
 from models.base import Model, ModelError, ModelFailure
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.results import SimulationResult, SliceData
-from goniometer.slices import light_direction
+from goniometer.run.results import SimulationResult, SliceData
+from goniometer.grids.slice_grid import light_direction
 from models.base import ModelError, require_slices
 from models.fitted.samples import Samples
 

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
-from goniometer.results import SimulationResult, SliceData
+from goniometer.run.results import SimulationResult, SliceData
 from models._jit import njit
 from models.base import ModelError
 from models.compare import compare, integrate

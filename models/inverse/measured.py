@@ -1,9 +1,9 @@
 """The inverse method from a measurement: a measured BRDF (MERL ``.binary`` or RGL ``.bsdf``,
-:mod:`goniometer.measured`) -> lobes at normal incidence -> a layered material, and the check of
+:mod:`goniometer.files.measured`) -> lobes at normal incidence -> a layered material, and the check of
 that material by simulation against the measurement (``docs/inverse.md``, "From a measurement").
 
 1. :func:`normal_reference`: the measurement at normal incidence resampled onto half-vector
-   slices (90 x 8 by default, the validation's grid), as :func:`goniometer.measured.measured_reference`
+   slices (90 x 8 by default, the validation's grid), as :func:`goniometer.files.measured.measured_reference`
    makes it: cell means of the file's own evaluation, NaN standard errors, no bounce orders.
 2. :func:`measured_rings`: ring energies of that slice, the lobe estimator's rings
    (:func:`models.inverse.estimate.ring_data`: fractions of the incident flux per ring of half-vector
@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from goniometer.measured import MeasuredBRDF, measured_reference, read_measured
+from goniometer.files.measured import MeasuredBRDF, measured_reference, read_measured
 from models.belcour import roughness_to_variance
 from models.inverse.estimate import (SEPARABLE_RATIO, LobeFit, estimate_lobes, fit_ring_lobes, lobe_ring_fractions,
                                      sigma_stderr)
@@ -71,9 +71,9 @@ R_MAX = 1.0 - 1e-6
 def normal_reference(measured: MeasuredBRDF, resolution: tuple[int, int] = MEASURED_RESOLUTION, subcells: int = 5,
                      stack=None):
     """The measurement at normal incidence on half slices of ``resolution`` (a
-    :class:`goniometer.results.SimulationResult`, :func:`goniometer.measured.measured_reference`;
+    :class:`goniometer.run.results.SimulationResult`, :func:`goniometer.files.measured.measured_reference`;
     ``stack`` is recorded as its material, None when unknown)."""
-    from goniometer.settings import SimulationSettings
+    from goniometer.run.settings import SimulationSettings
     settings = SimulationSettings(incident_deg=(0.0,), rays=1, parametrization="half", resolution=tuple(resolution))
     return measured_reference(measured, stack, settings, subcells=subcells)
 
@@ -107,7 +107,7 @@ def measured_rings(reference) -> MeasuredRings:
         raise InverseError("measured rings: the reference must be on half-vector slices")
     rings = ring_data(reference)
     n = rings.energy.shape[1]
-    from goniometer.slices import light_direction
+    from goniometer.grids.slice_grid import light_direction
     st = reference.settings
     geometric = sd.grid.mask(light_direction(float(st.incident_deg[0]), float(st.incident_phi_deg[0])),
                              int(reference.extra.get("measured", {}).get("subcells", 5)))
@@ -261,7 +261,7 @@ def invert_measured(measured: MeasuredBRDF | str | os.PathLike, n_lobes: int = D
                     subcells: int = 5) -> MeasuredInversion:
     """Fit ``n_lobes`` lobes to a measurement at normal incidence and invert them (Bati 2021,
     :func:`models.inverse.solver.solve`; never raises for an unachievable request: see
-    ``inversion.achievable``). Raises :class:`goniometer.measured.MeasuredError` for a file that is
+    ``inversion.achievable``). Raises :class:`goniometer.files.measured.MeasuredError` for a file that is
     not a measurement and :class:`InverseError` for lobes the measurement does not hold."""
     m = measured if isinstance(measured, MeasuredBRDF) else read_measured(measured)
     ref = normal_reference(m, resolution, subcells)

@@ -184,8 +184,8 @@ def simulate_case(stack: Stack, lobes: Sequence[Lobe], rays: int = DEFAULT_RAYS,
                   resolution: tuple[int, int] = DEFAULT_RESOLUTION, seed: int = 1,
                   threads: int | None = None) -> tuple[Any, RingData]:
     """Simulate ``stack`` at normal incidence (half slices) and reduce to rings."""
-    from goniometer.settings import SimulationSettings
-    from goniometer.run import simulate
+    from goniometer.run.settings import SimulationSettings
+    from goniometer.run.loop import simulate
     settings = SimulationSettings(incident_deg=(0.0,), rays=int(rays), parametrization="half",
                                   resolution=tuple(resolution), seed=int(seed), threads=threads)
     result = simulate(stack, settings)

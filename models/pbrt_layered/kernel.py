@@ -45,7 +45,7 @@ from goniometer.bits import double_as_uint64
 from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric, ggx_lambda,
                                hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
                                sample_vndf, vndf_pdf)
-from goniometer.rng import next_float, seed_state, splitmix64
+from goniometer.kernel.rng import next_float, seed_state, splitmix64
 from models._jit import njit
 
 #: the base below the coat

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.results import SimulationResult
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.run.results import SimulationResult
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.base import Model, ModelError, ModelValue, coated_base
 from models.compare.integrate import SIDE_OF_GRID, ModelSlices

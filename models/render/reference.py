@@ -9,7 +9,7 @@
   weights of the others renormalised; a pair whose samples are all masked, or whose light lies
   outside the recorded elevations ``[theta_min, theta_max]``, has no value (NaN). Slices at the
   same elevation (other azimuths) are averaged: the material is isotropic.
-* A **tabulated file** (``gonio tabulate``): ``goniometer.tabulated.read_tabulated(path).eval(l, v)``
+* A **tabulated file** (``gonio tabulate``): ``goniometer.files.tabulated.read_tabulated(path).eval(l, v)``
   (:func:`tabulated_reference`, the one place that knows that format).
 
 Only isotropic stacks are rendered. Slabs (stacks that transmit) are rendered from their BTDF.
@@ -23,8 +23,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from goniometer import store
-from goniometer.results import SimulationResult
+from goniometer.files import slices as store
+from goniometer.run.results import SimulationResult
 from goniometer.stack import Interface, Stack
 from models.evaluation import comparison_side
 from models.render.incidents import align, bracket, half_vector
@@ -171,12 +171,12 @@ def file_format(path: str | Path) -> str:
 def tabulated_reference(path: str | Path) -> Reference:
     """The reference of a tabulated file (``gonio tabulate``): the one place that knows that format.
 
-    Uses ``goniometer.tabulated.read_tabulated(path)``: its ``eval(l, v)`` lookup and its stack."""
+    Uses ``goniometer.files.tabulated.read_tabulated(path)``: its ``eval(l, v)`` lookup and its stack."""
     try:
-        from goniometer.tabulated import TabulatedError, read_tabulated
+        from goniometer.files.tabulated import TabulatedError, read_tabulated
     except ImportError:
         raise RenderError(f"{path}: a tabulated BRDF file ({TABULATED_FORMAT}), but this installation has no "
-                          f"reader for it (goniometer.tabulated); render a slices file instead") from None
+                          f"reader for it (goniometer.files.tabulated); render a slices file instead") from None
     try:
         table = read_tabulated(path).rgb()   # a spectral table in linear sRGB (docs/spectral.md section 4)
     except TabulatedError as e:

@@ -17,9 +17,9 @@ from typing import Iterable, Sequence
 import h5py
 import numpy as np
 
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.cache import package_key
-from goniometer.results import SimulationResult
+from goniometer.run.results import SimulationResult
 from models import registry
 from models._jit import models_key
 from models.base import ModelError

@@ -17,8 +17,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from goniometer.results import SimulationResult, SliceData
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.run.results import SimulationResult, SliceData
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from models.compare.errors import luminance
 from models.evaluation import comparison_side, evaluate
 from models.report.evaluation import cache_paths, judged_side, load_slices, read_reference

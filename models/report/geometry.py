@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.slices import SliceGrid, cell_index
+from goniometer.grids.slice_grid import SliceGrid, cell_index
 from models._jit import njit
 
 #: top views are exposed so that this fraction of the projected solid angle saturates

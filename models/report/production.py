@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from goniometer import atomic, store
+from goniometer import atomic
+from goniometer.files import slices as store
 from models.production.study.fitting_formulas import SPLIT_SEED
 from models.production.study.measure import BELCOUR, measure_results, result_files
 from models.production.openpbr_coat import openpbr_parameters

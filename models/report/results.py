@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.database import (MANIFEST, RESULTS_FORMAT, Database, DatabaseError, load_database,
                                  material_path)
 from goniometer.stack import Interface, Lambertian, Medium, Stack

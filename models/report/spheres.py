@@ -19,8 +19,8 @@ from typing import Sequence
 import h5py
 import numpy as np
 
-from goniometer import store
-from goniometer.results import SimulationResult
+from goniometer.files import slices as store
+from goniometer.run.results import SimulationResult
 from models import registry
 from models.base import ModelError
 from models.evaluation import group_name

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer.settings import SimulationSettings
-from goniometer.slices import CLASSIC, light_direction
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import CLASSIC, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from goniometer.tasks import n_tasks, trace_tasks
+from goniometer.run.tasks import n_tasks, trace_tasks
 from tests.conftest import Z_TOL, chi2_limit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))

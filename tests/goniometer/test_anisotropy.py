@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
-from goniometer.slices import light_direction
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Stack, StackError, load_toml
 from tests.conftest import assert_cells_match, chi2_limit
 

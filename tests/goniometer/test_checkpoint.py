@@ -1,4 +1,4 @@
-"""goniometer.checkpoint: resumable runs give the file an uninterrupted run gives, never mix in
+"""goniometer.run.checkpoints: resumable runs give the file an uninterrupted run gives, never mix in
 checkpoints of another run or code version, and never discard them unasked (``docs/outputs.md``
 rule 3): a rerun with another setting is refused, naming what differs, and keeps their bytes."""
 
@@ -11,13 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer import atomic, checkpoint, store
-from goniometer.checkpoint import CheckpointMismatch, Checkpoints, CheckpointWarning, checkpoint_dir, differences
-from goniometer.results import IncidentPart, run_description
+from goniometer import atomic
+from goniometer.run import checkpoints as checkpoint
+from goniometer.files import slices as store
+from goniometer.run.checkpoints import CheckpointMismatch, Checkpoints, CheckpointWarning, checkpoint_dir, differences
+from goniometer.run.results import IncidentPart, run_description
 from goniometer.cli import main
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate, simulate_resumable
-from goniometer.tasks import trace_incident
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate, simulate_resumable
+from goniometer.run.tasks import trace_incident
 from goniometer.stack import Interface, Medium, Stack, load_toml
 from tests.conftest import refused
 from tests.goniometer.resume_helpers import assert_same_datasets, bytes_of, stop_after
@@ -202,7 +204,7 @@ def test_gonio_simulate_refuses_another_setting_and_keeps_the_checkpoints(tmp_pa
     exit 2, naming each differing key with both values; the checkpoints keep their bytes; the
     original command resumes them to the bits of an uninterrupted run; --restart discards them."""
     import goniometer.cli.simulate
-    import goniometer.run
+    import goniometer.run.loop
     cfg = EXAMPLES / "metal.toml"
     args = ["--rays", "20000", "--incident", "0,60", "--resolution", "18x36", "--seed", "3", "--threads", "1"]
     ref = tmp_path / "ref.h5"
@@ -228,8 +230,8 @@ def test_gonio_simulate_refuses_another_setting_and_keeps_the_checkpoints(tmp_pa
     assert bytes_of(checkpoint_dir(out)) == kept
     # the original command resumes: only the second direction is traced, the file is the uninterrupted run's
     traced: list[int] = []
-    trace = goniometer.run.trace_incident
-    monkeypatch.setattr(goniometer.run, "trace_incident",
+    trace = goniometer.run.loop.trace_incident
+    monkeypatch.setattr(goniometer.run.loop, "trace_incident",
                         lambda stack, s, k, *a: traced.append(k) or trace(stack, s, k, *a))
     assert main(["simulate", str(cfg), "--out", str(out), *args]) == 0
     assert traced == [1] and not checkpoint_dir(out).exists()

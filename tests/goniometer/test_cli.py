@@ -375,7 +375,7 @@ def test_plot_bad_input(simulated, tmp_path, capsys):
 def test_plot_draws_a_spectral_file_in_linear_srgb(tmp_path, capsys, monkeypatch):
     """A spectral file's bins are drawn as their linear sRGB (result.rgb(), docs/spectral.md §4), and
     every figure title says so: 6 bins used to crash (broadcast error), 3 bins were read as R, G, B."""
-    from goniometer import store
+    from goniometer.files import slices as store
     from models.report import figures
     f = tmp_path / "sp.h5"
     assert main(["simulate", str(EXAMPLES / "plastic.toml"), "--out", str(f), "--rays", "2000", "--incident", "60",

@@ -81,7 +81,7 @@ def test_every_option_states_its_default():
 
 def test_simulate_help_defaults_are_the_settings_defaults():
     from goniometer.cli.simulate import SETTINGS_DEFAULTS
-    from goniometer.settings import SimulationSettings
+    from goniometer.run.settings import SimulationSettings
     d = SimulationSettings()
     assert SETTINGS_DEFAULTS == {
         "rays": f"{d.rays:,}", "incident_deg": ",".join(f"{x:g}" for x in d.incident_deg),
@@ -247,12 +247,12 @@ def _interrupting(real, reached: list):
 
 
 def test_ctrl_c_in_the_final_assembly_is_130_and_resumable(tmp_path, capsys, monkeypatch, sigint_default):
-    import goniometer.run
+    import goniometer.run.loop
     cfg = tmp_path / "p.toml"
     cfg.write_text(PLASTIC)
     out = tmp_path / "p.h5"
     reached: list = []
-    monkeypatch.setattr(goniometer.run, "assemble", _interrupting(goniometer.run.assemble, reached))
+    monkeypatch.setattr(goniometer.run.loop, "assemble", _interrupting(goniometer.run.loop.assemble, reached))
     capsys.readouterr()
     assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1"]) == 130
     err = capsys.readouterr().err
@@ -268,12 +268,13 @@ def test_ctrl_c_while_the_assembly_kernels_run_waits_for_them(tmp_path, capsys, 
     """The numba kernels of the assembly (cell geometry) run before tracing, inside the deferred
     block: an interrupt there lets them finish (a KeyboardInterrupt inside numba's compiler can
     break it), then stops with 130."""
-    import goniometer.results
+    import goniometer.run.results
     cfg = tmp_path / "p.toml"
     cfg.write_text(PLASTIC.replace("resolution = [9, 18]", "resolution = [7, 18]\nparametrization = \"half\""))
     out = tmp_path / "p.h5"
     reached: list = []
-    monkeypatch.setattr(goniometer.results, "cell_geometries", _interrupting(goniometer.results.cell_geometries, reached))
+    monkeypatch.setattr(goniometer.run.results, "cell_geometries",
+                        _interrupting(goniometer.run.results.cell_geometries, reached))
     capsys.readouterr()
     assert main(["simulate", str(cfg), "--out", str(out), "--threads", "1"]) == 130
     err = capsys.readouterr().err

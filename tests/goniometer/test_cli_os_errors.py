@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from goniometer import atomic
-from goniometer.checkpoint import checkpoint_dir
+from goniometer.run.checkpoints import checkpoint_dir
 from goniometer.cli import EXIT_ENVIRONMENT, main
 from tests.conftest import PLASTIC_TOML
 from tests.goniometer.resume_helpers import assert_same_datasets
@@ -112,11 +112,11 @@ def test_simulate_full_disk_on_the_final_file(tmp_path, config, capsys, monkeypa
 
 
 def test_an_oserror_that_is_a_bug_keeps_its_traceback(tmp_path, config, monkeypatch):
-    import goniometer.store
+    import goniometer.files.slices
     for error in (FileNotFoundError(errno.ENOENT, "No such file or directory", "somewhere"), OSError("a bug")):
         def broken(*args, **kwargs):
             raise error
-        monkeypatch.setattr(goniometer.store, "write", broken)
+        monkeypatch.setattr(goniometer.files.slices, "write", broken)
         with pytest.raises(type(error)) as e:
             main(["simulate", str(config), "--out", str(tmp_path / "p.h5"), "--threads", "1"])
         assert e.value is error

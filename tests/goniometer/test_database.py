@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.database import (DatabaseError, check_results_dir, load_database, material_path, material_status,
                                  simulate_database)
 
@@ -150,19 +150,19 @@ def test_run_writes_one_file_per_material_and_skips_them_on_rerun(tiny_run):
 def test_resume_gives_the_same_bits(tiny_run, tmp_path, monkeypatch):
     """An interrupted material resumes from its checkpointed incident directions: they are loaded,
     not traced again, and the result is bit-identical to an uninterrupted run."""
-    import goniometer.run
+    import goniometer.run.loop
     db, out, _ = tiny_run
     m = db.materials[0]
     work = tmp_path / "work"
     _interrupt_in_the_second_direction(db, m, work)
     traced: list[int] = []
-    trace = goniometer.run.trace_incident
+    trace = goniometer.run.loop.trace_incident
 
     def counted(stack, settings, k, *args, **kwargs):
         traced.append(k)
         return trace(stack, settings, k, *args, **kwargs)
 
-    monkeypatch.setattr(goniometer.run, "trace_incident", counted)
+    monkeypatch.setattr(goniometer.run.loop, "trace_incident", counted)
     s = simulate_database(db, work, "quick", only=m.name)
     assert s.resumed == [m.name] and s.simulated == [m.name]
     assert traced == [1]   # direction 0 came from its checkpoint (a discarded checkpoint traces [0, 1])
@@ -332,7 +332,7 @@ def test_spectral_keys_enter_the_fingerprint_and_the_settings(tmp_path):
 
 
 def g_default_bins() -> int:
-    from goniometer.settings import SimulationSettings
+    from goniometer.run.settings import SimulationSettings
     return SimulationSettings().wavelength_bins
 
 
@@ -406,9 +406,9 @@ def _assert_same_result(a, b) -> None:
 
 
 def test_a_spectral_database_gives_the_bits_of_simulate(spectral_run, tmp_path):
-    """Each material's file holds what goniometer.run.simulate gives for its stack and settings
+    """Each material's file holds what goniometer.run.loop.simulate gives for its stack and settings
     (written as any slices file is: the bounce orders as float32, docs/slices-format.md)."""
-    from goniometer.run import simulate
+    from goniometer.run.loop import simulate
     db, out, summary = spectral_run
     assert sorted(summary.simulated) == sorted(m.name for m in db.materials)
     for m in db.materials:
@@ -505,7 +505,7 @@ def test_cli_interrupt_words_and_checkpoints_of_another_run(tiny_run, tmp_path, 
     definition, another code version) is one line, exit 2, naming the key and both values, and the
     checkpoints keep their bytes; the same command resumes them to an uninterrupted run's bits;
     --restart discards them."""
-    import goniometer.checkpoint
+    import goniometer.run.checkpoints
     import goniometer.cli.common
     import goniometer.cli.database
     from goniometer.cli import main
@@ -533,9 +533,9 @@ def test_cli_interrupt_words_and_checkpoints_of_another_run(tiny_run, tmp_path, 
     refused(capsys, ["database", "simulate", changed, "--out", work, "--only", second.name],
             f"{work / '.partial' / second.name}: holds checkpoints of another run (rays: checkpoints 30000, "
             f"this run 35000)", "add --restart to discard them")
-    monkeypatch.setattr(goniometer.checkpoint, "code_key", lambda: "another version")
+    monkeypatch.setattr(goniometer.run.checkpoints, "code_key", lambda: "another version")
     refused(capsys, argv, "written by another version of the simulator code", "add --restart to discard them")
-    monkeypatch.setattr(goniometer.checkpoint, "code_key", goniometer.checkpoint.cache.simulator_key)
+    monkeypatch.setattr(goniometer.run.checkpoints, "code_key", goniometer.run.checkpoints.cache.simulator_key)
     assert bytes_of(work / ".partial") == kept
     # the same command resumes: the uninterrupted run's bits
     assert main(argv) == 0
@@ -544,9 +544,9 @@ def test_cli_interrupt_words_and_checkpoints_of_another_run(tiny_run, tmp_path, 
         assert_same_datasets(material_path(work, m), material_path(out, m))
     # checkpoints of another code version: refused, then discarded by --restart
     other = tmp_path / "other"
-    monkeypatch.setattr(goniometer.checkpoint, "code_key", lambda: "another version")
+    monkeypatch.setattr(goniometer.run.checkpoints, "code_key", lambda: "another version")
     _interrupt_in_the_second_direction(db, first, other)
-    monkeypatch.setattr(goniometer.checkpoint, "code_key", goniometer.checkpoint.cache.simulator_key)
+    monkeypatch.setattr(goniometer.run.checkpoints, "code_key", goniometer.run.checkpoints.cache.simulator_key)
     again = ["database", "simulate", str(TINY), "--out", str(other), "--only", first.name]
     refused(capsys, again, "another version of the simulator code")
     assert main([*again, "--restart"]) == 0

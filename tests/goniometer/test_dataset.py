@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import goniometer
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.database import load_database, simulate_database
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Interface, Medium, Stack
 
 xr = pytest.importorskip("xarray")

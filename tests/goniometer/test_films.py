@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack, StackError
 from tests.conftest import Z_TOL
 

@@ -15,13 +15,13 @@ import pytest
 from scipy import integrate
 
 from goniometer import optics
-from goniometer.first_order import first_order_fractions
-from goniometer.results import cell_geometry, run_description
-from goniometer.run import simulate
-from goniometer.settings import SettingsError, SimulationSettings
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.run.first_order import first_order_fractions
+from goniometer.run.results import cell_geometry, run_description
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SettingsError, SimulationSettings
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from goniometer.tasks import trace_incident
+from goniometer.run.tasks import trace_incident
 from tests.conftest import Z_TOL, assert_cells_match, cell_chi2, chi2_limit
 
 COAT = (Medium((0.1, 0.2, 0.4)), Lambertian((0.3, 0.5, 0.7)))

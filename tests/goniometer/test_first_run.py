@@ -16,10 +16,10 @@ import numba
 import pytest
 
 from goniometer.cli.common import LineProgress, ResumeAware, compile_kernels
-from goniometer.run import run_incidents
-from goniometer.settings import SimulationSettings
+from goniometer.run.loop import run_incidents
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Interface, Lambertian, Medium, Stack, load_toml
-from goniometer.tasks import run_variant, trace_incident, warm_up, warm_up_runs
+from goniometer.run.tasks import run_variant, trace_incident, warm_up, warm_up_runs
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
 
@@ -60,7 +60,7 @@ def test_warm_up_compiles_everything_the_run_then_calls(case):
 
 
 def test_a_database_warms_each_variant_once(monkeypatch):
-    import goniometer.tasks as tasks
+    import goniometer.run.tasks as tasks
     metal, _ = load_toml(EXAMPLES / "metal.toml")
     plastic = Stack("p", (Interface(0.2, (1.5,) * 3), Lambertian((0.5,) * 3)))
     s = SimulationSettings(incident_deg=(30.0,), rays=100, resolution=(9, 18))

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer.measured import MeasuredError, measured_reference, read_measured
-from goniometer.rgl.grid import grid_for
+from goniometer.files.measured import MeasuredError, measured_reference, read_measured
+from goniometer.grids.rgl import grid_for
 
 GOLD = {"name": "gold", "category": "metal", "layers": [
     {"type": "interface", "roughness": 0.3, "ior": [0.2, 0.35, 1.4], "extinction": [3.5, 2.6, 1.9]}]}
@@ -122,8 +122,8 @@ def test_gonio_evaluate_and_fit_a_measured_file(exported, tmp_path, capsys):
 
 def _merl_bytes(value: float, bad: float | None = None) -> bytes:
     """A MERL file of a constant BRDF ``value`` (1/sr) in every cell, one cell of R set to ``bad``."""
-    from goniometer import halfdiff
-    from goniometer.merl import MERL_SCALE
+    from goniometer.grids import halfdiff
+    from goniometer.files.merl import MERL_SCALE
     data = np.stack([np.full(halfdiff.N_CELLS, value / s) for s in MERL_SCALE])
     if bad is not None:
         data[0, 12345] = bad
@@ -148,7 +148,7 @@ def test_a_merl_file_with_broken_values_is_refused(tmp_path):
 
 
 def _broken_rgl(exported, tmp_path, name: str, field: str, index: tuple, value: float):
-    from goniometer.rgl.tensor import read_tensor, write_tensor
+    from goniometer.files.rgl_tensor import read_tensor, write_tensor
     fields = dict(read_tensor(exported[1]).fields)
     a = fields[field].copy()
     a[index] = value

@@ -4,7 +4,7 @@
   albedo 1 at every roughness and angle, and a non-absorbing dielectric keeps R + T = 1, path by
   path (so exactly, to rounding), from above and from below.
 * The walk's first bounce (exits after one microfacet bounce, histogrammed here from
-  :func:`goniometer.tracer.microsurface_walk`) equals, cell by cell, what the simulator gives for
+  :func:`goniometer.kernel.tracer.microsurface_walk`) equals, cell by cell, what the simulator gives for
   the single-scattering interface with height-correlated masking (reflection and transmission).
 * Energy: the single-scattering masking loss (height-correlated) equals what the walk's
   higher orders (two or more microfacet bounces) add back, for a Fresnel = 1 conductor.
@@ -26,12 +26,12 @@ import numpy as np
 import pytest
 
 from goniometer.cli import main
-from goniometer.rng import stream_state
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
-from goniometer.slices import boundary_tables, cell_index_fast, light_direction
+from goniometer.kernel.rng import stream_state
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import boundary_tables, cell_index_fast, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, stack_from_dict
-from goniometer.tracer import microsurface_walk
+from goniometer.kernel.tracer import microsurface_walk
 from tests.conftest import Z_TOL, chi2_limit
 
 #: a conductor whose Fresnel reflectance is exactly 1.0 in double precision at every angle

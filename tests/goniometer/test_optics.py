@@ -10,7 +10,7 @@ import pytest
 from scipy import integrate, stats
 
 from goniometer import optics
-from goniometer.rng import next_disk, stream_state
+from goniometer.kernel.rng import next_disk, stream_state
 from tests.conftest import P_FALSE_ALARM
 
 # ----------------------------------------------------------------------------- quadrature helpers

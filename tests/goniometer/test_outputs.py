@@ -9,7 +9,7 @@ import os
 import h5py
 import pytest
 
-from goniometer import outputs
+from goniometer.files import outputs
 from goniometer.cli import main
 from tests.conftest import PLASTIC_TOML, refused
 

@@ -9,10 +9,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Interface, Lambertian, Medium, Stack
-from goniometer.store import read, write
+from goniometer.files.slices import read, write
 from tests.conftest import Z_TOL
 
 SETTINGS = SimulationSettings(incident_deg=(0.0, 45.0, 75.0), rays=60_000, resolution=(9, 18), seed=5)

@@ -30,9 +30,9 @@ from scipy.special import roots_legendre
 
 from goniometer import optics
 from goniometer.cli import main
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
-from goniometer.slices import light_direction
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import (Interface, Lambertian, Medium, Stack, StackError, load_toml, pack,
                               stack_from_dict)
 from tests.conftest import P_FALSE_ALARM, Z_TOL, assert_cells_match, chi2_limit

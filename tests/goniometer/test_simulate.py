@@ -6,8 +6,8 @@ import numba
 import numpy as np
 import pytest
 
-from goniometer.settings import SettingsError, SimulationSettings
-from goniometer.run import simulate
+from goniometer.run.settings import SettingsError, SimulationSettings
+from goniometer.run.loop import simulate
 
 
 def _arrays(r):
@@ -80,7 +80,7 @@ def test_event_cap_is_reported_and_booked(plastic, tmp_path):
     assert r.capped_paths[0] > 0 and np.all(r.capped[0] > 0)
     total = sum(r.energy[k] for k in r.energy) + r.roulette + r.capped
     np.testing.assert_allclose(total, 1.0, atol=1e-12)
-    from goniometer import store
+    from goniometer.files import slices as store
     from goniometer.cli.simulate import _print_summary
     import io
     import contextlib
@@ -110,8 +110,8 @@ def test_russian_roulette_is_unbiased_in_expectation(plastic):
 
 
 def test_cell_geometry_is_the_grid_geometry_read_only():
-    from goniometer.results import cell_geometry
-    from goniometer.slices import SliceGrid, light_direction
+    from goniometer.run.results import cell_geometry
+    from goniometer.grids.slice_grid import SliceGrid, light_direction
     for param in ("classic", "half"):
         om, mk = cell_geometry(param, 18, 36, 40.0, 30.0)
         grid = SliceGrid(param, 18, 36)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 
 
 @pytest.mark.parametrize("param", ["classic", "half"])
@@ -110,7 +110,7 @@ def test_transmission_cells_share_solid_angles_and_masks(param):
 def test_fast_cell_index_agrees_with_the_exact_one(param, side, res):
     """The tracer's polynomial-guess-then-correct binning equals the acos/atan2 binning for random
     directions, directions on the cell boundaries' neighbourhood, the pole and the horizon."""
-    from goniometer.slices import boundary_tables, cell_index, cell_index_fast, CLASSIC, HALF
+    from goniometer.grids.slice_grid import boundary_tables, cell_index, cell_index_fast, CLASSIC, HALF
     nt, nph = res
     code = CLASSIC if param == "classic" else HALF
     tables = boundary_tables(param, nt, nph)
@@ -135,7 +135,7 @@ def test_fast_cell_index_agrees_with_the_exact_one(param, side, res):
 def test_half_solid_angles_are_exact_where_the_cell_is_above_the_horizon():
     """Gauss-Legendre with 6 and 9 points agree to rounding on cells entirely above the horizon,
     and a 256 x 256 midpoint rule converges to them (its own error ~1e-7)."""
-    from goniometer.slices import _half_omega, _half_omega_exact
+    from goniometer.grids.slice_grid import _half_omega, _half_omega_exact
     l = light_direction(45.0, 20.0)
     g6 = np.polynomial.legendre.leggauss(6)
     g9 = np.polynomial.legendre.leggauss(9)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from goniometer import optics, smooth
+from goniometer import optics
+from goniometer.testing import smooth
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 
 

@@ -8,9 +8,9 @@ import h5py
 import numpy as np
 import pytest
 
-from goniometer import store
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
+from goniometer.files import slices as store
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
 
 
 @pytest.fixture(scope="module")

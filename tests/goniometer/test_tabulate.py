@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer import halfdiff
+from goniometer.grids import halfdiff
 from goniometer.cli import main
-from goniometer.tabulation import TabulationCheckpoint, tabulate, tabulation_description
+from goniometer.run.tabulation import TabulationCheckpoint, tabulate, tabulation_description
 from tests.conftest import Z_TOL, chi2_limit
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
@@ -285,7 +285,7 @@ def _interrupting(real):
     return wrapper
 
 
-@pytest.mark.parametrize("where", ["goniometer.tabulation.from_sums", "goniometer.tabulated.write_tabulated",
+@pytest.mark.parametrize("where", ["goniometer.run.tabulation.from_sums", "goniometer.files.tabulated.write_tabulated",
                                    "h5py.File"])
 def test_ctrl_c_at_the_end_of_tabulate_is_one_line_130_and_resumable(where, tmp_path, capsys, monkeypatch,
                                                                        sigint_default):
@@ -321,7 +321,7 @@ def test_cli_tabulate_refuses_another_setting_and_keeps_the_checkpoint(tmp_path,
     one line, exit 2, naming the key and both values; the checkpoint keeps its bytes; an unreadable
     state is refused too (it is all the run's progress); the original command resumes to the bits
     of an uninterrupted run; --restart discards the checkpoint."""
-    import goniometer.checkpoint
+    import goniometer.run.checkpoints
     import goniometer.cli.common
     import goniometer.cli.tabulate
     from tests.conftest import refused
@@ -341,10 +341,10 @@ def test_cli_tabulate_refuses_another_setting_and_keeps_the_checkpoint(tmp_path,
     refused(capsys, ["tabulate", cfg, "--out", out, *argv, "--seed", "7"],
             f"{partial}: holds checkpoints of another run (seed: checkpoints 5, this run 7)",
             "rerun the command that wrote them to resume, or add --restart to discard them")
-    monkeypatch.setattr(goniometer.checkpoint, "code_key", lambda: "another version")
+    monkeypatch.setattr(goniometer.run.checkpoints, "code_key", lambda: "another version")
     refused(capsys, ["tabulate", cfg, "--out", out, *argv], "written by another version of the simulator code",
             "add --restart to discard them")
-    monkeypatch.setattr(goniometer.checkpoint, "code_key", goniometer.checkpoint.cache.simulator_key)
+    monkeypatch.setattr(goniometer.run.checkpoints, "code_key", goniometer.run.checkpoints.cache.simulator_key)
     assert bytes_of(partial) == kept and not out.exists()
     # the original command resumes (two chunks of 65,536 rays were kept) to the uninterrupted run's bits
     assert main(["tabulate", str(cfg), "--out", str(out), *argv]) == 0

@@ -13,10 +13,11 @@ import math
 import numpy as np
 import pytest
 
-from goniometer import optics, smooth
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
-from goniometer.slices import light_direction
+from goniometer import optics
+from goniometer.testing import smooth
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from tests.conftest import Z_TOL, assert_cells_match, cell_chi2, chi2_limit
 

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.cli import main
 from goniometer.database import load_database, simulate_database
 from goniometer.optics import np_microfacet_reflection, np_microfacet_transmission
-from goniometer.slices import light_direction
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import registry
 from models.base import Model, ModelError, ModelValue

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.slices import light_direction
+from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Lambertian, Stack
 from models import registry
 from models.base import Model, ModelValue

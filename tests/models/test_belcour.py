@@ -21,7 +21,8 @@ import math
 import numpy as np
 import pytest
 
-from goniometer import optics, smooth
+from goniometer import optics
+from goniometer.testing import smooth
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import belcour
 from models.tables import belcour as tables
@@ -164,7 +165,7 @@ def _interfaces_relative(st: Stack, ch: int):
                                         ("three", three_interfaces(0.0))])
 @pytest.mark.parametrize("theta", [0.0, 45.0, 80.0, 89.0])
 def test_smooth_limit_matches_adding_equations(name, stack, theta):
-    """alpha = 0: sum of lobe energies (R) and T0N equal goniometer.smooth.adding_energies."""
+    """alpha = 0: sum of lobe energies (R) and T0N equal goniometer.testing.smooth.adding_energies."""
     c = math.cos(math.radians(theta))
     s = belcour.stack_statistics(stack, c)
     R, T = smooth.adding_energies(stack, theta)

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.tables import belcour as tables
 from models.base import ModelError

@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from goniometer.results import SliceData
-from goniometer.slices import SliceGrid
+from goniometer.run.results import SliceData
+from goniometer.grids.slice_grid import SliceGrid
 from models.compare import errors
 from models.compare.integrate import ModelSlices
 

@@ -10,10 +10,10 @@ import pytest
 from scipy import integrate, special, stats
 
 from goniometer import optics
-from goniometer.results import SimulationResult, SliceData
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.run.results import SimulationResult, SliceData
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models import fitted as F
 from models.base import ModelError

@@ -14,8 +14,8 @@ from scipy import stats
 
 from goniometer import optics
 from goniometer.cli import main
-from goniometer.run import simulate
-from goniometer.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Interface, Medium, Stack, load_toml
 from models import registry
 from models.compare.albedo import directional_albedo
@@ -97,7 +97,7 @@ def test_model_quadrature_has_converged(runs, name):
     # doubling the Gauss-Legendre order changes no model's albedo by more than 1e-5: 100 times
     # below the standard error of a default run (1e5 rays: ~1e-3 for an albedo that varies per
     # path); table-driven models (multilayer-lut: linear interpolation) converge slowest
-    from goniometer.slices import light_direction
+    from goniometer.grids.slice_grid import light_direction
     stack, r = runs[name]
     for model in r.models.albedo:
         m = registry.get(model)

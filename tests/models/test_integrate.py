@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from goniometer import optics
-from goniometer.settings import SimulationSettings
-from goniometer.run import simulate
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.loop import simulate
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Interface, Stack
 from models.base import Model, ModelValue
 from models.compare.integrate import integrate, integrate_slice

@@ -93,9 +93,9 @@ def test_eq11_inverts_the_adding_equation():
 
 def test_eq13_and_eq2_with_absorption_match_the_smooth_oracle():
     """A smooth 2-interface stack with a medium: eq. 2 with R'12 = R12 exp(-2 tau1) equals the
-    simulator's closed-form adding equations (goniometer.smooth) at normal incidence; eq. 13
+    simulator's closed-form adding equations (goniometer.testing.smooth) at normal incidence; eq. 13
     recovers tau1."""
-    from goniometer import smooth
+    from goniometer.testing import smooth
     eta1, eta2, tau = 1.6, 2.4, 0.3
     stack = Stack("s", (Interface(0.0, (eta1,) * 3), Medium((tau,) * 3), Interface(0.0, (eta2,) * 3)))
     r01 = I.eq1_reflectance(1.0, eta1)

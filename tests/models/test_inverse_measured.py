@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer import cli, halfdiff
-from goniometer.merl import MERL_SCALE
-from goniometer.rgl.grid import grid_for
+from goniometer import cli
+from goniometer.grids import halfdiff
+from goniometer.files.merl import MERL_SCALE
+from goniometer.grids.rgl import grid_for
 from goniometer.stack import load_toml
 from models.belcour import roughness_to_variance
 from models.inverse import InverseError, MeasuredRings, fit_measured_lobes, lobe_albedo, lobe_ring_fractions

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from goniometer.optics import film_rt, np_microfacet_reflection
-from goniometer.settings import SimulationSettings
+from goniometer.run.settings import SimulationSettings
 from goniometer.spectral import rgb_weights
 from goniometer.stack import Film, Interface, Lambertian, Stack
 from models import registry

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.cli import main
 from goniometer.database import load_database, simulate_database
 from goniometer.stack import Interface, Lambertian, Medium, Stack

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer import store
-from goniometer.slices import light_direction
+from goniometer.files import slices as store
+from goniometer.grids.slice_grid import light_direction
 from goniometer.cli import main as gonio
 from models.render import (BTDF, ModelBSDF, SphereView, open_reference, render_spheres, slices_reference,
                            srgb_oetf)
@@ -212,7 +212,7 @@ def test_cli_writes_the_png(lambert_classic, tmp_path, capsys):
 
 
 class _FakeTable:
-    """Stands for goniometer.tabulated's TabulatedBRDF of an RGB tabulation: a stack, eval(l, v),
+    """Stands for goniometer.files.tabulated's TabulatedBRDF of an RGB tabulation: a stack, eval(l, v),
     and rgb() (an RGB table is its own linear sRGB)."""
 
     def __init__(self, stack):
@@ -234,15 +234,15 @@ def _tabulated_file(path: Path) -> Path:
 
 def test_a_tabulated_file_goes_through_read_tabulated(tmp_path, monkeypatch):
     """A file whose format attribute is goniometer.tabulated is read by
-    goniometer.tabulated.read_tabulated and rendered from its eval(l, v): a Lambertian table gives
+    goniometer.files.tabulated.read_tabulated and rendered from its eval(l, v): a Lambertian table gives
     the Lambert sphere over the whole lit half (no recorded range)."""
     import sys
     import types
-    fake = types.ModuleType("goniometer.tabulated")
+    fake = types.ModuleType("goniometer.files.tabulated")
     stack = g.stack_from_dict(LAMBERT)
     fake.TabulatedError = type("TabulatedError", (ValueError,), {})
     fake.read_tabulated = lambda p: _FakeTable(stack)
-    monkeypatch.setitem(sys.modules, "goniometer.tabulated", fake)
+    monkeypatch.setitem(sys.modules, "goniometer.files.tabulated", fake)
     ref = open_reference(_tabulated_file(tmp_path / "t.h5"))
     assert ref.side == "brdf" and ref.theta_range_deg is None and ref.stack.name == "lambert"
     size, a = 40, math.radians(65.0)
@@ -255,11 +255,11 @@ def test_a_tabulated_file_goes_through_read_tabulated(tmp_path, monkeypatch):
 
 def test_a_tabulated_file_without_its_reader_is_a_clear_error(tmp_path, monkeypatch, capsys):
     import sys
-    monkeypatch.setitem(sys.modules, "goniometer.tabulated", None)   # import fails
+    monkeypatch.setitem(sys.modules, "goniometer.files.tabulated", None)   # import fails
     path = _tabulated_file(tmp_path / "t.h5")
     code, out, err = _run(capsys, path, "--out", tmp_path / "s.png")
     assert code == 2 and len(err.strip().splitlines()) == 1
-    assert "goniometer.tabulated" in err and str(path) in err
+    assert "goniometer.files.tabulated" in err and str(path) in err
 
 
 def test_a_model_is_exact_at_its_light_nodes(metal_half):

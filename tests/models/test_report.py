@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.database import load_database, simulate_database
-from goniometer.slices import SliceGrid, light_direction
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 import models.report.build as report_module
 from models.evaluation import evaluate
 from models.report import ReportError, build_report, model_style, open_results

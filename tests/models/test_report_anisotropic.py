@@ -12,7 +12,7 @@ from goniometer.database import load_database, simulate_database
 from models.base import ModelError
 from models.evaluation import evaluate, isotropized
 from models.report import build_report
-from goniometer import store
+from goniometer.files import slices as store
 from goniometer.database import material_path
 
 ROOT = Path(__file__).resolve().parents[2]

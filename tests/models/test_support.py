@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer import halfdiff
+from goniometer.grids import halfdiff
 from goniometer.cli import main
-from goniometer.merl import MERL_SCALE
-from goniometer.results import SliceData
-from goniometer.slices import SliceGrid
+from goniometer.files.merl import MERL_SCALE
+from goniometer.run.results import SliceData
+from goniometer.grids.slice_grid import SliceGrid
 from models.compare import errors
 from models.compare.errors import LOW_COVERAGE, Coverage, NoCellsError, coverage, require_cells
 from models.evaluation import Evaluation

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from goniometer.optics import np_microfacet_reflection
-from goniometer.results import SimulationResult
+from goniometer.run.results import SimulationResult
 from goniometer.stack import Interface, Lambertian, Stack
 from models.tables import fgd_direct_many
 

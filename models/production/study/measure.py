@@ -17,14 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from goniometer import store
-from goniometer.results import SimulationResult
+from goniometer.files import slices as store
+from goniometer.run.results import SimulationResult
 from goniometer.stack import Stack
 from models.compare import integrate
 from models.production.study.effective import (CoatedBase, Darkening, ProductionError, Roughness, bare_key,
-                                         coat_albedo_rows, coated_base, darkening_from, effective_darkening,
-                                         effective_roughness, layered_prediction,
-                                         normal_incidence_index, roughness_from)
+                                               coat_albedo_rows, coated_base, darkening_from, effective_darkening,
+                                               effective_roughness, layered_prediction,
+                                               normal_incidence_index, roughness_from)
 from models.belcour import BelcourForward, lobe_statistics
 
 #: the existing model the production formulas are compared with

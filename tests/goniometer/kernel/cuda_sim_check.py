@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 
 from goniometer import tracer  # noqa: E402
 from goniometer.kernel.onepath import FIXED_SCALE, trace_keyed_chunk  # noqa: E402
-from goniometer.slices import boundary_tables, light_direction  # noqa: E402
+from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
 from goniometer.stack import pack  # noqa: E402
 from tests.goniometer.kernel.test_two_kernels import STACKS  # noqa: E402
 
@@ -61,11 +61,11 @@ def check(name, rays, cr, hc=False):
 
 def check_tabulation(name, rays, cr):
     """A tabulation launch (exits per path as MERL cells) against the twin's records, then a whole
-    spectral tabulation through goniometer.tabulation with device="cuda" (energies add up)."""
+    spectral tabulation through goniometer.run.tabulation with device="cuda" (energies add up)."""
     import dataclasses
 
-    from goniometer.settings import TabulationSettings
-    from goniometer.tabulation import TAB_STREAM, tabulate
+    from goniometer.run.settings import TabulationSettings
+    from goniometer.run.tabulation import TAB_STREAM, tabulate
     stack = STACKS[name]
     p = pack(stack)
     nb = -(-rays // cr)

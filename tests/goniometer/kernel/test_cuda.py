@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer import tracer
+from goniometer.kernel import tracer
 from goniometer.cli import main
-from goniometer.settings import SettingsError, SimulationSettings
-from goniometer.slices import boundary_tables, light_direction
+from goniometer.run.settings import SettingsError, SimulationSettings
+from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.stack import pack
 from tests.conftest import Z_TOL, chi2_limit
 from tests.goniometer.kernel import test_two_kernels as two

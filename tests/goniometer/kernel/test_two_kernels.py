@@ -1,4 +1,4 @@
-"""The lane kernel (``goniometer.tracer.trace_chunk``) and the per-path kernel
+"""The lane kernel (``goniometer.kernel.tracer.trace_chunk``) and the per-path kernel
 (``goniometer.kernel.paths.trace_paths``) are two implementations of the same transport
 (``docs/kernel.md``): forced onto the same stacks, with independent random numbers, they agree
 cell by cell and in every energy term within their standard errors. Stacks cover every kind of
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from goniometer import tracer
-from goniometer.slices import boundary_tables, light_direction
+from goniometer.kernel import tracer
+from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack, pack
 from tests.conftest import Z_TOL, chi2_limit
 

@@ -86,8 +86,8 @@ def test_every_variant_of_the_step_vectorises_for_avx512(tmp_path):
 
 _BITS = textwrap.dedent('''
     import hashlib, numpy as np
-    from goniometer.settings import SimulationSettings
-    from goniometer.tasks import n_tasks, trace_tasks
+    from goniometer.run.settings import SimulationSettings
+    from goniometer.run.tasks import n_tasks, trace_tasks
     from goniometer.stack import Interface, Lambertian, Medium, Stack
     stacks = [Stack("m", (Interface(0.05, (1.5,) * 3), Medium((0.1, 0.2, 0.5)),
                           Interface(0.2, (1.45,) * 3, (1.0, 0.01, 0.01))), "metal"),

@@ -100,7 +100,7 @@ def test_export_refuses_what_the_readers_cannot_take(gold, tmp_path, capsys):
                          + '[simulation]\nparametrization = "rgl"\nrgl_grid = [3, 1, 8]\n')
     refused(capsys, ["simulate", cfg_aniso, "--out", aniso], f"{cfg_aniso}: simulation.rgl_grid: ", "anisotropic")
     # such a file written through the library: its export is refused too
-    from goniometer.rgl.grid import grid_for
+    from goniometer.grids.rgl import grid_for
     from goniometer.stack import load_toml
     stack, _ = load_toml(EXAMPLES / "aniso-metal.toml")
     g.write(aniso, g.simulate(stack, g.SimulationSettings.on_rgl_grid(grid_for(stack, 3, 1, 8), rays=500, threads=1)))

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer.rgl.export import bsdf_fields, check_readers, fields_from_values
-from goniometer.rgl.warp import bilinear
-from goniometer.rgl.grid import grid_for
-from goniometer.rgl.tensor import write_tensor
+from goniometer.files.rgl_export import bsdf_fields, check_readers, fields_from_values
+from goniometer.grids.warp import bilinear
+from goniometer.grids.rgl import grid_for
+from goniometer.files.rgl_tensor import write_tensor
 from tests.conftest import Z_TOL, assert_cells_match
 
 mi = pytest.importorskip("mitsuba")

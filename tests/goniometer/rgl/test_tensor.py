@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from goniometer.cli import main
-from goniometer.rgl.tensor import MAGIC, TensorError, read_tensor, tensor_bytes, write_tensor
+from goniometer.files.rgl_tensor import MAGIC, TensorError, read_tensor, tensor_bytes, write_tensor
 
 tensor_io = pytest.importorskip("mitsuba.tensor_io")
 

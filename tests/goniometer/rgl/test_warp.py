@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from goniometer.rgl.warp import Warp2D, invert_point, pack_kernel_tables
+from goniometer.grids.warp import Warp2D, invert_point, pack_kernel_tables
 
 mi = pytest.importorskip("mitsuba")
 
@@ -74,7 +74,7 @@ def test_the_tracers_inversion_finds_the_node_of_the_warps_u(isotropic):
 
 
 def test_the_polynomial_atan2_is_libms_to_a_few_ulp():
-    from goniometer.rgl.warp import atan2_poly
+    from goniometer.grids.warp import atan2_poly
     rng = np.random.default_rng(4)
     pts = np.concatenate([rng.normal(size=(20000, 2)), rng.normal(size=(2000, 2)) * 1e-9,
                           [[0.0, 1.0], [1.0, 0.0], [0.0, -1.0], [-1.0, 0.0], [1.0, 1.0], [-1.0, -1e-300],

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer.run import run_incidents
-from goniometer.spectral.launches import launches
+from goniometer.run.loop import run_incidents
+from goniometer.run.launches import launches
 from goniometer.stack import stack_from_dict
-from goniometer.tasks import n_tasks
+from goniometer.run.tasks import n_tasks
 from tests.goniometer.spectral.test_transport import GOLD
 
 #: a dielectric of Cauchy index: traced one wavelength per launch

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer.rgl.export import bsdf_fields, check_readers, fields_from_spectra, stored_values
-from goniometer.rgl.grid import grid_for
-from goniometer.rgl.tensor import write_tensor
+from goniometer.files.rgl_export import bsdf_fields, check_readers, fields_from_spectra, stored_values
+from goniometer.grids.rgl import grid_for
+from goniometer.files.rgl_tensor import write_tensor
 from goniometer.stack import stack_from_dict
 from tests.conftest import Z_TOL
 from tests.goniometer.rgl.test_export import _expected_estimates, _random_pairs

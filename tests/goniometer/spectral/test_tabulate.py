@@ -14,7 +14,7 @@ import pytest
 import goniometer as g
 from goniometer.cli import main
 from goniometer.spectral import from_toml, wavelength_bins
-from goniometer.tabulation import TabulationCheckpoint, tabulate, tabulation_description
+from goniometer.run.tabulation import TabulationCheckpoint, tabulate, tabulation_description
 from tests.conftest import Z_TOL, chi2_limit
 from tests.goniometer.test_tabulate import EXAMPLES, assert_table_matches_slice, read_merl_binary
 

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 import goniometer as g
-from goniometer import results, store
-from goniometer.settings import SettingsError
+from goniometer.run import results
+from goniometer.files import slices as store
+from goniometer.run.settings import SettingsError
 from goniometer.spectral import wavelength_bins
-from goniometer.spectral.launches import bin_groups, launch_seed, launches
+from goniometer.run.launches import bin_groups, launch_seed, launches
 from goniometer.stack import StackError, stack_from_dict
 from tests.conftest import Z_TOL, assert_cells_match, cell_chi2, chi2_limit
 
@@ -194,9 +195,9 @@ def test_a_table_that_does_not_cover_the_bins_is_refused():
 def test_a_resumed_spectral_run_has_the_bits_of_an_uninterrupted_one(tmp_path):
     """Checkpoints hold a spectral incident direction's bins (docs/spectral.md, docs/outputs.md):
     a run that finds one direction checkpointed traces only the other and ends with the same bits."""
-    from goniometer.checkpoint import Checkpoints
-    from goniometer.results import run_description
-    from goniometer.run import run_incidents
+    from goniometer.run.checkpoints import Checkpoints
+    from goniometer.run.results import run_description
+    from goniometer.run.loop import run_incidents
     stack = stack_from_dict(GOLD)
     s = _settings(rays=4000, resolution=(4, 8))
     whole = run_incidents(stack, s)

@@ -27,8 +27,8 @@ import numba
 import numpy as np
 
 from goniometer import optics
-from goniometer.settings import SettingsError
-from goniometer.slices import CLASSIC, PARAMETRIZATIONS, boundary_tables, cell_index_fast
+from goniometer.run.settings import SettingsError
+from goniometer.grids.slice_grid import CLASSIC, PARAMETRIZATIONS, boundary_tables, cell_index_fast
 from goniometer.stack import Interface, Medium, Stack
 
 __all__ = ["first_order_fractions", "check_supported", "RTOL", "ATOL"]

@@ -1,7 +1,7 @@
 """The run of a tabulation: the whole isotropic BRDF of a stack on the MERL grid
 (``docs/tabulated-format.md``).
 
-The tracing kernel runs in its tabulation mode (:data:`goniometer.tracer.P_TABULATE`): chunk ``c``
+The tracing kernel runs in its tabulation mode (:data:`goniometer.kernel.tracer.P_TABULATE`): chunk ``c``
 of ``chunk_rays`` paths draws from the random stream ``(seed, TAB_STREAM, c)``, each path its own
 incident direction (density ``cos theta_l / pi``), and records its reflected exit as a (MERL cell,
 weight) pair. Chunks run in parallel in batches; their records are then added to the cell sums
@@ -14,7 +14,7 @@ Resuming: the sums after a whole number of chunks are a checkpoint (``.FILE.h5.p
 the output, saved compressed every :data:`CHECKPOINT_EVERY_S` seconds and on Ctrl-C); a rerun of
 the same run continues from there and ends with the same bits as an uninterrupted run. A rerun of
 another run (settings, stack, code version) raises
-:class:`~goniometer.checkpoint.CheckpointMismatch` and leaves the checkpoint as it is.
+:class:`~goniometer.run.checkpoints.CheckpointMismatch` and leaves the checkpoint as it is.
 """
 
 from __future__ import annotations
@@ -30,13 +30,15 @@ from typing import Callable
 import numba
 import numpy as np
 
-from goniometer import atomic, halfdiff, tracer
-from goniometer import checkpoint as _checkpoint
-from goniometer.checkpoint import UNREADABLE, CheckpointMismatch, check_meta, unreadable_reason, write_meta
-from goniometer.settings import TabulationSettings
-from goniometer.slices import boundary_tables
+from goniometer import atomic
+from goniometer.grids import halfdiff
+from goniometer.kernel import tracer
+from goniometer.run import checkpoints as _checkpoint
+from goniometer.run.checkpoints import UNREADABLE, CheckpointMismatch, check_meta, unreadable_reason, write_meta
+from goniometer.run.settings import TabulationSettings
+from goniometer.grids.slice_grid import boundary_tables
 from goniometer.stack import Stack, pack
-from goniometer.tabulated import TabulatedBRDF, from_sums
+from goniometer.files.tabulated import TabulatedBRDF, from_sums
 
 __all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabulable", "launches", "tabulate",
            "tabulation_description", "warm_up"]
@@ -129,9 +131,9 @@ class _State:
 
 class TabulationCheckpoint:
     """The checkpoint directory of one tabulation: ``meta.json`` (the run and the code key, as
-    :class:`goniometer.checkpoint.Checkpoints`) and ``state.npz`` (the sums after whole chunks,
+    :class:`goniometer.run.checkpoints.Checkpoints`) and ``state.npz`` (the sums after whole chunks,
     compressed). A state of another run or code version, or one that cannot be read, raises
-    :class:`goniometer.checkpoint.CheckpointMismatch` and is kept: only :meth:`clear`
+    :class:`goniometer.run.checkpoints.CheckpointMismatch` and is kept: only :meth:`clear`
     (``--restart``) discards it (the state is all the progress of the run: it is never dropped
     behind the user's back)."""
 
@@ -148,7 +150,7 @@ class TabulationCheckpoint:
         return [self.state_path] if self.state_path.is_file() else []
 
     def check(self) -> None:
-        """Raise :class:`~goniometer.checkpoint.CheckpointMismatch` if the directory holds a state
+        """Raise :class:`~goniometer.run.checkpoints.CheckpointMismatch` if the directory holds a state
         of another run or code version, or one that cannot be opened; changes nothing."""
         check_meta(self.directory, self.meta, self.kept())
         if self.kept():
@@ -231,10 +233,10 @@ def warm_up(stack: Stack | None = None, settings: TabulationSettings | None = No
 def launches(stack: Stack, settings: TabulationSettings) -> list[tuple[tuple[int, ...], Stack, int]]:
     """(channels of the state, three-channel stack, seed) of every kernel launch: one launch of the
     stack for an RGB tabulation; a spectral one's launches of
-    :func:`goniometer.spectral.launches.launch_stacks` (``docs/spectral.md`` section 2)."""
+    :func:`goniometer.run.launches.launch_stacks` (``docs/spectral.md`` section 2)."""
     if not settings.spectral:
         return [((0, 1, 2), stack, settings.seed)]
-    from goniometer.spectral.launches import launch_stacks
+    from goniometer.run.launches import launch_stacks
     return [(bins, st, s.seed) for bins, st, s in launch_stacks(stack, settings)]
 
 

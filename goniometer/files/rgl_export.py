@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 
 import goniometer
-from goniometer.rgl.grid import VALID_SUB, RGLGrid
-from goniometer.rgl.tensor import TensorFile, read_tensor, write_tensor
-from goniometer.rgl.warp import bilinear
+from goniometer.grids.rgl import VALID_SUB, RGLGrid
+from goniometer.files.rgl_tensor import TensorFile, read_tensor, write_tensor
+from goniometer.grids.warp import bilinear
 
 __all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "fields_from_spectra",
            "fields_from_values",
@@ -296,5 +296,5 @@ def export_rgl(result, path: str | os.PathLike, spectral: bool = False) -> Path:
 
 
 def read_back(path: str | os.PathLike) -> TensorFile:
-    """:func:`goniometer.rgl.tensor.read_tensor` (for symmetry with :func:`export_rgl`)."""
+    """:func:`goniometer.files.rgl_tensor.read_tensor` (for symmetry with :func:`export_rgl`)."""
     return read_tensor(path)

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import h5py
 import numpy as np
 
-from goniometer import store
+from goniometer.files import slices as store
 
 if TYPE_CHECKING:  # pragma: no cover
     import xarray

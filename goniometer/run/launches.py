@@ -1,5 +1,5 @@
 """The launches of a spectral run (``docs/spectral.md`` section 2): kernel runs that each carry
-three wavelengths per path (traced by :func:`goniometer.tasks.trace_spectral_incident`).
+three wavelengths per path (traced by :func:`goniometer.run.tasks.trace_spectral_incident`).
 
 A run of ``B`` wavelength bins traces, per incident direction, the launches of
 :func:`launches`: each is an ordinary three-channel run (same kernel, same bits rules) of the
@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-from goniometer.settings import SimulationSettings
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Stack
 
 __all__ = ["launches", "launch_stacks", "launch_seed", "bin_groups"]

@@ -29,7 +29,7 @@ lanes advanced in lock-step; each step is one vectorised event for every lane
 walk; in a scattering medium a free flight and what it meets), then a pass over the lanes that
 continues the walks that go on (:mod:`goniometer.kernel.steps`), books the paths that ended and
 gives their lanes the next path of the chunk. Every path draws its own random numbers, keyed by
-(seed, incident index, chunk, path) (:mod:`goniometer.rng`), so neither the lane a path runs in
+(seed, incident index, chunk, path) (:mod:`goniometer.kernel.rng`), so neither the lane a path runs in
 nor the number of threads changes a result. Kernel inputs are flat arrays (see
 :class:`goniometer.stack.PackedStack`); outputs are per-chunk histograms.
 """
@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from goniometer.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.kernel.codegen import STACK_BLOCK
 from goniometer.kernel.deposit import BUFFER, X_COLS, flush
 from goniometer.kernel.event import RR_START, RR_THRESHOLD, step
@@ -54,7 +54,7 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
 from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import continue_walk, free_flight, microsurface_walk
 from goniometer.kernel.variants import KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS, StackFacts, stack_facts, variant_flags
-from goniometer.rng import chunk_key, stream_state
+from goniometer.kernel.rng import chunk_key, stream_state
 from goniometer.stack import PackedStack
 
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
@@ -110,7 +110,7 @@ class Launch:
 
     ``stream`` is the incident index of the random keys (a tabulation's own stream); ``flags``
     the variant (:func:`kernel_flags`); ``tables`` the grid's boundary tables
-    (:func:`goniometer.slices.boundary_tables`, or an RGL grid's kernel tables)."""
+    (:func:`goniometer.grids.slice_grid.boundary_tables`, or an RGL grid's kernel tables)."""
 
     facts: StackFacts
     flags: tuple
@@ -210,10 +210,10 @@ def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = Non
 @numba.njit(cache=True, error_model='numpy')
 def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
                 height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, outs):
-    """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.rng.chunk_key`)
+    """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.kernel.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
 
-    ``param`` is the slice parametrization (:data:`goniometer.slices.CLASSIC`, ``HALF``) or
+    ``param`` is the slice parametrization (:data:`goniometer.grids.slice_grid.CLASSIC`, ``HALF``) or
     :data:`P_TABULATE`: then path ``r`` first draws its own light direction ``l`` with density
     ``cos theta_l / pi``, and its reflected exit, if any, is written to ``exit_cell[r]`` (MERL
     cell, -1 if none) and ``exit_w[r]`` (weight) instead of to ``brdf``; transmitted exits are
@@ -228,7 +228,7 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     (N_ENERGY, 3) weight sums; ``energy_sq``: (N_ENERGY_SQ, 3) sums of squared per-path totals;
     ``counts``: (N_COUNTS,) int64. ``skip_first`` (bool): reflected exits of bounce order 1 are
     booked in ``energy`` but not deposited (``first_order = "integrated"``,
-    :mod:`goniometer.first_order`). ``height_correlated`` .. ``ms``: None or True, the compiled
+    :mod:`goniometer.run.first_order`). ``height_correlated`` .. ``ms``: None or True, the compiled
     variant (:func:`kernel_flags`, :func:`goniometer.kernel.event.step`); ``tabulate`` True goes
     with ``param`` = :data:`P_TABULATE`.
 
@@ -346,8 +346,8 @@ def trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media,
     numba prunes the branch of a None *argument* and so compiles each variant without the others.
 
     Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
-    is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.rng.chunk_key`)
-    for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.rng.stream_state`)
+    is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.kernel.rng.chunk_key`)
+    for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.kernel.rng.stream_state`)
     for the per-path kernel (``lanes`` None).
     """
     (lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, max_order,

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Callable
 
-from goniometer.first_order import check_supported
-from goniometer.results import IncidentPart, SimulationResult, assemble
-from goniometer.settings import SettingsError, SimulationSettings
+from goniometer.run.first_order import check_supported
+from goniometer.run.results import IncidentPart, SimulationResult, assemble
+from goniometer.run.settings import SettingsError, SimulationSettings
 from goniometer.stack import Stack
-from goniometer.tasks import incident_buffers, trace_incident, warm_up
+from goniometer.run.tasks import incident_buffers, trace_incident, warm_up
 
 if TYPE_CHECKING:
-    from goniometer.checkpoint import Checkpoints
+    from goniometer.run.checkpoints import Checkpoints
 
 __all__ = ["SettingsError", "SimulationSettings", "run_incidents", "simulate", "simulate_resumable"]
 
@@ -54,7 +54,7 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
         buffers = incident_buffers(stack, settings) if remaining else None
         produced = ((k, trace_incident(stack, settings, k, progress, buffers)) for k in remaining)
     else:
-        from goniometer.distributed import dask_incidents
+        from goniometer.run.distributed import dask_incidents
         produced = dask_incidents(client, stack, settings, remaining, progress)
     for k, part in produced:
         if checkpoints is not None:
@@ -66,7 +66,7 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
 def _launches(stack: Stack, settings: SimulationSettings) -> int:
     if not settings.spectral:
         return 1
-    from goniometer.spectral.launches import launches
+    from goniometer.run.launches import launches
     return len(launches(stack, settings))
 
 

@@ -1,6 +1,6 @@
 """What a run produces, what identifies a run, and how raw kernel sums become estimates.
 
-:class:`SliceData` and :class:`SimulationResult` are what :mod:`goniometer.store` writes and the
+:class:`SliceData` and :class:`SimulationResult` are what :mod:`goniometer.files.slices` writes and the
 models read; :class:`IncidentPart` holds one incident direction's raw sums (what checkpoints and
 Dask tasks return); :data:`RUN_KEYS` and :func:`run_description` say when two runs are the same.
 Cell values follow ``docs/slices-format.md``: ``fbar = (sum of exit weights in the cell) / (N
@@ -17,10 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from goniometer import atomic, tracer
-from goniometer.first_order import first_order_fractions
-from goniometer.settings import SimulationSettings
-from goniometer.slices import SliceGrid, light_direction
+from goniometer import atomic
+from goniometer.kernel import tracer
+from goniometer.run.first_order import first_order_fractions
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Stack
 
 ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
@@ -69,7 +70,7 @@ class SliceData:
 
 @dataclass
 class SimulationResult:
-    """Everything one simulation produced (what :mod:`goniometer.store` writes)."""
+    """Everything one simulation produced (what :mod:`goniometer.files.slices` writes)."""
 
     stack: Stack
     settings: SimulationSettings
@@ -101,10 +102,10 @@ class SimulationResult:
     @property
     def paths_per_incident(self) -> int:
         """Paths traced per incident direction: ``rays``, times the launches of a spectral run
-        (:func:`goniometer.spectral.launches.launches`)."""
+        (:func:`goniometer.run.launches.launches`)."""
         if not self.settings.spectral:
             return self.settings.rays
-        from goniometer.spectral.launches import launches
+        from goniometer.run.launches import launches
         return self.settings.rays * len(launches(self.stack, self.settings))
 
     @property
@@ -117,7 +118,7 @@ class SimulationResult:
         ``docs/spectral.md`` section 4; an RGB run is returned as it is)."""
         if not self.settings.spectral:
             return self
-        from goniometer.spectral.rgb import to_rgb
+        from goniometer.run.rgb import to_rgb
         return to_rgb(self)
 
 
@@ -125,7 +126,7 @@ class SimulationResult:
 class Sums:
     """Raw kernel sums in the kernel's layout: what a task returns and an incident accumulates.
 
-    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.tracer.trace_chunk`;
+    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.kernel.tracer.trace_chunk`;
     ``btdf`` is (1, 1, K + 2, 3) for opaque stacks); ``energy`` (N_ENERGY, 3); ``energy_sq``
     (N_ENERGY_SQ, 3); ``counts`` (N_COUNTS,) int64.
     """
@@ -198,7 +199,7 @@ def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.n
                      sums: list[np.ndarray], sqs: list[np.ndarray], n: int,
                      first: list[np.ndarray] | None = None) -> SliceData:
     """Cell values and standard errors from the traced sums; ``first`` (per direction, (3, n_theta,
-    n_phi) flux fractions) is bounce order 1 integrated (:mod:`goniometer.first_order`): it is added
+    n_phi) flux fractions) is bounce order 1 integrated (:mod:`goniometer.run.first_order`): it is added
     to order 1, whose traced exits were not deposited, and adds no variance."""
     M = len(omegas)
     K = sums[0].shape[0]
@@ -294,13 +295,13 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
 
 
 def _first_order(stack: Stack, settings: SimulationSettings, light: np.ndarray) -> np.ndarray:
-    """Bounce order 1 integrated (:func:`goniometer.first_order.first_order_fractions`) for one
+    """Bounce order 1 integrated (:func:`goniometer.run.first_order.first_order_fractions`) for one
     incident direction, (C, n_theta, n_phi): per RGB channel, or per wavelength bin of a spectral
     run from the three-channel stack of the launch that traced the bin (``docs/spectral.md`` §2)."""
     nt, nph = settings.resolution
     if not settings.spectral:
         return first_order_fractions(stack, settings.parametrization, nt, nph, light, settings.masking)
-    from goniometer.spectral.launches import launch_stacks
+    from goniometer.run.launches import launch_stacks
     out = np.zeros((settings.wavelength_bins, nt, nph))
     for bins, st, _ in launch_stacks(stack, settings):
         out[list(bins)] = first_order_fractions(st, settings.parametrization, nt, nph, light,
@@ -312,7 +313,7 @@ def _launch_count(stack: Stack, settings: SimulationSettings) -> int:
     """Kernel launches per incident direction: 1, or a spectral run's launches (each of ``rays`` paths)."""
     if not settings.spectral:
         return 1
-    from goniometer.spectral.launches import launches
+    from goniometer.run.launches import launches
     return len(launches(stack, settings))
 
 

@@ -20,9 +20,9 @@ import numpy as np
 
 import goniometer
 from goniometer.atomic import atomic_path, hdf5_file  # noqa: F401  (public here too: store.atomic_path)
-from goniometer.results import ENERGY_TERMS, SimulationResult, SliceData
-from goniometer.settings import SimulationSettings
-from goniometer.slices import SliceGrid
+from goniometer.run.results import ENERGY_TERMS, SimulationResult, SliceData
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import SliceGrid
 from goniometer.stack import Stack, StackError
 
 FORMAT = "goniometer.slices"

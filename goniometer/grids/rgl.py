@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from goniometer import optics
-from goniometer.rgl.warp import Warp2D, pack_kernel_tables
+from goniometer.grids.warp import Warp2D, pack_kernel_tables
 
 __all__ = ["ALPHA_FLOOR", "BROAD", "DEFAULT_GRID", "RGLGrid", "RGLGridError", "check_spec", "grid_for", "parse_grid",
            "theta_nodes_deg"]
@@ -183,7 +183,7 @@ class RGLGrid:
 
     def kernel_tables(self, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The tracer's three table arguments for simulated incident direction ``m``
-        (:func:`goniometer.rgl.warp.pack_kernel_tables`)."""
+        (:func:`goniometer.grids.warp.pack_kernel_tables`)."""
         th, ph = self.incidents()
         return pack_kernel_tables(self.warp(m), math.radians(ph[m]), self.isotropic)
 

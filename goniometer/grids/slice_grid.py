@@ -20,12 +20,12 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from goniometer.rgl.warp import invert_point
+from goniometer.grids.warp import invert_point
 
 CLASSIC = 0
 HALF = 1
 #: the RGL format's sample space (``docs/rgl-format.md``): cells are the dual cells of its n x n nodes,
-#: found through the warp of :mod:`goniometer.rgl.warp` (3: 2 is the tracer's tabulation mode)
+#: found through the warp of :mod:`goniometer.grids.warp` (3: 2 is the tracer's tabulation mode)
 RGL = 3
 PARAMETRIZATIONS = {"classic": CLASSIC, "half": HALF, "rgl": RGL}
 
@@ -133,7 +133,7 @@ def cell_index_fast(param: int, transmission: bool, lx: float, ly: float, lz: fl
     """:func:`cell_index` for the tracer: :func:`cell_index_lanes` for ``n_phi >= 8``, libm's
     ``atan2`` for the azimuth of coarser grids. Agrees with :func:`cell_index` except within
     rounding of a boundary. On the RGL grid (``param`` = :data:`RGL`; reflection only) the tables
-    are the warp's (:func:`goniometer.rgl.warp.invert_point`)."""
+    are the warp's (:func:`goniometer.grids.warp.invert_point`)."""
     if param == RGL:
         if transmission:
             return -1, -1

@@ -15,8 +15,8 @@ from typing import Any, Mapping
 import numba
 import numpy as np
 
-from goniometer.rgl.grid import RGLGrid
-from goniometer.tracer import DEVICES, EVENT_CAP
+from goniometer.grids.rgl import RGLGrid
+from goniometer.kernel.tracer import DEVICES, EVENT_CAP
 
 DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
 #: cell grids: theta/phi of v, of the half vector, or the RGL format's sample space (docs/rgl-format.md)
@@ -62,7 +62,7 @@ class SimulationSettings(_Channels):
     whatever ``threads``, locally or distributed. ``first_order`` is ``"traced"`` (the default) or
     ``"integrated"``: the top interface's single reflection computed per cell instead of traced, a
     variance reduction for the total BRDF (``docs/first-order.md``). ``parametrization = "rgl"``
-    records on the RGL format's grid ``rgl`` (:class:`goniometer.rgl.RGLGrid`, which then sets the
+    records on the RGL format's grid ``rgl`` (:class:`goniometer.grids.RGLGrid`, which then sets the
     incident directions and ``resolution = (n, n)``; ``docs/rgl-format.md``).
     """
 
@@ -150,7 +150,7 @@ class SimulationSettings(_Channels):
                 raise SettingsError(f"rgl: an RGL grid goes with parametrization rgl, not {self.parametrization}")
             return
         if not isinstance(self.rgl, RGLGrid):
-            raise SettingsError("rgl: parametrization rgl needs its grid (goniometer.rgl.grid_for(stack); "
+            raise SettingsError("rgl: parametrization rgl needs its grid (goniometer.grids.grid_for(stack); "
                                 "gonio simulate --parametrization rgl makes it from the stack)")
         if (self.incident_deg, self.incident_phi_deg) != self.rgl.incidents():
             raise SettingsError("incident_deg: on the RGL grid the incident directions are the grid's theta_i and "
@@ -209,7 +209,7 @@ class SimulationSettings(_Channels):
     def from_mapping(cls, table: Mapping[str, Any], source: str = "simulation", stack: Any = None) -> "SimulationSettings":
         """Settings from a material file's ``[simulation]`` table (``docs/material-format.md``).
         ``parametrization = "rgl"`` (with ``rgl_grid = [N_THETA_I, N_PHI_I, N]``, optional) needs the
-        ``stack``: the grid's warp follows its top interface (:func:`goniometer.rgl.grid_for`)."""
+        ``stack``: the grid's warp follows its top interface (:func:`goniometer.grids.grid_for`)."""
         if table.get("parametrization") == "rgl" or "rgl_grid" in table:
             return cls._rgl_from_mapping(table, source, stack)
         kw: dict[str, Any] = {}
@@ -235,7 +235,7 @@ class SimulationSettings(_Channels):
 
     @classmethod
     def _rgl_from_mapping(cls, table: Mapping[str, Any], source: str, stack: Any) -> "SimulationSettings":
-        from goniometer.rgl.grid import RGLGridError, grid_for
+        from goniometer.grids.rgl import RGLGridError, grid_for
         if table.get("parametrization") != "rgl":
             raise SettingsError(f"{source}.rgl_grid: goes with parametrization = \"rgl\"")
         for key in ("incident_deg", "resolution"):

@@ -4,7 +4,7 @@
 Layout: three little-endian int32 ``(90, 90, 180)`` (theta_h, theta_d, phi_d resolutions), then
 three planes R, G, B of ``90 * 90 * 180`` little-endian float64 each; the value of cell
 ``(i_h, i_d, i_p)`` is at ``i_p + 180 (i_d + 90 i_h)`` of its plane, in the grid of
-:mod:`goniometer.halfdiff`. A stored value times the channel's scale (:data:`MERL_SCALE`) is the
+:mod:`goniometer.grids.halfdiff`. A stored value times the channel's scale (:data:`MERL_SCALE`) is the
 BRDF in 1/sr without cosine; negative values mark cells without data.
 """
 
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from goniometer import halfdiff
+from goniometer.grids import halfdiff
 from goniometer.atomic import write_bytes
-from goniometer.tabulated import TabulatedBRDF
+from goniometer.files.tabulated import TabulatedBRDF
 
 __all__ = ["MERL_SCALE", "NO_DATA", "merl_bytes", "write_merl"]
 

@@ -1,15 +1,15 @@
 """Checkpoints of a simulation: its finished incident directions, kept until its file is written.
 
-A run (one stack, one :class:`~goniometer.settings.SimulationSettings`) traces its incident
-directions one after the other (:func:`goniometer.run.run_incidents`). Each finished
-direction's raw sums (an :class:`~goniometer.results.IncidentPart`) are saved atomically and
+A run (one stack, one :class:`~goniometer.run.settings.SimulationSettings`) traces its incident
+directions one after the other (:func:`goniometer.run.loop.run_incidents`). Each finished
+direction's raw sums (an :class:`~goniometer.run.results.IncidentPart`) are saved atomically and
 compressed (zip deflate, lossless) as ``m<k>.npz`` in a checkpoint directory, beside ``meta.json``
 describing the run; a rerun of the same run loads them instead of tracing again, and the directory
 is removed once the result is written. Because results are bit-identical whatever the thread count
 and however a run is split, a resumed run gives exactly the file an uninterrupted one would.
 
 ``meta.json`` holds the caller's description of the run
-(:func:`goniometer.results.run_description`) plus :func:`code_key` (a hash of the simulator's
+(:func:`goniometer.run.results.run_description`) plus :func:`code_key` (a hash of the simulator's
 sources). Kept checkpoints are never discarded behind the user's back (``docs/outputs.md``, rule
 3): a run whose description or code key differs from theirs raises :class:`CheckpointMismatch`,
 naming every differing key with both values, and changes nothing; only :meth:`Checkpoints.clear`
@@ -28,14 +28,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 from goniometer import atomic, cache
-from goniometer.results import IncidentPart
+from goniometer.run.results import IncidentPart
 
 __all__ = ["CheckpointMismatch", "CheckpointWarning", "Checkpoints", "checkpoint_dir", "code_key", "differences",
            "check_meta", "unreadable_reason", "write_meta"]
 
 META = "meta.json"
 #: how a key absent from a run description is shown: descriptions leave out keys at their defaults
-#: (:func:`goniometer.results.run_description`, ``docs/file-identity.md``)
+#: (:func:`goniometer.run.results.run_description`, ``docs/file-identity.md``)
 ABSENT = "(default)"
 #: the differences a :class:`CheckpointMismatch` message lists before "and N more"
 SHOWN_DIFFERENCES = 6

@@ -16,20 +16,20 @@ from typing import Callable, Iterable
 import numba
 import numpy as np
 
-from goniometer import tracer
-from goniometer.results import IncidentPart, Sums
-from goniometer.settings import SimulationSettings
-from goniometer.slices import PARAMETRIZATIONS, boundary_tables, light_direction
+from goniometer.kernel import tracer
+from goniometer.run.results import IncidentPart, Sums
+from goniometer.run.settings import SimulationSettings
+from goniometer.grids.slice_grid import PARAMETRIZATIONS, boundary_tables, light_direction
 from goniometer.stack import Stack, pack
 
 
 def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
     """What decides which compiled code a local run of ``stack`` under ``settings`` needs: the
-    kernel's variant arguments (:func:`goniometer.tracer.kernel_flags`), the grid, the first
+    kernel's variant arguments (:func:`goniometer.kernel.tracer.kernel_flags`), the grid, the first
     order and the device (a spectral run: those of its launches). Two runs with the same key run
     the same compiled functions."""
     if settings.spectral:
-        from goniometer.spectral.launches import launch_stacks
+        from goniometer.run.launches import launch_stacks
         return tuple(sorted({run_variant(st, s) for _, st, s in launch_stacks(stack, settings)}, key=repr))
     flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
     key = (flags, settings.parametrization, settings.first_order)
@@ -43,14 +43,14 @@ def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = No
     2 x 4 grid; returns the seconds spent. Without arguments: a coated diffuse stack under the
     default settings. Callers time this as compile time, so that a first run does not book
     compiling as tracing."""
-    from goniometer.results import assemble
+    from goniometer.run.results import assemble
     from goniometer.stack import Interface, Lambertian, Medium
     t0 = time.perf_counter()
     if stack is None:
         stack = Stack("warm-up", (Interface(0.1, (1.5,) * 3), Medium((0.1,) * 3), Lambertian((0.5,) * 3)))
     s = settings if settings is not None else SimulationSettings()
-    if s.spectral:   # each distinct variant of the run's launches (goniometer.spectral.launches)
-        from goniometer.spectral.launches import launch_stacks
+    if s.spectral:   # each distinct variant of the run's launches (goniometer.run.launches)
+        from goniometer.run.launches import launch_stacks
         seen: set = set()
         for _, st, ss in launch_stacks(stack, s):
             key = run_variant(st, ss)
@@ -97,7 +97,7 @@ def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[n
 
 
 def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Empty per-path exit records for ``n`` chunks of slices (:func:`goniometer.tracer.no_exit_records`)."""
+    """Empty per-path exit records for ``n`` chunks of slices (:func:`goniometer.kernel.tracer.no_exit_records`)."""
     return tracer.no_exit_records(n)
 
 
@@ -174,7 +174,7 @@ def _chunk_range(settings: SimulationSettings, first_task: int, count: int) -> t
 
 
 def _kernel_inputs(stack: Stack, settings: SimulationSettings, m: int) -> tracer.Launch:
-    """The kernel launch of incident direction ``m`` (:func:`goniometer.tracer.prepare`): worked
+    """The kernel launch of incident direction ``m`` (:func:`goniometer.kernel.tracer.prepare`): worked
     out once per direction."""
     l = light_direction(settings.incident_deg[m], settings.incident_phi_deg[m])
     nt, nph = settings.resolution
@@ -255,7 +255,7 @@ def trace_spectral_incident(stack: Stack, settings: SimulationSettings, m: int,
     """Incident direction ``m`` of a spectral run: every launch traced
     (:func:`trace_incident`, ``docs/spectral.md`` section 2) and its channels placed in their bins
     (:func:`merge_launches`)."""
-    from goniometer.spectral.launches import launch_stacks
+    from goniometer.run.launches import launch_stacks
     return merge_launches(((bins, trace_incident(st, s, m, progress, buffers))
                            for bins, st, s in launch_stacks(stack, settings)), settings.wavelength_bins)
 
@@ -264,7 +264,7 @@ def merge_launches(launched: Iterable[tuple[tuple[int, ...], IncidentPart]], B: 
     """One incident direction of a spectral run of ``B`` bins from its launches' parts, given as
     (bins, three-channel part) in launch order (``docs/spectral.md`` section 2): each launch's
     channels written into its bins, counts and ``elapsed_s`` summed. Local runs and Dask runs
-    (:func:`goniometer.distributed.dask_incidents`) both merge here, so their bits agree."""
+    (:func:`goniometer.run.distributed.dask_incidents`) both merge here, so their bits agree."""
     merged: IncidentPart | None = None
     for bins, part in launched:
         if merged is None:

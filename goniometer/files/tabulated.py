@@ -2,7 +2,7 @@
 (format "goniometer.tabulated", version 1) and the lookup ``f(l, v)`` (``docs/tabulated-format.md``).
 
 A cell's value is the mean of ``f`` over the cell's pairs of directions weighted by
-``cos theta_l cos theta_v`` (the cell measure of :mod:`goniometer.halfdiff`), estimated from paths
+``cos theta_l cos theta_v`` (the cell measure of :mod:`goniometer.grids.halfdiff`), estimated from paths
 whose incident directions have density ``cos theta_l / pi``: ``fbar = pi S / (N mu)`` with ``S``
 the sum of the exit weights in the cell, ``N`` the number of paths and ``mu`` the cell measure.
 Standard errors come from the per-cell sums of squared weights.
@@ -21,10 +21,11 @@ from typing import Callable
 import h5py
 import numpy as np
 
-from goniometer import halfdiff, tracer
+from goniometer.grids import halfdiff
+from goniometer.kernel import tracer
 from goniometer.atomic import hdf5_file
-from goniometer.results import ENERGY_TERMS
-from goniometer.settings import SettingsError, TabulationSettings
+from goniometer.run.results import ENERGY_TERMS
+from goniometer.run.settings import SettingsError, TabulationSettings
 from goniometer.stack import Stack, StackError
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "TabulatedBRDF", "TabulatedError", "from_sums", "read_tabulated",
@@ -113,7 +114,7 @@ class TabulatedBRDF:
         from dataclasses import replace
 
         from goniometer.spectral import combined_stderr, rgb_weights, wavelength_bins
-        from goniometer.spectral.launches import bin_groups
+        from goniometer.run.launches import bin_groups
         s = self.settings
         W = rgb_weights(wavelength_bins(s.wavelength_bins)[1])      # (B, 3)
         groups = bin_groups(self.stack, s)
@@ -187,7 +188,7 @@ def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums
 def write_tabulated(path: str | Path, tab: TabulatedBRDF, commit: Callable[[], None] | None = None) -> Path:
     """Write ``tab`` to ``path`` atomically (the layout of ``docs/tabulated-format.md``); ``commit``:
     see :func:`goniometer.atomic.atomic_path`."""
-    from goniometer import store
+    from goniometer.files import slices as store
     p = store.check_writable(path)
     with hdf5_file(p, commit) as f:
         store.write_material(f, FORMAT, FORMAT_VERSION, tab.stack)

@@ -1,5 +1,5 @@
 """A spectral result in linear sRGB (``docs/spectral.md`` section 4): what
-:meth:`goniometer.results.SimulationResult.rgb` returns."""
+:meth:`goniometer.run.results.SimulationResult.rgb` returns."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from goniometer.spectral.launches import bin_groups
+from goniometer.run.launches import bin_groups
 from goniometer.stack import Stack
 
 __all__ = ["to_rgb"]

@@ -1,10 +1,10 @@
 """Running a run's tasks on a Dask distributed cluster (the optional ``distributed`` extra).
 
 Each (incident, task) unit -- (incident, launch, task) in a spectral run (``docs/spectral.md``
-section 2) -- runs :func:`goniometer.tasks.trace_tasks` on a worker without numba threads; task
+section 2) -- runs :func:`goniometer.run.tasks.trace_tasks` on a worker without numba threads; task
 results are summed per incident direction (per launch) in task order, exactly as a local run sums
 them, and a spectral run's launches are merged into their bins by the local run's
-:func:`goniometer.tasks.merge_launches`, so the result is bit-identical to a local run's
+:func:`goniometer.run.tasks.merge_launches`, so the result is bit-identical to a local run's
 (``docs/database-format.md`` section 4).
 """
 
@@ -14,10 +14,10 @@ import time
 from collections import deque
 from typing import Any, Callable, Iterator
 
-from goniometer.settings import SimulationSettings
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Stack
-from goniometer.results import IncidentPart, Sums
-from goniometer.tasks import merge_launches, n_tasks, task_rays, trace_tasks
+from goniometer.run.results import IncidentPart, Sums
+from goniometer.run.tasks import merge_launches, n_tasks, task_rays, trace_tasks
 
 
 class ClusterError(ValueError):
@@ -39,11 +39,11 @@ def dask_client(address: str):
 def run_task(stack_json: str, settings: SimulationSettings, m: int, task: int, launch: int | None = None) -> Sums:
     """One (incident, task) unit of work, as run on a Dask worker (no numba threads). ``launch``:
     in a spectral run, the launch whose task it is; the worker rebuilds that launch's stack and
-    settings from the spectral ones (:func:`goniometer.spectral.launches.launch_stacks`, the
+    settings from the spectral ones (:func:`goniometer.run.launches.launch_stacks`, the
     local run's own)."""
     stack = Stack.from_json(stack_json)
     if launch is not None:
-        from goniometer.spectral.launches import launch_stacks
+        from goniometer.run.launches import launch_stacks
         _, stack, settings = launch_stacks(stack, settings)[launch]
     return trace_tasks(stack, settings, m, task, 1, parallel=False)[0]
 
@@ -61,7 +61,7 @@ def dask_incidents(client: Any, stack: Stack, settings: SimulationSettings, inci
         window = 4 * workers
     stack_json = stack.to_json()
     if settings.spectral:
-        from goniometer.spectral.launches import launch_stacks
+        from goniometer.run.launches import launch_stacks
         runs: list[tuple[tuple[int, ...], Stack, SimulationSettings]] = launch_stacks(stack, settings)
     else:
         runs = [((), stack, settings)]

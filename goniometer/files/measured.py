@@ -6,7 +6,7 @@ Conventions: ``l`` towards the light, ``v`` towards the viewer, both pointing aw
 local frame z normal; values are the BRDF without the cosine, 1/sr, RGB last; NaN where the file
 has no data (MERL's negative cells).
 
-* MERL: the cell of the (half, difference) angles holding the pair (:mod:`goniometer.halfdiff`),
+* MERL: the cell of the (half, difference) angles holding the pair (:mod:`goniometer.grids.halfdiff`),
   its stored value times the channel's scale; nearest cell, no interpolation (the format's own
   reading).
 * RGL: the readers' evaluation (``docs/rgl-format.md`` section 3): the half vector through the warp
@@ -19,7 +19,7 @@ has no data (MERL's negative cells).
 
 Reading checks the values (``docs/measured.md`` section 1, "What a file must hold"): every number
 finite; no reflectance above :data:`MAX_REFLECTANCE` (MERL: the hemispherical reflectance
-``sum f mu / pi`` over the cells with data, ``mu`` the cells' measure of :mod:`goniometer.halfdiff`;
+``sum f mu / pi`` over the cells with data, ``mu`` the cells' measure of :mod:`goniometer.grids.halfdiff`;
 RGL: each incident node's mean stored value over the square, which is its directional albedo, the
 stored values being ``f cos / p`` for the warp's density ``p``); for RGL no stored value negative
 beyond :data:`NEGATIVE_TOLERANCE` of the largest, no negative ``ndf`` or ``vndf`` and a positive
@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from goniometer import halfdiff
-from goniometer.merl import MERL_SCALE
-from goniometer.rgl.tensor import MAGIC, TensorError, read_tensor
-from goniometer.rgl.warp import Warp2D, bilinear
+from goniometer.grids import halfdiff
+from goniometer.files.merl import MERL_SCALE
+from goniometer.files.rgl_tensor import MAGIC, TensorError, read_tensor
+from goniometer.grids.warp import Warp2D, bilinear
 
 __all__ = ["MAX_REFLECTANCE", "MERL_SCALE", "NEGATIVE_TOLERANCE", "MeasuredBRDF", "MeasuredError", "measured_kind",
            "measured_reference", "read_measured"]
@@ -183,7 +183,7 @@ def _cell(k: int) -> tuple[int, int, int]:
 def _check_merl(p: Path, raw: np.ndarray, planes: np.ndarray) -> None:
     """MeasuredError unless every stored value is finite and the cells with data (stored value >= 0)
     reflect at most :data:`MAX_REFLECTANCE` of the light: ``sum f mu / pi`` per channel, the
-    hemispherical reflectance of the cells (``mu``: :func:`goniometer.halfdiff.cell_measure`, whose
+    hemispherical reflectance of the cells (``mu``: :func:`goniometer.grids.halfdiff.cell_measure`, whose
     sum is ``pi^2``)."""
     bad = ~np.isfinite(raw)
     if bad.any():
@@ -284,15 +284,15 @@ def _read_rgl(p: Path) -> MeasuredBRDF:
 
 
 def measured_reference(measured: MeasuredBRDF, stack, settings, subcells: int = 5):
-    """A :class:`goniometer.results.SimulationResult` whose BRDF slices are the measurement's cell
+    """A :class:`goniometer.run.results.SimulationResult` whose BRDF slices are the measurement's cell
     means on the grid of ``settings`` (classic or half; its incident directions): each cell the
     projected-solid-angle weighted mean of ``measured.eval`` over ``subcells`` x ``subcells``
     sub-cells. Cells with a sub-cell without data are masked. Standard errors are unknown (NaN),
     bounce orders too (the measurement is all one order: ``orders`` holds it in the last,
     "K or more" row and the first rows are NaN); energies other than the reflected one are NaN.
     ``extra["measured"]`` says where it comes from and how it was resampled."""
-    from goniometer.results import SimulationResult, SliceData
-    from goniometer.slices import SliceGrid, light_direction
+    from goniometer.run.results import SimulationResult, SliceData
+    from goniometer.grids.slice_grid import SliceGrid, light_direction
     if settings.parametrization not in ("classic", "half"):
         raise MeasuredError(f"{measured.path}: a measurement is resampled onto classic or half slices")
     nt, nph = settings.resolution
