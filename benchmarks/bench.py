@@ -41,7 +41,8 @@ from goniometer.run.results import cell_geometry
 from goniometer.run.settings import SimulationSettings
 from goniometer.run.loop import simulate
 from goniometer.run.tasks import warm_up
-from goniometer.stack import Interface, Lambertian, Medium, Stack, pack
+from goniometer.stack import Interface, Lambertian, Medium, Stack
+from goniometer.kernel.packing import pack
 from goniometer.kernel.tracer import kernel_flags
 from goniometer.grids.slice_grid import light_direction
 

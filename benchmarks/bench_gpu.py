@@ -28,9 +28,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from goniometer import tracer  # noqa: E402
+from goniometer.kernel import tracer  # noqa: E402
 from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
-from goniometer.stack import pack  # noqa: E402
+from goniometer.kernel.packing import pack  # noqa: E402
 
 
 def refuse_without_gpu() -> None:

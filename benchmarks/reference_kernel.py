@@ -33,7 +33,8 @@ import numpy as np
 
 from goniometer.kernel.rng import next_float, stream_state
 from goniometer.grids.slice_grid import cell_index
-from goniometer.stack import Stack, pack
+from goniometer.stack import Stack
+from goniometer.kernel.packing import pack
 
 _TWO_PI = 2.0 * math.pi
 
@@ -94,7 +95,7 @@ def _lambda(wx, wy, wz, a):
 def reference_chunk(alpha, region_eta, region_tau, cond, rho, base_kind, lx, ly, lz, n_rays, state,
                     param, n_theta, n_phi, brdf, btdf, energy, squares, brdf_sq):
     """Trace ``n_rays`` paths into ``brdf``/``btdf`` (n_theta, n_phi, 3) and ``energy`` (2, 3):
-    reflected and transmitted weight sums. Arguments as :class:`goniometer.stack.PackedStack`.
+    reflected and transmitted weight sums. Arguments as :class:`goniometer.kernel.packing.PackedStack`.
     ``squares`` (for tests, off when timed): also sum the squared BRDF exit weights per cell into
     ``brdf_sq``."""
     n_if = region_eta.shape[0] - 1

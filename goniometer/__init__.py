@@ -43,7 +43,7 @@ _EXPORTS = {
     "StoreError": "goniometer.files.slices",
     # tabulated BRDFs (the MERL grid)
     "TabulationSettings": "goniometer.run.settings", "tabulate": "goniometer.run.tabulation",
-    "TabulatedBRDF": "goniometer.files.tabulated", "read_tabulated": "goniometer.files.tabulated",
+    "TabulatedBRDF": "goniometer.run.results", "read_tabulated": "goniometer.files.tabulated",
     "write_tabulated": "goniometer.files.tabulated", "write_merl": "goniometer.files.merl",
     # the RGL tensor format (Mitsuba 3's and pbrt-v4's measured materials; docs/rgl-format.md)
     "read_tensor": "goniometer.files.rgl_tensor", "write_tensor": "goniometer.files.rgl_tensor",

@@ -37,7 +37,8 @@ from goniometer.run.checkpoints import CheckpointMismatch, Checkpoints
 from goniometer.run.results import run_description, same_run
 from goniometer.run.settings import SettingsError, SimulationSettings
 from goniometer.run.loop import run_incidents
-from goniometer.stack import Interface, Stack, StackError, check_films, stack_from_dict
+from goniometer.stack import Interface, Stack, StackError, stack_from_dict
+from goniometer.kernel.packing import check_films
 from goniometer.tomlfile import read_toml
 
 MANIFEST = "database.json"

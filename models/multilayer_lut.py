@@ -26,7 +26,8 @@ import os
 import numpy as np
 
 from goniometer.optics import ggx_lambda, microfacet_reflection, smith_g2
-from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, Stack, pack
+from goniometer.stack import Stack
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN, pack
 from models._jit import njit
 from models.tables import multilayer as mt
 from models.base import Model, ModelError, ModelValue

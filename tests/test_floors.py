@@ -96,6 +96,51 @@ def test_nothing_below_the_application_imports_it():
     assert not upward, "lower floors import the application: " + ", ".join(upward)
 
 
+#: the simulator's rooms from the ground up (docs/architecture.md, "Rooms of the simulator"): a
+#: module imports only modules of its own room or of a room below it
+SIMULATOR_ROOMS = (
+    ("goniometer._lazy", "goniometer.cache", "goniometer.bits", "goniometer.atomic", "goniometer.tomlfile"),
+    ("goniometer.spectral",),
+    ("goniometer.stack",),
+    ("goniometer.optics",),
+    ("goniometer.grids",),
+    ("goniometer.kernel",),
+    ("goniometer.run.loop",),
+    ("goniometer.files",),
+    ("goniometer.database",),
+    ("goniometer.testing",),
+    ("goniometer.cli",),
+)
+
+
+def _room(module: str) -> int:
+    """The floor of ``module`` among :data:`SIMULATOR_ROOMS` (the package face ``goniometer`` is on the ground)."""
+    if module == "goniometer":     # the face: the version and the cache's configuration; its names load lazily
+        return 0
+    for k, room in enumerate(SIMULATOR_ROOMS):
+        if _in(module, room):
+            return k
+    raise AssertionError(f"{module} is in no room of SIMULATOR_ROOMS: give it one")
+
+
+def test_every_simulator_module_has_a_room():
+    for m in MODULES:
+        if _in(m, ("goniometer",)):
+            _room(m)
+
+
+def test_nothing_in_the_simulator_imports_a_room_above_its_own():
+    upward = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if _in(m, ("goniometer",))
+                    for t in ts if _in(t, ("goniometer",)) and _room(t) > _room(m))
+    assert not upward, "imports that run back up inside the simulator: " + ", ".join(upward)
+
+
+def test_the_rooms_test_can_fail():
+    # guards the test above: a real upward pair is seen as one
+    assert _room("goniometer.run.settings") > _room("goniometer.kernel.tracer")
+    assert "goniometer.kernel.tracer" in GRAPH["goniometer.run.tasks"]
+
+
 def _cycles() -> list[list[str]]:
     """Strongly connected components with more than one module (Tarjan)."""
     index: dict[str, int] = {}

@@ -124,7 +124,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     with usage_errors(StackError):
         per = _paths_per_incident(stack, settings)
         if not settings.spectral:
-            from goniometer.stack import check_films
+            from goniometer.kernel.packing import check_films
             check_films(stack)
             if stack.is_spectral:
                 print(f"note: {stack.name} has spectral data; an RGB run traces their RGB equivalents "

@@ -16,7 +16,7 @@ import numpy as np
 
 from goniometer.grids import halfdiff
 from goniometer.atomic import write_bytes
-from goniometer.files.tabulated import TabulatedBRDF
+from goniometer.run.results import TabulatedBRDF
 
 __all__ = ["MERL_SCALE", "NO_DATA", "merl_bytes", "write_merl"]
 

@@ -1,11 +1,6 @@
-"""Tabulated isotropic BRDFs on the MERL grid: what ``gonio tabulate`` produces, its HDF5 file
-(format "goniometer.tabulated", version 1) and the lookup ``f(l, v)`` (``docs/tabulated-format.md``).
-
-A cell's value is the mean of ``f`` over the cell's pairs of directions weighted by
-``cos theta_l cos theta_v`` (the cell measure of :mod:`goniometer.grids.halfdiff`), estimated from paths
-whose incident directions have density ``cos theta_l / pi``: ``fbar = pi S / (N mu)`` with ``S``
-the sum of the exit weights in the cell, ``N`` the number of paths and ``mu`` the cell measure.
-Standard errors come from the per-cell sums of squared weights.
+"""The HDF5 file of a tabulated isotropic BRDF on the MERL grid (format "goniometer.tabulated",
+version 1; ``docs/tabulated-format.md``): :func:`write_tabulated`, :func:`read_tabulated` of a
+:class:`goniometer.run.results.TabulatedBRDF` (what ``gonio tabulate`` produces).
 
     tab = read_tabulated("metal-tab.h5")
     f = tab.eval(l, v)      # (..., 3) RGB, 1/sr, no cosine; l, v unit, pointing away from the surface
@@ -22,26 +17,18 @@ import h5py
 import numpy as np
 
 from goniometer.grids import halfdiff
-from goniometer.kernel import tracer
 from goniometer.atomic import hdf5_file
-from goniometer.run.results import ENERGY_TERMS
+from goniometer.run.results import TAB_ENERGY_TERMS, TabulatedBRDF
 from goniometer.run.settings import SettingsError, TabulationSettings
 from goniometer.stack import Stack, StackError
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "TabulatedBRDF", "TabulatedError", "from_sums", "read_tabulated",
-           "write_tabulated"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "TabulatedError", "read_tabulated", "write_tabulated"]
 
 FORMAT = "goniometer.tabulated"
 FORMAT_VERSION = 1
 CHANNELS = ("R", "G", "B")
 #: the channel scale of a spectral tabulation (as in a slices file, ``docs/spectral.md``)
 WAVELENGTH = "wavelength_nm"
-#: energy terms of a tabulation: the four of a slices file and the part of ``reflected`` that never
-#: reached the base
-TAB_ENERGY_TERMS = ENERGY_TERMS + ("reflected_without_base",)
-_ENERGY_ROWS = {"reflected": tracer.E_REFLECTED, "transmitted": tracer.E_TRANSMITTED,
-                "absorbed": tracer.E_ABSORBED, "masking_loss": tracer.E_MASKING,
-                "reflected_without_base": tracer.E_REFLECTED_WITHOUT_BASE}
 _COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
 _DESCRIPTION = {
     "value": "mean BRDF over the cell, weighted by cos(theta_l) cos(theta_v) (no cosine in the value); "
@@ -54,133 +41,6 @@ _DESCRIPTION = {
 
 class TabulatedError(ValueError):
     """A file that is not a readable tabulated BRDF (the message names the file and why)."""
-
-
-@dataclass
-class TabulatedBRDF:
-    """An isotropic BRDF tabulated on the MERL grid (``docs/tabulated-format.md``).
-
-    ``value``/``stderr``: (C, 90, 90, 180) in 1/sr, no cosine, indexed (channel, theta_h,
-    theta_d, phi_d), C = 3 (R, G, B) or a spectral tabulation's wavelength bins
-    (:attr:`wavelengths_nm`); ``hits`` and ``measure`` (sr^2): (90, 90, 180), ``hits`` counting
-    the paths of every launch. Energy terms are (C,) fractions of the flux of uniform diffuse
-    illumination (incident directions ``cos theta / pi``).
-    """
-
-    stack: Stack
-    settings: TabulationSettings
-    value: np.ndarray
-    stderr: np.ndarray
-    hits: np.ndarray
-    measure: np.ndarray
-    energy: dict[str, np.ndarray]
-    energy_stderr: dict[str, np.ndarray]
-    roulette: np.ndarray
-    capped: np.ndarray
-    capped_paths: int
-    mean_events: float
-    elapsed_s: float
-    threads: int
-    compile_s: float = 0.0
-    #: kernel launches of ``settings.rays`` paths each: 1, or a spectral tabulation's (``docs/spectral.md``)
-    launches: int = 1
-
-    @property
-    def has_data(self) -> np.ndarray:
-        """(90, 90, 180) bool: at least one path left through the cell."""
-        return self.hits > 0
-
-    @property
-    def rays_per_s(self) -> float:
-        """Paths traced per second (a spectral tabulation traces ``rays`` per launch)."""
-        return self.paths / self.elapsed_s if self.elapsed_s > 0 else float("nan")
-
-    @property
-    def paths(self) -> int:
-        """Paths traced in all."""
-        return self.settings.rays * self.launches
-
-    @property
-    def wavelengths_nm(self) -> np.ndarray | None:
-        """The wavelength-bin centres (nm) of a spectral tabulation's channel axis; None for RGB."""
-        return self.settings.wavelengths_nm
-
-    def rgb(self) -> "TabulatedBRDF":
-        """This tabulation in linear sRGB (a spectral one through the colour pipeline of
-        ``docs/spectral.md`` section 4, standard errors by its stated upper bound; an RGB one is
-        returned as it is). The stack is the material's RGB equivalent; the settings say RGB."""
-        if not self.settings.spectral:
-            return self
-        from dataclasses import replace
-
-        from goniometer.spectral import combined_stderr, rgb_weights, wavelength_bins
-        from goniometer.run.launches import bin_groups
-        s = self.settings
-        W = rgb_weights(wavelength_bins(s.wavelength_bins)[1])      # (B, 3)
-        groups = bin_groups(self.stack, s)
-
-        def lin(a: np.ndarray) -> np.ndarray:
-            return np.moveaxis(np.tensordot(np.moveaxis(a, 0, -1), W, axes=([-1], [0])), -1, 0)
-
-        def se(a: np.ndarray) -> np.ndarray:
-            return combined_stderr(a, W, groups, axis=0)
-
-        return replace(self, stack=Stack(self.stack.name, self.stack.layers, self.stack.category),
-                       settings=replace(s, spectral=False), value=lin(self.value), stderr=se(self.stderr),
-                       energy={k: lin(v) for k, v in self.energy.items()},
-                       energy_stderr={k: se(v) for k, v in self.energy_stderr.items()},
-                       roulette=lin(self.roulette), capped=lin(self.capped))
-
-    def eval(self, l: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The BRDF ``f(l, v)`` per channel (RGB, or per wavelength bin) in 1/sr without the
-        cosine, shape ``(..., C)``.
-
-        ``l`` and ``v``: (..., 3) directions (normalised here) pointing away from the surface,
-        broadcast together. The value is that of the cell holding the pair (nearest cell, no
-        interpolation); 0 where ``l`` or ``v`` is at or below the horizon, and 0 in cells no path
-        left through (the estimate there; :attr:`has_data` tells them apart).
-        """
-        cells = halfdiff.cell_indices(l, v)
-        C = self.value.shape[0]
-        flat = self.value.reshape(C, halfdiff.N_CELLS)
-        out = np.zeros(cells.shape + (C,))
-        ok = cells >= 0
-        out[ok] = flat[:, cells[ok]].T
-        return out
-
-
-def from_sums(stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums_sq: np.ndarray,
-              hits: np.ndarray, energy: np.ndarray, energy_sq: np.ndarray, counts: np.ndarray,
-              elapsed_s: float, threads: int, compile_s: float = 0.0, launches: int = 1) -> TabulatedBRDF:
-    """Estimates from the raw sums of a tabulation: ``sums``/``sums_sq`` (N_CELLS, C) exit weights
-    and their squares per flat MERL cell, ``hits`` (N_CELLS,), and the kernel's energy sums; every
-    channel was estimated from ``settings.rays`` paths (a spectral run: ``launches`` launches of
-    ``rays`` paths, whose counters are summed)."""
-    n = settings.rays
-    C = sums.shape[1]
-    mu = np.asarray(halfdiff.cell_measure()).reshape(-1)
-    scale = np.divide(np.pi, n * mu, out=np.zeros_like(mu), where=mu > 0)[:, None]
-    value = sums * scale
-    var = np.maximum(sums_sq - sums * sums / n, 0.0) / max(n - 1, 1)
-    stderr = np.sqrt(var * n) * scale
-
-    def planes(x: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(x.T).reshape((C,) + halfdiff.SHAPE)
-
-    en: dict[str, np.ndarray] = {}
-    en_se: dict[str, np.ndarray] = {}
-    for name in TAB_ENERGY_TERMS:
-        row = _ENERGY_ROWS[name]
-        mean = energy[row] / n
-        en[name] = mean
-        en_se[name] = np.sqrt(np.maximum(energy_sq[row] / n - mean * mean, 0.0) / max(n - 1, 1))
-    return TabulatedBRDF(
-        stack=stack, settings=settings, value=planes(value), stderr=planes(stderr),
-        hits=hits.reshape(halfdiff.SHAPE).astype(np.int64), measure=np.array(halfdiff.cell_measure()),
-        energy=en, energy_stderr=en_se, roulette=energy[tracer.E_ROULETTE] / n,
-        capped=energy[tracer.E_CAPPED] / n, capped_paths=int(counts[tracer.C_CAPPED]),
-        mean_events=float(counts[tracer.C_EVENTS]) / (n * launches), elapsed_s=elapsed_s, threads=threads,
-        compile_s=compile_s, launches=launches)
 
 
 # ---------------------------------------------------------------------- writing

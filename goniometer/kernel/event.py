@@ -35,7 +35,7 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       T_G, T_IEXT0, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT,
                                       T_TAU0, T_TAU1, T_TAU2)
 from goniometer.kernel.rng import draw, path_key, uniform_pair
-from goniometer.stack import FILM_COLS, FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
+from goniometer.kernel.packing import FILM_COLS, FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 #: Russian roulette: from this many events on, paths whose largest channel weight is below
 #: RR_THRESHOLD survive with probability max(w) / RR_THRESHOLD

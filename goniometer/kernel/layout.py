@@ -106,7 +106,7 @@ T_TAU0, T_TAU1, T_TAU2, T_SCAT, T_IEXT0, T_IEXT1, T_IEXT2, T_ALB0, T_ALB1, T_ALB
 
 #: a stack with a thin film (the film variant, ``docs/kernel.md``) appends, at
 #: ``off + (n_if + 1) * RG_STRIDE``, per interface k ``FILM_COLS`` columns: the packed film of
-#: interface k (:data:`goniometer.stack.FILM_COLS`, columns ``FL_*``); a stack without films has
+#: interface k (:data:`goniometer.kernel.packing.FILM_COLS`, columns ``FL_*``); a stack without films has
 #: no such block (its table is the same as before films existed)
 
 # tau_mode per region (as the steps read it): 0 clear, 1 achromatic absorption, 2 chromatic;

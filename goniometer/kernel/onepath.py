@@ -31,7 +31,7 @@ from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, 
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
 from goniometer.kernel.rng import chunk_key, next_disk, next_float, path_key, seed_state
 from goniometer.grids.slice_grid import cell_index_fast
-from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
+from goniometer.kernel.packing import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 #: how a path ended (:func:`trace_path`'s first value)
 X_NONE = 0

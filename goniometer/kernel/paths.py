@@ -27,7 +27,7 @@ from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, 
 from goniometer.kernel.steps import _attenuate, free_flight, microsurface_walk
 from goniometer.kernel.rng import next_disk, next_float
 from goniometer.grids.slice_grid import cell_index_fast
-from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
+from goniometer.kernel.packing import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 @intrinsic
 def _prefetch(typingctx, arr, i, j, k, c):
@@ -128,7 +128,7 @@ def trace_paths(stack, lx, ly, lz, n_rays, state, param, n_theta, n_phi, tables,
     cell being prefetched meanwhile: each cell still receives its additions in path order, so the
     sums are the same, bit for bit, as with immediate deposits.
 
-    ``if_film``: the packed thin films (:attr:`goniometer.stack.PackedStack.if_film`): on an
+    ``if_film``: the packed thin films (:attr:`goniometer.kernel.packing.PackedStack.if_film`): on an
     interface with one, each microfacet reflects and transmits with the film's per-channel
     ``R_c``, ``T_c`` (a dielectric reflects with probability ``P = sum R_c / sum (R_c + T_c)``,
     weights ``R_c / P``, else refracts, weights ``T_c / (1 - P)``; a conductor reflects, weights

@@ -22,7 +22,7 @@ from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_D
                                       F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, LANES,
                                       ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED, ST_TRANSMITTED)
 from goniometer.kernel.rng import next_disk, next_float, seed_state
-from goniometer.stack import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
+from goniometer.kernel.packing import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 LN = LANES
 
@@ -109,7 +109,7 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     ``inv_eta``), until the ray leaves the microsurface. ``g_is_r`` / ``b_is_g``: channels that
     share their complex index (one Fresnel evaluation).
 
-    With ``film`` True and ``fr`` a packed film row (:data:`goniometer.stack.FILM_COLS`, ``FL_ON``
+    With ``film`` True and ``fr`` a packed film row (:data:`goniometer.kernel.packing.FILM_COLS`, ``FL_ON``
     set), every bounce reflects and transmits with the thin film's per-channel ``R_c``, ``T_c``
     (:func:`goniometer.optics.film_rt`, from the side the bounce's light arrives from;
     ``from_above``: the walk began on the interface's upper side): a conductor reflects with the
@@ -230,7 +230,7 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
     walk, traversed the region and did its bookkeeping; each further bounce counts toward the cap.
     ``xs`` is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``.
     ``film`` None or True (the kernel's film variant); ``if_film`` the packed films
-    (:attr:`goniometer.stack.PackedStack.if_film`)."""
+    (:attr:`goniometer.kernel.packing.PackedStack.if_film`)."""
     dx = S[F_DX * LN + i]
     dy = S[F_DY * LN + i]
     dz = S[F_DZ * LN + i]

@@ -31,7 +31,7 @@ continues the walks that go on (:mod:`goniometer.kernel.steps`), books the paths
 gives their lanes the next path of the chunk. Every path draws its own random numbers, keyed by
 (seed, incident index, chunk, path) (:mod:`goniometer.kernel.rng`), so neither the lane a path runs in
 nor the number of threads changes a result. Kernel inputs are flat arrays (see
-:class:`goniometer.stack.PackedStack`); outputs are per-chunk histograms.
+:class:`goniometer.kernel.packing.PackedStack`); outputs are per-chunk histograms.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from goniometer.kernel.paths import trace_paths
 from goniometer.kernel.steps import continue_walk, free_flight, microsurface_walk
 from goniometer.kernel.variants import KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS, StackFacts, stack_facts, variant_flags
 from goniometer.kernel.rng import chunk_key, stream_state
-from goniometer.stack import PackedStack
+from goniometer.kernel.packing import PackedStack
 
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
@@ -105,7 +105,7 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 class Launch:
     """A run's kernel call, prepared once (:func:`prepare`) and launched per batch of chunks
     (:func:`launch`; ``docs/gpu.md``, the seam): the stack's facts and its packed arrays (in
-    :data:`goniometer.stack.PackedStack.KERNEL_FIELDS` order), the variant, the light direction,
+    :data:`goniometer.kernel.packing.PackedStack.KERNEL_FIELDS` order), the variant, the light direction,
     the chunk arithmetic's numbers, the grid and its boundary tables, and the device.
 
     ``stream`` is the incident index of the random keys (a tabulation's own stream); ``flags``
@@ -135,7 +135,7 @@ class Launch:
     @property
     def stack_args(self) -> tuple:
         """The kernels' ``stack`` argument: the packed stack's arrays in
-        :data:`goniometer.stack.PackedStack.KERNEL_FIELDS` order, then :attr:`derived`
+        :data:`goniometer.kernel.packing.PackedStack.KERNEL_FIELDS` order, then :attr:`derived`
         (``tau_mode, eta_dn, eta_up, table, off``)."""
         return self.facts.packed.as_tuple() + self.derived
 

@@ -1,7 +1,7 @@
 """What a packed stack is, as the kernels need to know it, worked out once per run
 (``docs/kernel.md``, variants; ``docs/gpu.md``, the seam).
 
-:func:`stack_facts` reads a :class:`goniometer.stack.PackedStack` once: anisotropy, conductor
+:func:`stack_facts` reads a :class:`goniometer.kernel.packing.PackedStack` once: anisotropy, conductor
 channels that share their complex index, multiple-scattering and scattering regions, films, the
 regions' modes (:func:`goniometer.kernel.layout.tau_modes`) and the relative indices. The lane
 kernel's variant arguments (:func:`variant_flags`, what :func:`goniometer.kernel.tracer.kernel_flags`
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniometer.kernel.layout import TAU_SCATTER, relative_indices, tau_modes
-from goniometer.stack import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN, PackedStack
 
 #: ``kernel`` of :func:`variant_flags`: the kernel commands use (the lane kernel for every stack),
 #: the lane kernel, or the per-path kernel (the second implementation the tests check the lane

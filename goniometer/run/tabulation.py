@@ -37,8 +37,9 @@ from goniometer.run import checkpoints as _checkpoint
 from goniometer.run.checkpoints import UNREADABLE, CheckpointMismatch, check_meta, unreadable_reason, write_meta
 from goniometer.run.settings import TabulationSettings
 from goniometer.grids.slice_grid import boundary_tables
-from goniometer.stack import Stack, pack
-from goniometer.files.tabulated import TabulatedBRDF, from_sums
+from goniometer.stack import Stack
+from goniometer.kernel.packing import pack
+from goniometer.run.results import TabulatedBRDF
 
 __all__ = ["TAB_STREAM", "TabulationCheckpoint", "TabulationError", "check_tabulable", "launches", "tabulate",
            "tabulation_description", "warm_up"]
@@ -315,8 +316,9 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
         if checkpoint is not None and n_chunks > 0 and \
                 _rays_in(state.next_chunk, per_launch, settings.rays, cr) > done_rays:
             checkpoint.save(state)
-        return from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy, state.energy_sq,
-                         state.counts, state.elapsed_s, threads, compile_s, launches=len(runs))
+        return TabulatedBRDF.from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy,
+                                       state.energy_sq, state.counts, state.elapsed_s, threads, compile_s,
+                                       launches=len(runs))
     except KeyboardInterrupt:
         # the state is always whole chunks (_commit is one compiled call): keep it
         if checkpoint is not None and state.next_chunk > 0:

@@ -20,7 +20,8 @@ from goniometer.kernel import tracer
 from goniometer.run.results import IncidentPart, Sums
 from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import PARAMETRIZATIONS, boundary_tables, light_direction
-from goniometer.stack import Stack, pack
+from goniometer.stack import Stack
+from goniometer.kernel.packing import pack
 
 
 def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:

@@ -112,7 +112,7 @@ def _paths_per_incident(stack, settings) -> int:
     for what the run cannot trace: a spectral table that does not cover the bins, a film in an RGB
     run (``docs/spectral.md``)."""
     if not settings.spectral:
-        from goniometer.stack import check_films
+        from goniometer.kernel.packing import check_films
         check_films(stack)
         return settings.rays
     from goniometer.run.launches import launch_stacks

@@ -33,8 +33,8 @@ from goniometer.cli import main
 from goniometer.run.loop import simulate
 from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import light_direction
-from goniometer.stack import (Interface, Lambertian, Medium, Stack, StackError, load_toml, pack,
-                              stack_from_dict)
+from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, load_toml, stack_from_dict
+from goniometer.kernel.packing import pack
 from tests.conftest import P_FALSE_ALARM, Z_TOL, assert_cells_match, chi2_limit
 
 # ----------------------------------------------------------------------------- references

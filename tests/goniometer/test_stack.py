@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from goniometer.stack import (BASE_CONDUCTOR, BASE_LAMBERTIAN, BASE_TRANSMIT, Interface, Lambertian, Medium,
-                              Stack, StackError, load_toml, pack, stack_from_dict)
+from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, load_toml, stack_from_dict
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN, BASE_TRANSMIT, pack
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
 
@@ -104,7 +104,8 @@ def test_missing_file(tmp_path):
 
 # ---------------------------------------------------------------------- thin films
 
-from goniometer.stack import FL_DL0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON, Film  # noqa: E402
+from goniometer.stack import Film  # noqa: E402
+from goniometer.kernel.packing import FL_DL0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON  # noqa: E402
 
 _WL = (450.0, 550.0, 650.0)
 

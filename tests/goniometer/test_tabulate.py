@@ -285,8 +285,8 @@ def _interrupting(real):
     return wrapper
 
 
-@pytest.mark.parametrize("where", ["goniometer.run.tabulation.from_sums", "goniometer.files.tabulated.write_tabulated",
-                                   "h5py.File"])
+@pytest.mark.parametrize("where", ["goniometer.run.results:TabulatedBRDF.from_sums",
+                                   "goniometer.files.tabulated:write_tabulated", "h5py:File"])
 def test_ctrl_c_at_the_end_of_tabulate_is_one_line_130_and_resumable(where, tmp_path, capsys, monkeypatch,
                                                                        sigint_default):
     """Interrupted after the last chunk (while the sums become values, while the file is written, or
@@ -298,9 +298,12 @@ def test_ctrl_c_at_the_end_of_tabulate_is_one_line_130_and_resumable(where, tmp_
     argv = ["--rays", "20000", "--seed", "5", "--threads", "1"]
     assert main(["tabulate", str(cfg), "--out", str(ref), *argv]) == 0
     out = tmp_path / "p.h5"
-    module, name = where.rsplit(".", 1)
-    monkeypatch.setattr(importlib.import_module(module), name, _interrupting(getattr(importlib.import_module(module),
-                                                                                       name)))
+    module, attr = where.split(":")
+    owner = importlib.import_module(module)
+    *path, name = attr.split(".")
+    for a in path:
+        owner = getattr(owner, a)
+    monkeypatch.setattr(owner, name, _interrupting(getattr(owner, name)))
     capsys.readouterr()
     assert main(["tabulate", str(cfg), "--out", str(out), *argv]) == 130
     err = capsys.readouterr().err.strip().splitlines()

@@ -212,7 +212,7 @@ def test_cli_writes_the_png(lambert_classic, tmp_path, capsys):
 
 
 class _FakeTable:
-    """Stands for goniometer.files.tabulated's TabulatedBRDF of an RGB tabulation: a stack, eval(l, v),
+    """Stands for goniometer.run.results.TabulatedBRDF of an RGB tabulation: a stack, eval(l, v),
     and rgb() (an RGB table is its own linear sRGB)."""
 
     def __init__(self, stack):

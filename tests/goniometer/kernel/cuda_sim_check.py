@@ -11,10 +11,10 @@ assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
 
 import numpy as np  # noqa: E402
 
-from goniometer import tracer  # noqa: E402
+from goniometer.kernel import tracer  # noqa: E402
 from goniometer.kernel.onepath import FIXED_SCALE, trace_keyed_chunk  # noqa: E402
 from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
-from goniometer.stack import pack  # noqa: E402
+from goniometer.kernel.packing import pack  # noqa: E402
 from tests.goniometer.kernel.test_two_kernels import STACKS  # noqa: E402
 
 RES = (4, 8)

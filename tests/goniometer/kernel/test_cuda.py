@@ -18,7 +18,7 @@ from goniometer.kernel import tracer
 from goniometer.cli import main
 from goniometer.run.settings import SettingsError, SimulationSettings
 from goniometer.grids.slice_grid import boundary_tables, light_direction
-from goniometer.stack import pack
+from goniometer.kernel.packing import pack
 from tests.conftest import Z_TOL, chi2_limit
 from tests.goniometer.kernel import test_two_kernels as two
 

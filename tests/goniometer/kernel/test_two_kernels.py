@@ -14,7 +14,8 @@ import pytest
 
 from goniometer.kernel import tracer
 from goniometer.grids.slice_grid import boundary_tables, light_direction
-from goniometer.stack import Film, Interface, Lambertian, Medium, Stack, pack
+from goniometer.stack import Film, Interface, Lambertian, Medium, Stack
+from goniometer.kernel.packing import pack
 from tests.conftest import Z_TOL, chi2_limit
 
 RAYS = 240_000
