@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from goniometer.run.results import cell_geometry
-from goniometer.run.settings import SimulationSettings
+from goniometer.run.settings import DEFAULT_INCIDENT, SimulationSettings
 from goniometer.run.loop import simulate
 from goniometer.run.tasks import warm_up
 from goniometer.stack import Interface, Lambertian, Medium, Stack
@@ -50,7 +50,7 @@ from models.compare import noise_floor, reference_parts
 from reference_kernel import trace_reference
 
 HERE = Path(__file__).resolve().parent
-INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
+INCIDENT = DEFAULT_INCIDENT   # the paper's seven elevations
 TAU_C = (0.05, 0.1, 0.4)
 
 MATERIALS = {

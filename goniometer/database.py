@@ -35,8 +35,9 @@ from goniometer import atomic
 from goniometer.files import slices as store
 from goniometer.run.checkpoints import CheckpointMismatch, Checkpoints
 from goniometer.run.results import run_description, same_run
-from goniometer.run.settings import SettingsError, SimulationSettings
+from goniometer.run.settings import DEFAULT_INCIDENT, SettingsError, SimulationSettings
 from goniometer.run.loop import run_incidents
+from goniometer.stack import SIMULATION_KEYS as STACK_SIMULATION_KEYS
 from goniometer.stack import Interface, Stack, StackError, stack_from_dict
 from goniometer.kernel.packing import check_films
 from goniometer.tomlfile import read_toml
@@ -45,13 +46,12 @@ MANIFEST = "database.json"
 RESULTS_FORMAT = "goniometer.database-results"
 RESULTS_VERSION = 1
 PARAMS_REPORTED = ("alpha0", "alpha1", "tau", "rho", "eta1", "d", "g")
-#: the keys of a definition's ``[simulation]`` table (``docs/database-format.md`` section 1.2)
-SIMULATION_KEYS = ("incident_deg", "resolution", "seed", "masking", "parametrization", "spectral",
-                   "wavelength_bins")
+#: the keys of a definition's ``[simulation]`` table (``docs/database-format.md`` section 1.2): a material
+#: file's (:data:`goniometer.stack.SIMULATION_KEYS`) but those a database sets itself (rays per quality,
+#: the RGL grid made from each stack) or leaves to the command line (threads)
+SIMULATION_KEYS = tuple(sorted(STACK_SIMULATION_KEYS - {"rays", "max_order", "threads", "first_order", "rgl_grid"}))
 #: the bins of a spectral database that does not give ``wavelength_bins``: SimulationSettings' default
 DEFAULT_WAVELENGTH_BINS = SimulationSettings.wavelength_bins
-#: the elevations (degrees) of a definition that does not give ``incident_deg``
-DEFAULT_INCIDENT_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
 #: the parametrizations a database's materials can use (``rgl`` needs a grid made from each stack)
 DATABASE_PARAMETRIZATIONS = ("classic", "half")
 #: the parametrization rule's form (``docs/database-format.md`` section 1.2)
@@ -189,7 +189,7 @@ def load_database(path: str | Path) -> Database:
         raise DatabaseError(_bins_without_spectral(p))
     # the values as the file gives them (their types are checked above; SimulationSettings checks the rest)
     db = Database(name=name, path=str(p),
-                  incident_deg=tuple(float(x) for x in sim.get("incident_deg", DEFAULT_INCIDENT_DEG)),
+                  incident_deg=tuple(float(x) for x in sim.get("incident_deg", DEFAULT_INCIDENT)),
                   resolution=tuple(sim.get("resolution", (90, 360))), seed=sim.get("seed", 1),
                   masking=sim.get("masking", "separable"), qualities=dict(qualities),
                   materials=tuple(materials), description=description,

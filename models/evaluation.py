@@ -136,8 +136,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     if names:
         unknown = [n for n in names if n not in available and n not in fitted]
         if unknown:
-            raise ModelError(f"unknown model {unknown[0]!r} (known: {', '.join([*available, *fitted])}; "
-                             f"or python:MODULE:NAME, mitsuba:FILE.xml|.json)")
+            raise registry.UnknownModel(unknown[0], [*available, *fitted])
     result = Evaluation(stack.name, stack.category, side)
     if spectral_note is not None:
         result.reference_note = spectral_note

@@ -105,6 +105,17 @@ def sources() -> dict[str, str]:
 is_spec = adapters.is_spec
 
 
+class UnknownModel(ModelError):
+    """A model name that is neither registered nor an adapter spec; the message lists the known names
+    (the one wording of every command: ``unknown model 'x' (known: ...; or python:MODULE:NAME,
+    mitsuba:FILE.xml|.json)``)."""
+
+    def __init__(self, name: str, known: Sequence[str]) -> None:
+        super().__init__(f"unknown model {name!r} (known: {', '.join(known)}; or python:MODULE:NAME, "
+                         f"mitsuba:FILE.xml|.json)")
+        self.name = name
+
+
 def get(name: str) -> Model:
     """The model called ``name``, or the adapter of the spec ``name`` (``python:MODULE:NAME``,
     ``mitsuba:FILE``); :class:`ModelError` naming the known ones otherwise."""
@@ -112,8 +123,7 @@ def get(name: str) -> Model:
         return adapters.resolve(name)
     models = all_models()
     if name not in models:
-        raise ModelError(f"unknown model {name!r} (known: {', '.join(models)}; or python:MODULE:NAME, "
-                         f"mitsuba:FILE.xml|.json)")
+        raise UnknownModel(name, list(models))
     return models[name]
 
 
@@ -136,9 +146,7 @@ def check_names(names: Sequence[str], *, also: Sequence[str] = ()) -> None:
         if is_spec(n):
             adapters.resolve(n)
         elif n not in known and n not in also:
-            extra = f", {', '.join(also)}" if also else ""
-            raise ModelError(f"unknown model {n!r} (known: {', '.join(known)}{extra}; or python:MODULE:NAME, "
-                             f"mitsuba:FILE.xml|.json)")
+            raise UnknownModel(n, [*known, *also])
 
 
 def code_key(names: Sequence[str] | None) -> str:

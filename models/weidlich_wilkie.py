@@ -41,6 +41,7 @@ import numpy as np
 
 from goniometer.optics import fresnel_dielectric, ggx_lambda, half_vector, microfacet_reflection, refract
 from goniometer.stack import Stack
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from models._jit import njit
 from models.base import CoatedBase, Model, ModelError, ModelValue, coated_base
 
@@ -52,8 +53,6 @@ NORMAL_H0 = 1  #: the top microfacet normal h0 = normalize(l0 + v0)
 TIR_NONE = 0  #: no TIR term: X = T10 (Bati 2019, eq. 5)
 TIR_G_REFRACTED = 1  #: t = (1 - G) + T10 G with G = G(l1, v1)
 TIR_G_OUTER = 2  #: t = (1 - G) + T10 G with G = G(l0, v0)
-BASE_LAMBERTIAN = 0
-BASE_CONDUCTOR = 1
 
 
 @dataclass(frozen=True)

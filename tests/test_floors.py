@@ -105,7 +105,7 @@ SIMULATOR_ROOMS = (
     ("goniometer.optics",),
     ("goniometer.grids",),
     ("goniometer.kernel",),
-    ("goniometer.run.loop",),
+    ("goniometer.run",),
     ("goniometer.files",),
     ("goniometer.database",),
     ("goniometer.testing",),
@@ -133,6 +133,17 @@ def test_nothing_in_the_simulator_imports_a_room_above_its_own():
     upward = sorted(f"{m} -> {t}" for m, ts in GRAPH.items() if _in(m, ("goniometer",))
                     for t in ts if _in(t, ("goniometer",)) and _room(t) > _room(m))
     assert not upward, "imports that run back up inside the simulator: " + ", ".join(upward)
+
+
+def test_the_settings_stand_without_numba_and_the_kernel():
+    """The data contract (docs/architecture.md): the settings import neither numba nor the kernel, so
+    the command line takes its vocabularies and defaults from them without loading the kernel."""
+    imported = GRAPH["goniometer.run.settings"]
+    assert not [m for m in imported if _in(m, ("goniometer.kernel",))], imported
+    tree = ast.parse(MODULES["goniometer.run.settings"].read_text(encoding="utf-8"))
+    names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    names |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    assert not [n for n in names if n == "numba" or n.startswith("numba.")], names
 
 
 def test_the_rooms_test_can_fail():

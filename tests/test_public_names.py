@@ -59,3 +59,14 @@ def test_models_face_docstring_example_runs():
     lobe = models.parse_lobe("R=0.04 sigma=0.01 layers=1")
     stack = models.invert([lobe])
     assert stack.interfaces and models.fit is models.fitted.fit
+
+
+@pytest.mark.parametrize("root", [goniometer, models])
+def test_the_architecture_doc_lists_each_face(root):
+    """README points to docs/architecture.md for the public names: it lists exactly the faces' names."""
+    from pathlib import Path
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "architecture.md").read_text()
+    section = doc.split("## Public faces", 1)[1]
+    entry = section.split(f"- `{root.__name__}`:", 1)[1].split("\n- ", 1)[0]
+    listed = set(re.findall(r"`(\w+)`", entry))
+    assert listed == set(root.__all__), (sorted(set(root.__all__) - listed), sorted(listed - set(root.__all__)))

@@ -49,11 +49,13 @@ FROM_FILE = "the file's [simulation] table, else "
 
 
 def add_device(parser) -> None:
-    """Add ``--device`` (docs/gpu.md) to a command's parser (default: the material file's, else cpu)."""
-    parser.add_argument("--device", choices=("cpu", "cuda"),
+    """Add ``--device`` (docs/gpu.md) to a command's parser (default: cpu; a material file's
+    ``[simulation]`` table has no device: where the paths run is the command's choice)."""
+    from goniometer.run.settings import DEVICES
+    parser.add_argument("--device", choices=DEVICES,
                         help="where the paths are traced: cpu (numba threads) or cuda (an NVIDIA GPU through "
                              "numba-cuda, pip install 'goniometer[cuda]'; the same transport, other bits: "
-                             f"docs/gpu.md) (default: {FROM_FILE}cpu)")
+                             f"docs/gpu.md) (default: cpu)")
 
 
 def add_spectral(parser) -> None:
@@ -94,6 +96,21 @@ def _check_ancestors(path, option: str) -> None:
             if not parent.is_dir():
                 raise UsageError(f"{option}: {path}: {parent} is a file ({describe_existing(parent)}), not a directory")
             return
+
+
+def thread_number(text: str) -> int:
+    """An argparse ``type`` for ``--threads``: a whole number in [1, NUMBA_NUM_THREADS] (what the
+    machine's numba can run; :func:`goniometer.kernel.tracer.check_device` checks the same for the
+    library)."""
+    import argparse
+
+    import numba
+    n = whole_number(text)
+    top = numba.config.NUMBA_NUM_THREADS
+    if not 1 <= n <= top:
+        raise argparse.ArgumentTypeError(f"{n} is outside [1, {top}] (the numba threads of this machine, "
+                                         f"NUMBA_NUM_THREADS)")
+    return n
 
 
 def whole_number(text: str) -> int:

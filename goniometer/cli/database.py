@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from goniometer.cli.common import (EXIT_INTERRUPTED, THREADS_HELP, ResumeAware, UsageError, compile_kernels,
-                                   output_path, progress_bar, sigint_latch, skip_progress, usage_errors, whole_number)
+                                   output_path, progress_bar, sigint_latch, skip_progress, thread_number, usage_errors)
 
 
 def register(sub) -> None:
@@ -31,7 +31,7 @@ def register(sub) -> None:
                    help="a quality of the definition's [quality] table (e.g. demo, quick, paper: "
                         "`gonio database list` does not need it) (default: %(default)s)")
     q.add_argument("--only", metavar="GLOB", help="materials whose name matches, e.g. 'metal/M2-*' (default: all)")
-    q.add_argument("--threads", type=whole_number, help=THREADS_HELP)
+    q.add_argument("--threads", type=thread_number, help=THREADS_HELP)
     q.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run the tasks on a Dask distributed cluster (default: this machine)")
     q.add_argument("--resimulate-corrupted", action="store_true",

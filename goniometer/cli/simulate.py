@@ -13,18 +13,24 @@ import numpy as np
 
 from goniometer.cli.common import (FROM_FILE, THREADS_HELP, ResumeAware, UsageError, add_device, add_overwrite,
                                    add_spectral, compile_kernels, incident_list, output_path, progress_bar, resolution,
-                                   sigint_latch, usage_errors, whole_number)
+                                   sigint_latch, thread_number, usage_errors, whole_number)
 
-#: the defaults of SimulationSettings as the help prints them (written out so that ``gonio --help``
-#: need not import numba; tests/goniometer/test_cli_edges.py checks them against SimulationSettings())
-SETTINGS_DEFAULTS = {"rays": "1,000,000", "incident_deg": "0,15,30,45,60,70,80", "parametrization": "classic",
-                     "resolution": "90x360", "seed": "1", "masking": "separable", "max_order": "5",
-                     "first_order": "traced"}
+def settings_defaults() -> dict[str, str]:
+    """The defaults of :class:`~goniometer.run.settings.SimulationSettings` as the help prints them."""
+    from dataclasses import fields
+
+    from goniometer.run.settings import SimulationSettings
+    d = {f.name: f.default for f in fields(SimulationSettings)}
+    return {"rays": f"{d['rays']:,}", "incident_deg": ",".join(f"{x:g}" for x in d["incident_deg"]),
+            "parametrization": d["parametrization"], "resolution": f"{d['resolution'][0]}x{d['resolution'][1]}",
+            "seed": str(d["seed"]), "masking": d["masking"], "max_order": str(d["max_order"]),
+            "first_order": d["first_order"]}
 
 
 def register(sub) -> None:
     """Add ``simulate`` and ``info`` to the ``gonio`` sub-command parser."""
-    d = SETTINGS_DEFAULTS
+    from goniometer.run.settings import FIRST_ORDER, MASKING, PARAMETRIZATIONS
+    d = settings_defaults()
     p = sub.add_parser("simulate", help="simulate a material file into an HDF5 slices file")
     p.add_argument("config", metavar="CONFIG.toml")
     p.add_argument("--out", required=True, metavar="FILE.h5", help="the slices file to write (required)")
@@ -32,7 +38,7 @@ def register(sub) -> None:
     p.add_argument("--incident", metavar="LIST",
                    help="incident elevations in degrees, e.g. 0,30,60 (theta:phi for an azimuth) "
                         f"(default: {FROM_FILE}{d['incident_deg']})")
-    p.add_argument("--parametrization", choices=("classic", "half", "rgl"),
+    p.add_argument("--parametrization", choices=PARAMETRIZATIONS,
                    help="cell grid: theta/phi of v, of the half vector, or the RGL format's sample space (for "
                         f"gonio export --format rgl; docs/rgl-format.md) (default: {FROM_FILE}{d['parametrization']})")
     p.add_argument("--rgl-grid", dest="rgl_grid", metavar="N_THETA_IxN_PHI_IxN",
@@ -42,13 +48,13 @@ def register(sub) -> None:
     p.add_argument("--resolution", metavar="N_THETAxN_PHI",
                    help=f"cells per slice, e.g. 90x360 (default: {FROM_FILE}{d['resolution']})")
     p.add_argument("--seed", type=whole_number, help=f"random seed (default: {FROM_FILE}{d['seed']})")
-    p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
+    p.add_argument("--threads", type=thread_number, help=THREADS_HELP)
     add_device(p)
-    p.add_argument("--masking", choices=("separable", "height-correlated"),
+    p.add_argument("--masking", choices=MASKING,
                    help=f"microfacet masking-shadowing (default: {FROM_FILE}{d['masking']})")
     p.add_argument("--max-order", dest="max_order", type=whole_number,
                    help=f"bounce orders stored separately (K) (default: {FROM_FILE}{d['max_order']})")
-    p.add_argument("--first-order", dest="first_order", choices=("traced", "integrated"),
+    p.add_argument("--first-order", dest="first_order", choices=FIRST_ORDER,
                    help="bounce order 1 (one reflection on the top interface): traced, or integrated over the "
                         "cells in the simulator's optics, which removes its noise (recorded in the file; "
                         f"docs/first-order.md) (default: {FROM_FILE}{d['first_order']})")
@@ -118,9 +124,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             settings = base.with_overrides(**over)
         if settings.first_order == "integrated":
             check_supported(stack)
-    from goniometer.kernel.tracer import DeviceError, check_device
+    from goniometer.kernel.tracer import DeviceError, check_device, thread_count
     with usage_errors(DeviceError):
-        check_device(settings.device)
+        check_device(settings.device, settings.threads)
     with usage_errors(StackError):
         per = _paths_per_incident(stack, settings)
         if not settings.spectral:
@@ -141,7 +147,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                 f"of {settings.rays:,} paths" if settings.spectral else "")
     print(f"simulating {stack.name} ({stack.category}): {len(settings.incident_deg)} incident direction(s) x "
           f"{settings.rays:,} rays{spectral}, {settings.parametrization} {settings.resolution[0]}x"
-          f"{settings.resolution[1]}, {settings.n_threads} thread(s)", file=sys.stderr)
+          f"{settings.resolution[1]}, {thread_count(settings.threads)} thread(s)", file=sys.stderr)
     with sigint_latch() as interrupts:
         with interrupts.deferred():
             compile_s = compile_kernels(lambda: warm_up(stack, settings))

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_overwrite, add_spectral, compile_kernels,
-                                   output_path, progress_bar, sigint_latch, usage_errors, whole_number)
+                                   output_path, progress_bar, sigint_latch, thread_number, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -22,7 +22,8 @@ def register(sub) -> None:
     p.add_argument("--rays", type=whole_number, help=f"paths in all, each with its own incident direction; a spectral "
                                                      f"tabulation: per wavelength bin (default {TABULATE_RAYS:,})")
     p.add_argument("--seed", type=whole_number, help="random seed (default: the material file's, else 1)")
-    p.add_argument("--threads", type=whole_number, help="numba threads (default: all cores); the file does not depend on it")
+    p.add_argument("--threads", type=thread_number,
+                   help="numba threads (default: all cores); the file does not depend on it")
     add_device(p)
     add_spectral(p)
     p.add_argument("--restart", action="store_true",
@@ -58,7 +59,7 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.run.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable,
                                            launches as _launches, tabulate, tabulation_description, warm_up)
 
-    from goniometer.kernel.tracer import DeviceError, check_device
+    from goniometer.kernel.tracer import DeviceError, check_device, thread_count
     with usage_errors(StackError, SettingsError, TabulationError, store.StoreError):
         stack, table = load_toml(args.config)
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
@@ -69,7 +70,7 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
         check_tabulable(stack, settings)
         paths = settings.rays * len(_launches(stack, settings))
     with usage_errors(DeviceError):
-        check_device(settings.device)
+        check_device(settings.device, settings.threads)
     out = output_path(args.out, inputs=[args.config], overwrite=args.overwrite)
     checkpoint = TabulationCheckpoint(checkpoint_dir(out), tabulation_description(stack, settings))
     if args.restart:
@@ -84,7 +85,8 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
                 f"of {settings.rays:,} paths" if settings.spectral else "")
     print(f"tabulating {stack.name} ({stack.category}): {settings.rays:,} rays over the hemisphere "
           f"(cos-weighted){spectral}, MERL grid 90x90x180, "
-          f"{'CUDA' if settings.device == 'cuda' else f'{settings.n_threads} thread(s)'}", file=sys.stderr)
+          f"{'CUDA' if settings.device == 'cuda' else f'{thread_count(settings.threads)} thread(s)'}",
+          file=sys.stderr)
     with sigint_latch() as interrupts:
         with interrupts.deferred():
             compile_s = compile_kernels(lambda: warm_up(stack, settings))

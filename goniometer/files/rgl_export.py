@@ -32,12 +32,11 @@ import numpy as np
 
 import goniometer
 from goniometer.grids.rgl import VALID_SUB, RGLGrid
-from goniometer.files.rgl_tensor import TensorFile, read_tensor, write_tensor
+from goniometer.files.rgl_tensor import TensorFile, write_tensor
 from goniometer.grids.warp import bilinear
 
 __all__ = ["ExportError", "WAVELENGTHS_NM", "bsdf_fields", "check_readers", "export_rgl", "fields_from_spectra",
-           "fields_from_values",
-           "rgb_to_spectrum", "stored_values"]
+           "fields_from_values", "rgb_to_spectrum", "stored_values"]
 
 #: the spectral file's wavelengths (the visible range pbrt-v4 samples, 360-830 nm)
 WAVELENGTHS_NM = np.arange(360.0, 831.0, 10.0)
@@ -293,8 +292,3 @@ def export_rgl(result, path: str | os.PathLike, spectral: bool = False) -> Path:
     """Write the tensor file of ``result`` (see :func:`bsdf_fields`) at ``path``, atomically."""
     fields = bsdf_fields(result, spectral=spectral)
     return write_tensor(path, fields)
-
-
-def read_back(path: str | os.PathLike) -> TensorFile:
-    """:func:`goniometer.files.rgl_tensor.read_tensor` (for symmetry with :func:`export_rgl`)."""
-    return read_tensor(path)

@@ -60,25 +60,29 @@ from goniometer.kernel.packing import PackedStack
 __all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
            "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
-           "EVENT_CAP", "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
-           "kernel_flags", "DEVICES", "DeviceError", "check_device", "Launch", "prepare", "launch", "no_exit_records"]
-
-#: default hard cap on the number of events of one path (reported if ever reached)
-EVENT_CAP = 10_000
-#: the devices a run may trace on (``SimulationSettings.device``; ``docs/gpu.md``)
-DEVICES = ("cpu", "cuda")
-
+           "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
+           "kernel_flags", "DeviceError", "check_device", "thread_count", "Launch", "prepare", "launch",
+           "no_exit_records"]
 
 class DeviceError(ValueError):
-    """A device a run cannot trace on (the message is one line, ``docs/gpu.md``)."""
+    """What this machine cannot trace with (the message is one line, ``docs/gpu.md``): a device it
+    lacks, or more numba threads than it has."""
 
 
-def check_device(device: str) -> None:
-    """Raise :class:`DeviceError` when ``device`` cannot trace here: ``"cuda"`` needs numba-cuda and
-    a visible CUDA GPU, or numba-cuda's simulator (``NUMBA_ENABLE_CUDASIM=1``, for tests)."""
-    if device not in DEVICES:
-        raise DeviceError(f"device: {device!r} is not one of {', '.join(DEVICES)}")
-    if device == "cpu":
+def thread_count(threads: int | None) -> int:
+    """The numba threads a run uses: ``threads``, or all of them (``NUMBA_NUM_THREADS``) for None."""
+    return numba.config.NUMBA_NUM_THREADS if threads is None else int(threads)
+
+
+def check_device(device: str, threads: int | None = None) -> None:
+    """Raise :class:`DeviceError` when this machine cannot trace on ``device`` (one of
+    :data:`goniometer.run.settings.DEVICES`) with ``threads``: ``"cuda"`` needs numba-cuda and a
+    visible CUDA GPU, or numba-cuda's simulator (``NUMBA_ENABLE_CUDASIM=1``, for tests); the CPU at
+    most numba's threads (``NUMBA_NUM_THREADS``)."""
+    if threads is not None and not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+        raise DeviceError(f"threads: {threads} is outside [1, {numba.config.NUMBA_NUM_THREADS}] (the numba threads "
+                          f"of this machine, NUMBA_NUM_THREADS)")
+    if device != "cuda":
         return
     import importlib.util
     if importlib.util.find_spec("numba_cuda") is None:
@@ -163,10 +167,10 @@ def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int,
             height_correlated: bool = False, tabulate: bool = False, kernel: int = KERNEL_AUTO,
             device: str = "cpu") -> Launch:
     """The :class:`Launch` of a run: the stack's facts and the variant worked out once.
-    ``device``: one of :data:`DEVICES` (``"cuda"``: :mod:`goniometer.kernel.cuda`, one kernel for
-    every stack; ``kernel`` then must be ``KERNEL_AUTO``)."""
-    if device not in DEVICES:
-        raise ValueError(f"device: {device!r} is not one of {', '.join(DEVICES)}")
+    ``device``: ``"cpu"`` or ``"cuda"`` (:mod:`goniometer.kernel.cuda`, one kernel for every stack;
+    ``kernel`` then must be ``KERNEL_AUTO``)."""
+    if device not in ("cpu", "cuda"):
+        raise ValueError(f"device: {device!r}: the kernels trace on cpu or cuda")
     if device != "cpu" and kernel != KERNEL_AUTO:
         raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
     facts = stack_facts(packed)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Callable
 
+from goniometer.kernel import tracer
 from goniometer.run.first_order import check_supported
 from goniometer.run.results import IncidentPart, SimulationResult, assemble
 from goniometer.run.settings import SettingsError, SimulationSettings
@@ -39,6 +40,8 @@ def run_incidents(stack: Stack, settings: SimulationSettings, *,
     time it passes as ``compile_s``).
     """
     settings.validate()
+    if client is None:   # (a cluster's workers have machines of their own)
+        tracer.check_device(settings.device, settings.threads)
     if settings.first_order == "integrated":
         check_supported(stack)
     M = len(settings.incident_deg)

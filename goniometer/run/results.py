@@ -297,7 +297,7 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
         capped_paths=np.array([p.counts[tracer.C_CAPPED] for p in parts]),
         mean_events=np.array([p.counts[tracer.C_EVENTS] for p in parts]) / (n * _launch_count(stack, settings)),
         elapsed_s=np.array([p.elapsed_s for p in parts]),
-        threads=settings.n_threads, compile_s=compile_s,
+        threads=tracer.thread_count(settings.threads), compile_s=compile_s,
         reflected_without_base=unbased, reflected_without_base_stderr=unbased_se,
     )
 

@@ -4,6 +4,12 @@ the ``[simulation]`` table).
 ``chunk_rays`` and ``chunks_per_task`` belong to the determinism contract
 (``docs/architecture.md``): the same (seed, chunk_rays, chunks_per_task) gives the same bits
 whatever ``threads``, locally or distributed.
+
+The data contract stands without the kernel: the vocabularies (:data:`PARAMETRIZATIONS`,
+:data:`MASKING`, :data:`FIRST_ORDER`, :data:`DEVICES`) and the defaults live here, and the command
+line takes them from here. What only the machine can say -- whether CUDA is there, how many numba
+threads it has -- is checked where the paths are launched
+(:func:`goniometer.kernel.tracer.check_device`).
 """
 
 from __future__ import annotations
@@ -12,12 +18,16 @@ import math
 from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
-import numba
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from goniometer.grids.rgl import RGLGrid
-from goniometer.kernel.tracer import DEVICES, EVENT_CAP
+from goniometer.stack import SIMULATION_KEYS
 
+if TYPE_CHECKING:
+    from goniometer.grids.rgl import RGLGrid
+
+#: the incident elevations (degrees) of a run that gives none: the paper's seven (Bati et al. 2019)
 DEFAULT_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
 #: cell grids: theta/phi of v, of the half vector, or the RGL format's sample space (docs/rgl-format.md)
 PARAMETRIZATIONS = ("classic", "half", "rgl")
@@ -25,6 +35,13 @@ MASKING = ("separable", "height-correlated")
 #: how bounce order 1 (a single reflection on the top interface) gets into the reflection slices:
 #: traced like every other order, or integrated over the cells (``docs/first-order.md``)
 FIRST_ORDER = ("traced", "integrated")
+#: where the paths are traced: numba threads, or an NVIDIA GPU through numba-cuda (``docs/gpu.md``)
+DEVICES = ("cpu", "cuda")
+#: default hard cap on the number of events of one path (reported if ever reached)
+EVENT_CAP = 10_000
+#: most numba threads a setting may ask for; the machine's own limit (``NUMBA_NUM_THREADS``) is
+#: checked at launch (:func:`goniometer.kernel.tracer.check_device`)
+MAX_THREADS = 1 << 12
 
 
 class SettingsError(ValueError):
@@ -129,7 +146,7 @@ class SimulationSettings(_Channels):
             raise SettingsError(f"masking: {self.masking!r} is not one of {', '.join(MASKING)}")
         _int_in(self.max_order, "max_order", 1, 64)
         if self.threads is not None:
-            _int_in(self.threads, "threads", 1, numba.config.NUMBA_NUM_THREADS)
+            _int_in(self.threads, "threads", 1, MAX_THREADS)
         _int_in(self.chunk_rays, "chunk_rays", 1, 1 << 30)
         _int_in(self.chunks_per_task, "chunks_per_task", 1, 1 << 20)
         _int_in(self.event_cap, "event_cap", 1, 10**9)
@@ -149,6 +166,7 @@ class SimulationSettings(_Channels):
             if self.rgl is not None:
                 raise SettingsError(f"rgl: an RGL grid goes with parametrization rgl, not {self.parametrization}")
             return
+        from goniometer.grids.rgl import RGLGrid
         if not isinstance(self.rgl, RGLGrid):
             raise SettingsError("rgl: parametrization rgl needs its grid (goniometer.grids.grid_for(stack); "
                                 "gonio simulate --parametrization rgl makes it from the stack)")
@@ -169,10 +187,6 @@ class SimulationSettings(_Channels):
         return cls(incident_deg=theta, incident_phi_deg=phi, parametrization="rgl", resolution=(grid.n, grid.n),
                    rgl=grid, **kw)
 
-    @property
-    def n_threads(self) -> int:
-        return self.threads if self.threads is not None else numba.config.NUMBA_NUM_THREADS
-
     def with_overrides(self, **kw: Any) -> "SimulationSettings":
         """A copy with the given non-None fields replaced."""
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
@@ -181,9 +195,10 @@ class SimulationSettings(_Channels):
         """Every field, JSON-ready (tuples as lists, the RGL grid as its dict); :meth:`from_dict`
         reads it back. The spectral fields are left out of an RGB run's dict, the device out of a
         CPU run's (whose identities predate them)."""
-        def plain(v: Any) -> Any:
-            return list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, RGLGrid) else v
-        out = {f.name: plain(getattr(self, f.name)) for f in fields(self)}
+        def plain(name: str, v: Any) -> Any:
+            return list(v) if isinstance(v, tuple) else v.to_dict() if name == "rgl" and v is not None else v
+
+        out = {f.name: plain(f.name, getattr(self, f.name)) for f in fields(self)}
         if not self.spectral:
             out.pop("spectral")
             out.pop("wavelength_bins")
@@ -202,6 +217,7 @@ class SimulationSettings(_Channels):
             raise SettingsError(f"{unknown[0]}: unknown key (expected some of {', '.join(sorted(names))})")
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
         if isinstance(kw.get("rgl"), dict):
+            from goniometer.grids.rgl import RGLGrid
             kw["rgl"] = RGLGrid.from_dict(kw["rgl"])
         return cls(**kw)
 
@@ -212,6 +228,9 @@ class SimulationSettings(_Channels):
         ``stack``: the grid's warp follows its top interface (:func:`goniometer.grids.grid_for`)."""
         if table.get("parametrization") == "rgl" or "rgl_grid" in table:
             return cls._rgl_from_mapping(table, source, stack)
+        unknown = sorted(set(table) - SIMULATION_KEYS)
+        if unknown:
+            raise SettingsError(f"{source}.{unknown[0]}: unknown key (allowed: {', '.join(sorted(SIMULATION_KEYS))})")
         kw: dict[str, Any] = {}
         for key, value in table.items():
             if key == "incident_deg":
@@ -222,12 +241,8 @@ class SimulationSettings(_Channels):
                 if not isinstance(value, list) or len(value) != 2:
                     raise SettingsError(f"{source}.resolution: must be [n_theta, n_phi]")
                 kw[key] = tuple(value)
-            elif key in ("rays", "seed", "max_order", "threads", "spectral", "wavelength_bins"):
+            else:   # a scalar field, validated by the settings themselves
                 kw[key] = value
-            elif key in ("parametrization", "masking", "first_order"):
-                kw[key] = value
-            else:
-                raise SettingsError(f"{source}.{key}: unknown key")
         try:
             return cls(**kw)
         except SettingsError as e:
@@ -306,10 +321,6 @@ class TabulationSettings(_Channels):
         SimulationSettings(incident_deg=(0.0,), rays=self.rays, seed=self.seed, masking=self.masking,
                            threads=self.threads, chunk_rays=self.chunk_rays, event_cap=self.event_cap,
                            spectral=self.spectral, wavelength_bins=self.wavelength_bins, device=self.device)
-
-    @property
-    def n_threads(self) -> int:
-        return self.threads if self.threads is not None else numba.config.NUMBA_NUM_THREADS
 
     def with_overrides(self, **kw: Any) -> "TabulationSettings":
         """A copy with the given non-None fields replaced."""

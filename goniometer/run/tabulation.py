@@ -261,6 +261,7 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     chunks are numbered launch after launch, so that it resumes like an RGB one."""
     check_tabulable(stack, settings)
     settings.validate()
+    tracer.check_device(settings.device, settings.threads)
     runs = launches(stack, settings)
     state = checkpoint.load(settings.n_channels) if checkpoint is not None else None
     if state is None:
@@ -274,7 +275,7 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
             on_resume(done_rays)
         if progress is not None:
             progress(done_rays)
-    threads = settings.n_threads
+    threads = tracer.thread_count(settings.threads)
     if settings.device == "cpu":
         numba.set_num_threads(threads)
     B = min(2 * threads, per_launch)

@@ -191,7 +191,7 @@ def _run_kernel(run: tracer.Launch, settings: SimulationSettings, first_chunk: i
                 parallel: bool) -> None:
     """Trace chunks ``first_chunk .. first_chunk + len(outs[0]) - 1`` into ``outs``."""
     if parallel and run.device == "cpu":
-        numba.set_num_threads(settings.n_threads)
+        numba.set_num_threads(tracer.thread_count(settings.threads))
     tracer.launch(run, first_chunk, outs, parallel=parallel)
 
 
@@ -204,7 +204,7 @@ def task_rays(settings: SimulationSettings, task: int) -> int:
 def _tasks_per_call(settings: SimulationSettings) -> int:
     """Tasks traced by one parallel kernel call of :func:`trace_incident` (enough chunks for
     two per thread)."""
-    return min(max(1, -(-2 * settings.n_threads // settings.chunks_per_task)), n_tasks(settings))
+    return min(max(1, -(-2 * tracer.thread_count(settings.threads) // settings.chunks_per_task)), n_tasks(settings))
 
 
 def incident_buffers(stack: Stack, settings: SimulationSettings) -> tuple[np.ndarray, ...]:
@@ -232,7 +232,7 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     t0 = time.perf_counter()
     cpt = settings.chunks_per_task
     inputs = _kernel_inputs(stack, settings, m)
-    step = max(1, settings.n_threads)
+    step = max(1, tracer.thread_count(settings.threads))
     for first in range(0, T, per_call):
         count = min(per_call, T - first)
         first_chunk, nb = _chunk_range(settings, first, count)

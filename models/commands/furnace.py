@@ -8,7 +8,7 @@ import json
 import sys
 
 from goniometer.cli.common import (UsageError, add_overwrite, add_spectral, compile_kernels, incident_list, output_path,
-                                   progress_bar, sigint_latch, usage_errors, whole_number)
+                                   progress_bar, sigint_latch, thread_number, usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -24,7 +24,7 @@ def register(sub) -> None:
     p.add_argument("--rays", type=whole_number,
                    help="rays per incident direction; default: the file's [simulation] rays, else 100000")
     p.add_argument("--seed", type=whole_number, help="random seed; default: the file's [simulation] seed, else 1")
-    p.add_argument("--threads", type=whole_number,
+    p.add_argument("--threads", type=thread_number,
                    help="tracing threads; default: the file's [simulation] threads, else all of numba's threads")
     p.add_argument("--multiple-scattering", dest="multiple_scattering", action="store_true",
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
@@ -43,6 +43,7 @@ def _check_plot_path(path: str, config: str, overwrite: bool) -> None:
 def cmd_furnace(args: argparse.Namespace) -> int:
     from goniometer.run.settings import SettingsError
     from goniometer.stack import StackError, load_toml
+    from goniometer.kernel.tracer import thread_count
     from goniometer.run.tasks import warm_up
     from models.base import ModelError
     from models.commands.failures import report_failures
@@ -74,7 +75,8 @@ def cmd_furnace(args: argparse.Namespace) -> int:
         spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {per // settings.rays} "
                     f"launch(es) of {settings.rays:,} paths" if settings.spectral else "")
         print(f"furnace {stack.name} ({stack.category}, {stack.base} base): {len(settings.incident_deg)} incident "
-              f"direction(s) x {settings.rays:,} rays{spectral}, {settings.n_threads} thread(s)", file=sys.stderr)
+              f"direction(s) x {settings.rays:,} rays{spectral}, {thread_count(settings.threads)} thread(s)",
+              file=sys.stderr)
         if stack.is_spectral and not settings.spectral:
             print(f"note: {stack.name} has spectral data; an RGB run traces their RGB equivalents "
                   f"(docs/spectral.md section 3); --spectral traces the spectra", file=sys.stderr)

@@ -16,7 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import THREADS_HELP, UsageError, add_overwrite, whole_number
+from goniometer.cli.common import THREADS_HELP, UsageError, add_overwrite, thread_number, whole_number
 
 EXIT_NOT_ACHIEVABLE = 1
 
@@ -361,7 +361,7 @@ def register(subparsers) -> None:
                         "measurement (default: no simulation)")
     p.add_argument("--rays", type=whole_number, help="MEASURED --simulate: rays (default 1,000,000)")
     p.add_argument("--seed", type=whole_number, help="MEASURED --simulate: seed (default 1)")
-    p.add_argument("--threads", type=whole_number, help="MEASURED --simulate: " + THREADS_HELP)
+    p.add_argument("--threads", type=thread_number, help="MEASURED --simulate: " + THREADS_HELP)
     add_overwrite(p)
     p.set_defaults(func=cmd_invert)
 
@@ -375,7 +375,7 @@ def register(subparsers) -> None:
     p.add_argument("--rays", type=whole_number, help="rays per simulation (default 4,000,000)")
     p.add_argument("--resolution", metavar="N_THETAxN_PHI", help="half slices of the simulation (default 90x8)")
     p.add_argument("--seed", type=whole_number, default=1, help="seed of the simulations (default: %(default)s)")
-    p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
+    p.add_argument("--threads", type=thread_number, help=THREADS_HELP)
     p.add_argument("--only", metavar="GLOB", help="cases whose name matches (default: all)")
     p.add_argument("--eta-max", dest="eta_max", type=float, default=4.0,
                    help="largest dielectric index (default: %(default)g)")

@@ -9,8 +9,6 @@ from pathlib import Path
 
 from goniometer.cli.common import UsageError, incident_list, resolution, usage_errors
 
-#: the incident elevations of a MERL file's reference when none are asked for (a MERL file covers them all)
-MERL_INCIDENT = (0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0)
 
 
 def add_reference_options(p: argparse.ArgumentParser) -> None:
@@ -20,7 +18,7 @@ def add_reference_options(p: argparse.ArgumentParser) -> None:
                         "are given (default: none; required for a measured file)")
     p.add_argument("--incident", dest="measured_incident", metavar="LIST",
                    help="a measured FILE: incident elevations of the reference, e.g. 0,30,60 (default: an RGL "
-                        "file's theta_i nodes below 89 deg; for MERL 0,15,30,45,60,70,80)")
+                        "file's theta_i nodes below 89 deg; for MERL a simulation's default, 0,15,30,45,60,70,80)")
     p.add_argument("--parametrization", dest="measured_parametrization", choices=("classic", "half"),
                    help="a measured FILE: the cells it is resampled onto (default: classic)")
     p.add_argument("--resolution", dest="measured_resolution", metavar="N_THETAxN_PHI",
@@ -40,7 +38,7 @@ def load_reference(args: argparse.Namespace, subcells: int = 5):
     for, with ``--stack``'s material. UsageError (one line) for what cannot be."""
     from goniometer.files import slices as store
     from goniometer.files.measured import MeasuredError, measured_reference, read_measured
-    from goniometer.run.settings import SettingsError, SimulationSettings
+    from goniometer.run.settings import DEFAULT_INCIDENT, SettingsError, SimulationSettings
     from goniometer.stack import StackError, load_toml
     given = [o for o, v in (("--stack", args.stack), ("--incident", args.measured_incident),
                             ("--parametrization", args.measured_parametrization),
@@ -61,7 +59,7 @@ def load_reference(args: argparse.Namespace, subcells: int = 5):
     if args.measured_incident is not None:
         thetas, phis = incident_list(args.measured_incident)
     else:
-        nodes = measured.incident_deg or MERL_INCIDENT
+        nodes = measured.incident_deg or DEFAULT_INCIDENT   # a MERL file covers them all
         thetas, phis = [t for t in nodes if t < 89.0], None
     res = resolution(args.measured_resolution) if args.measured_resolution else (90, 360)
     with usage_errors(SettingsError):

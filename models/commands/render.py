@@ -36,6 +36,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from goniometer.files import slices as store
     from models.base import ModelError
     from models.commands.failures import report_failures
+    from models.registry import UnknownModel
     from models.render import RenderError, SphereView, model_names, render_file
 
     angle = _number(args.light_angle, "--light-angle", float, "degrees in [0, 90]")
@@ -52,7 +53,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     except (ModelError, RenderError, store.StoreError) as e:
         msg = str(e)
         raise UsageError(msg if msg.startswith(str(args.file)) or msg.startswith(str(args.out))
-                         or msg.startswith("unknown model") else f"{args.file}: {msg}") from None
+                         or isinstance(e, UnknownModel) else f"{args.file}: {msg}") from None
     doc = spheres.to_json()
     if args.json:
         print(json.dumps({**doc, "out": str(args.out)}, indent=2))

@@ -46,11 +46,10 @@ from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor,
                                hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
                                sample_vndf, vndf_pdf)
 from goniometer.kernel.rng import next_float, seed_state, splitmix64
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from models._jit import njit
 
 #: the base below the coat
-BASE_LAMBERTIAN = 0
-BASE_CONDUCTOR = 1
 
 #: indices of ``conf``
 C_MAX_DEPTH, C_SAMPLES, C_FIXED, C_EXACT, C_GROUPS, C_BASE, C_TOP_SMOOTH, C_BASE_SMOOTH, C_SEED = range(9)

@@ -31,15 +31,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniometer.optics import ggx_d, ggx_lambda, half_vector, microfacet_reflection, fresnel_conductor, smith_g2
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from models._jit import njit
 from models.production.fresnel import f82_tint
 from models.tables import fgd_slice
 
 _INV_PI = 1.0 / math.pi
 
-BASE_LAMBERTIAN = 0  #: rho / pi
-BASE_F82 = 1  #: GGX metal with OpenPBR's F82-tint Fresnel (times specular_weight)
-BASE_CONDUCTOR = 2  #: GGX conductor with the exact Fresnel of eta + i kappa
+#: the base kinds: the simulator's codes (:mod:`goniometer.kernel.packing`: ``BASE_LAMBERTIAN`` rho /
+#: pi, ``BASE_CONDUCTOR`` a GGX conductor with the exact Fresnel of eta + i kappa) and one of its own
+BASE_F82 = 3  #: GGX metal with OpenPBR's F82-tint Fresnel (times specular_weight)
 ABSORB_CONSTANT = 0  #: T = coat_color
 ABSORB_REFRACTED = 1  #: T = coat_color ** ((1/mu_l' + 1/mu_v') / 2)
 

@@ -111,8 +111,7 @@ def model_names(names: Sequence[str] | None) -> list[str] | None:
         if registry.is_spec(n):
             registry.get(n)
         elif n not in known:
-            raise ModelError(f"unknown model {n!r} (known: {', '.join(known)}, or all; or python:MODULE:NAME, "
-                             f"mitsuba:FILE.xml|.json)")
+            raise registry.UnknownModel(n, [*known, "all"])
     return list(dict.fromkeys(names))
 
 

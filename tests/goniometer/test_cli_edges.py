@@ -79,14 +79,17 @@ def test_every_option_states_its_default():
     assert not bad, "\n".join(bad)
 
 
-def test_simulate_help_defaults_are_the_settings_defaults():
-    from goniometer.cli.simulate import SETTINGS_DEFAULTS
-    from goniometer.run.settings import SimulationSettings
+def test_simulate_help_shows_the_settings_defaults_and_vocabularies(capsys):
+    """The help takes its defaults and choices from SimulationSettings (one home: goniometer.run.settings)."""
+    from goniometer.run.settings import FIRST_ORDER, MASKING, PARAMETRIZATIONS, SimulationSettings
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
     d = SimulationSettings()
-    assert SETTINGS_DEFAULTS == {
-        "rays": f"{d.rays:,}", "incident_deg": ",".join(f"{x:g}" for x in d.incident_deg),
-        "parametrization": d.parametrization, "resolution": f"{d.resolution[0]}x{d.resolution[1]}",
-        "seed": str(d.seed), "masking": d.masking, "max_order": str(d.max_order), "first_order": d.first_order}
+    for shown in (f"{d.rays:,}", ",".join(f"{x:g}" for x in d.incident_deg), f"{d.resolution[0]}x{d.resolution[1]}",
+                  f"(default: the file's [simulation] table, else {d.masking})", *PARAMETRIZATIONS, *MASKING,
+                  *FIRST_ORDER):
+        assert shown in text, shown
 
 
 def test_first_order_integrated_from_the_command_line(tmp_path, capsys):
@@ -409,3 +412,32 @@ def test_database_list_of_a_material_file(tmp_path, capsys):
     # a definition with a mistake keeps its own word
     (tmp_path / "db.toml").write_text('name = "d"\ncategory = "x"\n')
     _one_line_error(capsys, ["database", "list", str(tmp_path / "db.toml")], "category: unknown key")
+
+
+# ----------------------------------------------------------------------------- threads beyond the machine
+
+def test_more_threads_than_the_machine_has_are_one_line(tmp_path, capsys):
+    """The settings do not know the machine (they import neither numba nor the kernel): --threads is
+    checked against numba's threads where it is parsed, the library checks it at launch."""
+    import numba
+
+    from goniometer.kernel.tracer import DeviceError
+    from goniometer.run.settings import SimulationSettings
+    from goniometer.stack import stack_from_dict
+    import tomllib
+    top = numba.config.NUMBA_NUM_THREADS
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC)
+    for argv in (["simulate", str(cfg), "--out", str(tmp_path / "x.h5")], ["furnace", str(cfg)],
+                 ["tabulate", str(cfg), "--out", str(tmp_path / "t.h5")]):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as e:   # the parser refuses it (argparse exits)
+            main([*argv, "--threads", str(top + 1)])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and f"--threads: {top + 1} is outside [1, {top}]" in err, err
+    assert not list(tmp_path.glob("*.h5"))
+    settings = SimulationSettings(incident_deg=(0.0,), rays=10, threads=top + 1)   # a valid setting ...
+    stack = stack_from_dict(tomllib.loads(PLASTIC_TOML))
+    with pytest.raises(DeviceError, match=rf"threads: {top + 1} is outside \[1, {top}\]"):
+        goniometer.simulate(stack, settings)                                      # ... this machine cannot run
