@@ -119,6 +119,14 @@ def standard_surface_parameters(stack: Stack) -> StandardSurfaceParameters:
                                      specular=0.0, specular_roughness=0.0)
 
 
+def coat_affected_roughness(specular_roughness, coat_roughness, coat: float = 1.0,
+                            coat_affect_roughness: float = 1.0):
+    """Standard Surface's base roughness under a coat (node ``coat_affected_roughness``):
+    ``mix(specular_roughness, 1, coat_affect_roughness * coat * coat_roughness)``, perceptual
+    roughness (``alpha = r**2``); scalars or arrays."""
+    return specular_roughness + coat_affect_roughness * coat * coat_roughness * (1.0 - specular_roughness)
+
+
 def standard_surface_layering(p: StandardSurfaceParameters, height_correlated: bool = True) -> CoatLayering:
     """Resolve ``p`` into the albedo-scaling coat. Raises :class:`ModelError` for inputs this
     evaluation does not cover: anisotropy, fractional metalness, a dielectric specular lobe on a
@@ -130,7 +138,7 @@ def standard_surface_layering(p: StandardSurfaceParameters, height_correlated: b
     zeros = np.zeros(3)
     color = np.asarray(p.base_color, dtype=float)
     if p.metalness == 1.0:
-        r_b = p.specular_roughness + p.coat_affect_roughness * p.coat * p.coat_roughness * (1.0 - p.specular_roughness)
+        r_b = coat_affected_roughness(p.specular_roughness, p.coat_roughness, p.coat, p.coat_affect_roughness)
         n, k = artistic_ior(p.base * color, p.specular * np.asarray(p.specular_color, dtype=float))
         kind = dict(base_kind=BASE_CONDUCTOR, rho=zeros, base_alpha=r_b * r_b, eta=n, kappa=k)
     else:
