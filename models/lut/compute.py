@@ -98,7 +98,8 @@ def rays_for_target(pilot_stderr: float, pilot_rays: int, target: float) -> int:
 @dataclass
 class Runner:
     """How runs are traced: threads, device, a Dask client, the checkpoint root (None: none),
-    ``progress(rays)`` and ``on_resume(cells)``."""
+    ``progress(rays)`` (finished rays, those loaded from checkpoints included) and
+    ``on_resume(rays)`` (before a run's checkpoints are counted: how many rays they hold)."""
 
     threads: int | None = None
     device: str = "cpu"
@@ -122,8 +123,9 @@ class Runner:
     def run(self, plan: Plan, key: str, rays: int | None = None, pilot: bool = False) -> SimulationResult:
         s = self.settings(plan, key, rays, pilot)
         cps = self.checkpoints(plan, key, s, pilot)
+        resumed = None if self.on_resume is None else (lambda n: self.on_resume(n * s.rays))
         return run_incidents(plan.specs[key].stack, s, checkpoints=cps, client=self.client, progress=self.progress,
-                             on_resume=self.on_resume)
+                             on_resume=resumed)
 
 
 def table_meta(defn: Definition) -> dict[str, Any]:
