@@ -13,11 +13,11 @@ already knows exactly, within the cell's standard error.
   roughness); a smooth coat over a Lambertian has a geometric series (``docs/lut.md`` 7).
 
 A check passes when the chi-square of the cells' deviations (each over its combined standard
-error: the cell's and the reference's error bound in quadrature) is below its limit at the
-false-alarm probability :data:`P_FALSE_ALARM`, and no single cell deviates by more than
-:func:`z_cells` combined standard errors (the same probability for the whole table). Cells
-with no spread at all (every path the same weight) must match to :data:`EXACT` plus the
-reference's error.
+error: the cell's, the reference's error bound and the floor :data:`EXACT` in quadrature) is
+below its limit at the false-alarm probability :data:`P_FALSE_ALARM`, and no single cell
+deviates by more than :func:`z_cells` combined standard errors (the same probability for the
+whole table). The floor stands for rounding: a cell without spread (every path the same weight,
+e.g. 1 on a nearly smooth interface) must match to a few times it.
 
 Also here: a published table compared with ours (:func:`compare_published`, reading its C
 array with :func:`read_c_array`), and the formulas of OpenPBR and Standard Surface scored on
@@ -56,7 +56,7 @@ AVERAGE_REFERENCE_NODES = 96
 FGD_ERROR, FGD_TIR_ERROR = 2e-4, 1.5e-3
 #: GGX alpha at or below which a cell is checked against the smooth interface's closed form
 ALPHA_SMOOTH = 1e-6
-#: how far a cell without spread, or a smooth cell, may lie from its closed form
+#: the floor of every combined standard error (rounding, and a cell without spread)
 EXACT = 1e-6
 #: cells listed per failing check
 LISTED = 20
@@ -100,29 +100,24 @@ def compare(name: str, reference_words: str, values: np.ndarray, stderr: np.ndar
             ref_error: np.ndarray, where: np.ndarray | None = None) -> CellCheck | None:
     """A :class:`CellCheck` of ``values`` against ``reference`` on the cells ``where`` (all by
     default); None if no cell is selected."""
-    sel = np.ones(values.shape, dtype=bool) if where is None else np.asarray(where, dtype=bool)
+    sel = np.ones(values.shape, dtype=bool) if where is None else np.array(where, dtype=bool)
     sel &= np.isfinite(reference)
     n = int(np.count_nonzero(sel))
     if n == 0:
         return None
-    sigma = np.sqrt(stderr ** 2 + ref_error ** 2)
+    sigma = np.sqrt(stderr ** 2 + ref_error ** 2 + EXACT ** 2)
     dev = values - reference
-    spread = sel & (sigma > 0)
-    z = np.zeros(values.shape)
-    z[spread] = dev[spread] / sigma[spread]
-    exact_bad = sel & (sigma == 0) & (np.abs(dev) > EXACT)
+    z = np.where(sel, dev / sigma, 0.0)
     limit_z = z_cells(n)
-    bad = (sel & (np.abs(z) > limit_z)) | exact_bad
-    m = int(np.count_nonzero(spread))
-    chi2 = float(np.sum(z[spread] ** 2)) if m else None
-    limit = float(stats.chi2.isf(P_FALSE_ALARM, m)) if m else None
-    score = np.where(sel, np.abs(z) + np.where(exact_bad, np.inf, 0.0), -1.0)
-    worst = [int(i) for i in np.unravel_index(int(np.argmax(score)), values.shape)]
+    bad = sel & (np.abs(z) > limit_z)
+    chi2 = float(np.sum(z[sel] ** 2))
+    limit = float(stats.chi2.isf(P_FALSE_ALARM, n))
+    worst = [int(i) for i in np.unravel_index(int(np.argmax(np.where(sel, np.abs(z), -1.0))), values.shape)]
     failures = [{"cell": [int(i) for i in idx], "value": float(values[idx]), "stderr": float(stderr[idx]),
                  "reference": float(reference[idx]), "z": float(z[idx])} for idx in zip(*np.nonzero(bad))][:LISTED]
-    passed = not bad.any() and (chi2 is None or chi2 <= limit)
-    return CellCheck(name, reference_words, n, bool(passed), chi2, limit,
-                     float(np.max(np.abs(z[sel]))) if m else 0.0, worst, failures)
+    passed = not bad.any() and chi2 <= limit
+    return CellCheck(name, reference_words, n, bool(passed), chi2, limit, float(np.max(np.abs(z[sel]))), worst,
+                     failures)
 
 
 # --------------------------------------------------------------------------- references
@@ -148,10 +143,12 @@ def _quadrature_albedo(defn: Definition, mus: np.ndarray, alpha: float, eta: flo
     return r if defn.part == "reflected" else both - r
 
 
-def reference_values(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | None:
+def reference_values(defn: Definition, quad: tuple[int, int] = QUAD, coarse: tuple[int, int] = QUAD_COARSE
+                     ) -> tuple[np.ndarray, np.ndarray, str] | None:
     """The quadrature's value of every cell of a single-scattering ``albedo`` or
-    ``albedo-average`` table, its error bound (the difference from a coarser rule, or the FGD's
-    stated error) and what it is, in words; None for the other tables."""
+    ``albedo-average`` table, its error bound (the difference from the ``coarse`` rule, or the
+    FGD's stated error) and what it is, in words; None for the other tables. ``quad``: the albedo
+    quadrature's (cap heights, azimuths)."""
     if defn.quantity not in ("albedo", "albedo-average") or defn.multiple_scattering:
         return None
     params = cell_parameters(defn)
@@ -170,19 +167,22 @@ def reference_values(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | N
     for key in np.unique(keys, axis=0):
         cells = np.flatnonzero(np.all(keys == key, axis=1))
         a, e = float(key[0]), float(key[1])
+        if a == 0.0:     # a smooth interface: no quadrature (its closed form is the fresnel check)
+            flat_ref[cells], flat_err[cells] = np.nan, 0.0
+            continue
         mus = mu_nodes if defn.quantity == "albedo-average" else mu_flat[cells]
-        fine = _quadrature_albedo(defn, mus, a, e, QUAD)
+        fine = _quadrature_albedo(defn, mus, a, e, quad)
         if fgd:
             tir = fresnel == "dielectric" and e < 1.0
             bound = np.full(mus.shape, FGD_TIR_ERROR if tir else FGD_ERROR)
             if defn.part == "transmitted":   # both - reflected: the albedo quadrature's error too
                 both = direct(mus, a, e, kind="dielectric", height_correlated=defn.masking == "height-correlated",
-                              n_z=QUAD_COARSE[0], n_phi=QUAD_COARSE[1])
+                              n_z=coarse[0], n_phi=coarse[1])
                 bound = bound + np.abs(both - direct(mus, a, e, kind="dielectric",
                                                      height_correlated=defn.masking == "height-correlated",
-                                                     n_z=QUAD[0], n_phi=QUAD[1]))
+                                                     n_z=quad[0], n_phi=quad[1]))
         else:
-            bound = np.abs(fine - _quadrature_albedo(defn, mus, a, e, QUAD_COARSE))
+            bound = np.abs(fine - _quadrature_albedo(defn, mus, a, e, coarse))
         if defn.quantity == "albedo-average":
             flat_ref[cells] = np.sum(weights * fine)
             flat_err[cells] = np.sum(weights * bound)
@@ -192,7 +192,7 @@ def reference_values(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | N
     what = {"white": "microfacet_albedo.direct (F = 1)", "conductor": "fgd_direct_many (Belcour's FGD)",
             "dielectric": "microfacet_albedo.direct (R + T)" if defn.part == "both" else
             "fgd_direct_many (R)" + (" and microfacet_albedo.direct (R + T)" if defn.part == "transmitted" else "")}
-    words = f"quadrature: models.tables.{what[fresnel]}"
+    words = f"quadrature: models.tables.{what[fresnel]}, {quad[0]} x {quad[1]} nodes"
     if defn.quantity == "albedo-average":
         words += f", {AVERAGE_REFERENCE_NODES}-point Gauss-Legendre in mu"
     return ref, err, words
@@ -219,7 +219,7 @@ def smooth_values(defn: Definition) -> tuple[np.ndarray, np.ndarray] | None:
 
 def coat_closed_form(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | None:
     """Closed forms of coat tables: an index-matched coat (darkening 1; effective roughness the
-    base's alpha) and, for the darkening, a smooth coat over a Lambertian (``docs/lut.md`` 7):
+    base's alpha, single scattering: the estimator's model lobe is the single-scattering one) and, for the darkening, a smooth coat over a Lambertian (``docs/lut.md`` 7):
     ``E_int = E_b (1 - F(mu)) g / (1 - E_b (1 - g))``, ``g = (1 - E_F(n)) / n^2``, over the
     production estimator's ``P = E_b sum_rows (1 - F(mu_row)) (sin^2 theta_hi - sin^2 theta_lo)``."""
     if defn.quantity not in ("coat-darkening", "coat-roughness"):
@@ -229,6 +229,8 @@ def coat_closed_form(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | N
     ref = np.full(defn.shape, np.nan)
     matched = n == 1.0
     if defn.quantity == "coat-roughness":
+        if defn.multiple_scattering:   # the estimator's model lobe is single scattering (docs/production.md 3)
+            return None
         ref[matched] = params["base_roughness"][matched]
         return (ref, matched, "an index-matched coat is absent: the base's own alpha") if matched.any() else None
     ref[matched] = 1.0
@@ -261,7 +263,7 @@ def check_table(result: LutResult) -> list[CellCheck]:
     smooth = smooth_values(d)
     if smooth is not None:
         out.append(compare("fresnel", f"the smooth interface's closed form at GGX alpha <= {ALPHA_SMOOTH:g}",
-                           v, se, smooth[0], np.full(v.shape, EXACT), smooth[1]))
+                           v, se, smooth[0], np.zeros(v.shape), smooth[1]))
     conserves = d.quantity in ("albedo", "albedo-average") and d.multiple_scattering and (
         d.interface["fresnel"] == "white" or (d.interface["fresnel"] == "dielectric" and d.part == "both"))
     if conserves:
@@ -300,7 +302,8 @@ def compare_published(result: LutResult, published: np.ndarray, decimals: int,
     decimal) and, in combination with it, our standard error (``beyond_ours``: more than
     :func:`z_cells` combined standard errors); with a quadrature ``reference`` (:func:`reference_values`)
     also where it is off from the quadrature by more than its precision plus twice the
-    quadrature's error bound (``beyond_quadrature``)."""
+    quadrature's error bound (``beyond_quadrature``). Each list is sorted by the size of its
+    difference, largest first."""
     d = result.definition
     if published.size != d.cells:
         raise LutError(f"--published: {d.published.array if d.published else 'the array'} holds {published.size} "
@@ -312,8 +315,8 @@ def compare_published(result: LutResult, published: np.ndarray, decimals: int,
     z = dev / sigma
     limit = z_cells(d.cells)
 
-    def cells(mask: np.ndarray, extra: dict[str, np.ndarray]) -> list[dict[str, Any]]:
-        order = np.argsort(-np.abs(dev[mask]))
+    def cells(mask: np.ndarray, extra: dict[str, np.ndarray], by: np.ndarray) -> list[dict[str, Any]]:
+        order = np.argsort(-np.abs(by[mask]), kind="stable")
         idx = [tuple(int(i) for i in t) for t in zip(*np.nonzero(mask))]
         return [dict({"cell": list(idx[k]), "published": float(p[idx[k]]), "value": float(result.values[idx[k]]),
                       "stderr": float(result.stderr[idx[k]])}, **{n: float(a[idx[k]]) for n, a in extra.items()})
@@ -322,7 +325,7 @@ def compare_published(result: LutResult, published: np.ndarray, decimals: int,
     out: dict[str, Any] = {
         "cells": d.cells, "precision": half, "max_abs_difference": float(np.max(np.abs(dev))),
         "rms_difference": float(np.sqrt(np.mean(dev ** 2))), "max_z": float(np.max(np.abs(z))), "z_limit": limit,
-        "beyond_ours": cells(np.abs(z) > limit, {"z": z}),
+        "beyond_ours": cells(np.abs(z) > limit, {"z": z}, dev),
     }
     if reference is not None:
         ref, err, words = reference
@@ -330,7 +333,7 @@ def compare_published(result: LutResult, published: np.ndarray, decimals: int,
         bad = np.abs(dq) > half + 2.0 * err
         out["quadrature"] = words
         out["max_abs_difference_quadrature"] = float(np.max(np.abs(dq)))
-        out["beyond_quadrature"] = cells(bad, {"quadrature": ref, "quadrature_error": err})
+        out["beyond_quadrature"] = cells(bad, {"quadrature": ref, "quadrature_error": err}, dq)
     return out
 
 

@@ -41,8 +41,10 @@ PILOT_SEED_OFFSET = 1 << 40
 SAFETY = 1.25
 #: rays per run are rounded up to a multiple of this
 RAYS_STEP = 1024
-#: rays per incident direction of the speed calibration (a table with given rays)
-CALIBRATION_RAYS = 1 << 15
+#: chunks of a pilot run (its rays split so that every thread has work)
+PILOT_CHUNKS = 8
+#: chunks per thread of a calibration run (enough to keep every thread busy, as the table's runs do)
+CALIBRATION_CHUNKS = 2
 PARTIAL = ".partial"
 
 
@@ -66,6 +68,8 @@ class Plan:
         d = self.definition
         seed = d.seed + self.ordinal[key] + (PILOT_SEED_OFFSET if pilot else 0)
         n = rays if rays is not None else self.rays[key]
+        if pilot:
+            kw["chunk_rays"] = max(1, n // PILOT_CHUNKS)
         return self.specs[key].settings(n, seed, d.masking, **kw)
 
     def total_rays(self) -> int:
@@ -166,17 +170,19 @@ def warm_up(plan: Plan, runner: Runner) -> float:
 
 def calibrate(plan: Plan, runner: Runner, samples: int = 3) -> float:
     """Rays per second of this machine on up to ``samples`` of the table's runs (first, middle,
-    last), :data:`CALIBRATION_RAYS` rays at one incident direction each, nothing kept."""
+    last) at one incident direction each, :data:`CALIBRATION_CHUNKS` chunks per thread, nothing
+    kept."""
     keys = list(plan.specs)
-    picks = sorted({keys[0], keys[len(keys) // 2], keys[-1]})[:samples]
+    picks = list(dict.fromkeys([keys[0], keys[len(keys) // 2], keys[-1]]))[:samples]
     rays, t0 = 0, time.perf_counter()
     for k in picks:
         s = plan.specs[k]
         mid = s.incident_deg[len(s.incident_deg) // 2]
-        settings = runner.settings(plan, k, rays=CALIBRATION_RAYS).with_overrides(incident_deg=(mid,),
-                                                                                 incident_phi_deg=(0.0,))
-        run_incidents(s.stack, settings, client=runner.client)
-        rays += CALIBRATION_RAYS
+        base = runner.settings(plan, k, rays=1)
+        n = base.chunk_rays * base.n_threads * CALIBRATION_CHUNKS
+        run_incidents(s.stack, base.with_overrides(rays=n, incident_deg=(mid,), incident_phi_deg=(0.0,)),
+                      client=runner.client)
+        rays += n
     return rays / max(time.perf_counter() - t0, 1e-9)
 
 
@@ -263,7 +269,7 @@ def compute_table(defn: Definition, threads: int | None = None) -> LutResult:
     return run_table(plan, runner)
 
 
-__all__ = ["PILOT_RAYS", "PILOT_SEED_OFFSET", "SAFETY", "RAYS_STEP", "PARTIAL", "Plan", "plan_table",
+__all__ = ["PILOT_RAYS", "PILOT_CHUNKS", "PILOT_SEED_OFFSET", "SAFETY", "RAYS_STEP", "PARTIAL", "Plan", "plan_table",
            "rays_for_target", "Runner", "table_meta", "check_checkpoints", "kept_runs", "kept_cells",
            "start_checkpoints", "clear_checkpoints", "warm_up", "calibrate", "pilot", "LutResult", "run_table",
            "compute_table"]

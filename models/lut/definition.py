@@ -302,7 +302,7 @@ def definition_from_dict(d: Mapping[str, Any]) -> Definition:
     sections = {}
     for s in ("interface", "coat", "base"):
         if s in d and s not in SECTIONS[quantity]:
-            raise LutError(f"{s}: a {quantity} table has no [{s}] (it takes {', '.join(SECTIONS[quantity])})")
+            raise LutError(f"{s}: {_a(quantity)} table has no [{s}] (it takes {', '.join(SECTIONS[quantity])})")
         table = d.get(s, {})
         if not isinstance(table, dict):
             raise LutError(f"{s}: must be a table ([{s}])")
@@ -420,15 +420,15 @@ def _check_quantity(d: Definition) -> None:
     owners = set(SECTIONS[q]) | {None}
     for k, a in enumerate(d.axes):
         if PARAMETERS[a.parameter] not in owners:
-            raise LutError(f"axes[{k}].parameter: a {q} table has no {a.parameter} (its parameters: "
+            raise LutError(f"axes[{k}].parameter: {_a(q)} table has no {a.parameter} (its parameters: "
                            f"{', '.join(p for p, s in PARAMETERS.items() if s in owners)})")
     inc = [k for k, a in enumerate(d.axes) if a.parameter in INCIDENT]
     if q in ("albedo-average", "coat-roughness"):
         if inc:
-            raise LutError(f"axes[{inc[0]}].parameter: a {q} table has no incident axis "
+            raise LutError(f"axes[{inc[0]}].parameter: {_a(q)} table has no incident axis "
                            f"({'it integrates over mu' if q == 'albedo-average' else 'it is read at normal incidence'})")
     elif not inc:
-        raise LutError(f"axes: a {q} table needs an incident axis (parameter mu or theta)")
+        raise LutError(f"axes: {_a(q)} table needs an incident axis (parameter mu or theta)")
     elif len(inc) > 1:
         raise LutError(f"axes[{inc[1]}].parameter: one incident axis only (axes[{inc[0]}] is one)")
     if "interface" in SECTIONS[q]:
@@ -509,6 +509,11 @@ def _check_coat(d: Definition) -> None:
 
 
 # --------------------------------------------------------------------------- small checks
+
+def _a(word: str) -> str:
+    """``word`` with its indefinite article."""
+    return f"{'an' if word[0] in 'aeiou' else 'a'} {word}"
+
 
 def _unknown(d: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
     unknown = sorted(set(d) - set(allowed))
