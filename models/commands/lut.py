@@ -66,6 +66,7 @@ def cmd_lut(args: argparse.Namespace) -> int:
         if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
             raise UsageError(f"--threads: {args.threads} is outside [1, {numba.config.NUMBA_NUM_THREADS}]")
     inputs = [args.definition] + ([args.published] if args.published else [])
+    _refuse_finished(Path(args.out), defn.name, args.overwrite)
     out = output_path(args.out, inputs=inputs, overwrite=args.overwrite, directory=True, marker=f"{defn.name}.json")
     published = _published(args, defn)
     with usage_errors(LutError, prefix=str(args.definition)):
@@ -78,6 +79,9 @@ def cmd_lut(args: argparse.Namespace) -> int:
         clear_checkpoints(root)
     with checkpoint_refusals():
         check_checkpoints(root, defn)
+    kept = kept_cells(root)
+    if kept and not args.json:
+        print(f"resuming: {kept} finished cell(s) in {root} (--restart to discard them)", file=sys.stderr)
     client = None
     if args.scheduler:
         from goniometer.distributed import ClusterError, dask_client
@@ -101,6 +105,19 @@ def cmd_lut(args: argparse.Namespace) -> int:
     finally:
         if client is not None:
             client.close()
+
+
+def _refuse_finished(out: Path, name: str, overwrite: bool) -> None:
+    """A finished table (its NAME.json) is not replaced without --overwrite (docs/outputs.md rule 2);
+    the refusal says what it holds."""
+    from models.lut.writers import describe_table, file_names
+    marker = out / file_names(name)["json"]
+    if overwrite or not marker.is_file():
+        return
+    what = describe_table(marker)
+    if what is not None:
+        raise UsageError(f"--out: {out} already holds a finished output, {marker.name}: {what}; add --overwrite "
+                         f"to replace it, or give another directory")
 
 
 def _published(args: argparse.Namespace, defn):

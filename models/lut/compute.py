@@ -226,9 +226,11 @@ class LutResult:
 
     def to_json(self) -> dict[str, Any]:
         """The JSON output (``docs/lut.md`` section 6), without the checks."""
+        import datetime
         d = self.definition
+        created = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         return {
-            "format": "goniometer.lut", "version": 1, "name": d.name, "quantity": d.quantity,
+            "format": "goniometer.lut", "version": 1, "name": d.name, "quantity": d.quantity, "created": created,
             "shape": list(d.shape), "layout": "row-major (C order): the axes slowest first, as the header prints them",
             "axes": [dict(a.to_dict(), coordinate=a.coordinates().tolist(), values=v.tolist())
                      for a, v in zip(d.axes, self.axis_values)],

@@ -115,6 +115,19 @@ def png16(image: np.ndarray) -> bytes:
             + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
 
 
+def describe_table(path: str | Path) -> str | None:
+    """What a finished table's ``NAME.json`` holds, in one phrase (None if it is not one)."""
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        if d.get("format") != "goniometer.lut":
+            return None
+        shape = " x ".join(str(n) for n in d["shape"]) or "1"
+        return (f"the {d['quantity']} table {d['name']}, {shape} cell(s), standard error at most "
+                f"{float(d['stderr_max']):.3g}, {int(d['total_rays']):,} rays, written {d.get('created', '?')}")
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def _npy(a: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(a, dtype=np.float64))
@@ -143,4 +156,5 @@ def write_table(out: str | Path, result: LutResult, document: dict[str, Any], so
     return paths
 
 
-__all__ = ["file_names", "c_float", "c_array", "header_text", "image_layout", "png_why_not", "png16", "write_table"]
+__all__ = ["file_names", "c_float", "c_array", "header_text", "image_layout", "png_why_not", "png16", "describe_table",
+           "write_table"]
