@@ -218,10 +218,15 @@ def smooth_values(defn: Definition) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def coat_closed_form(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | None:
-    """Closed forms of coat tables: an index-matched coat (darkening 1; effective roughness the
-    base's alpha, single scattering: the estimator's model lobe is the single-scattering one) and, for the darkening, a smooth coat over a Lambertian (``docs/lut.md`` 7):
-    ``E_int = E_b (1 - F(mu)) g / (1 - E_b (1 - g))``, ``g = (1 - E_F(n)) / n^2``, over the
-    production estimator's ``P = E_b sum_rows (1 - F(mu_row)) (sin^2 theta_hi - sin^2 theta_lo)``."""
+    """Closed forms of coat tables (``docs/lut.md`` section 7): an index-matched coat is absent
+    (darkening 1; effective roughness the base's alpha, single scattering only: the estimator's
+    model lobe is the single-scattering one); a smooth coat (index n) over a Lambertian of albedo
+    ``E_b`` sends ``E_int = E_b (1 - F(mu)) g / (1 - E_b (1 - g))`` back up, ``g = (1 - E_F(n)) / n^2``
+    the escaping fraction of the light the base diffuses (a geometric series), so its darkening is
+    ``g / (1 - E_b (1 - g))`` (``darkening = "albedo"``), or that internal albedo over the
+    production estimator's binned ``P = E_b sum_rows (1 - F(mu_row)) (sin^2 theta_hi - sin^2 theta_lo)``;
+    a white base (albedo 1) under a coat, every interface scattering multiply, absorbs nothing, so
+    ``E = 1`` and its darkening is 1 (``darkening = "albedo"``)."""
     if defn.quantity not in ("coat-darkening", "coat-roughness"):
         return None
     params = cell_parameters(defn)
@@ -229,13 +234,17 @@ def coat_closed_form(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | N
     ref = np.full(defn.shape, np.nan)
     matched = n == 1.0
     if defn.quantity == "coat-roughness":
-        if defn.multiple_scattering:   # the estimator's model lobe is single scattering (docs/production.md 3)
+        if defn.multiple_scattering:
             return None
         ref[matched] = params["base_roughness"][matched]
         return (ref, matched, "an index-matched coat is absent: the base's own alpha") if matched.any() else None
     ref[matched] = 1.0
     words = ["an index-matched coat is absent: 1"]
-    smooth = (params["coat_roughness"] == 0.0) & ~matched
+    white = (params["base_albedo"] == 1.0) & ~matched
+    if defn.darkening == "albedo" and defn.multiple_scattering and white.any():
+        ref[white] = 1.0     # nothing absorbs: E = 1 = E_coat + (1 - E_coat) Delta 1
+        words.append("a white base under a coat, scattering multiply, loses nothing: 1")
+    smooth = (params["coat_roughness"] == 0.0) & ~matched & ~white
     if defn.base["kind"] == "lambertian" and smooth.any():
         nt = defn.resolution[0]
         edges = np.radians(np.linspace(0.0, 90.0, nt + 1))
@@ -244,10 +253,13 @@ def coat_closed_form(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | N
         for idx in zip(*np.nonzero(smooth)):
             eta, e_b, mu = float(n[idx]), float(params["base_albedo"][idx]), float(params["mu"][idx])
             g = (1.0 - fresnel_average(eta)) / (eta * eta)
+            if defn.darkening == "albedo":
+                ref[idx] = g / (1.0 - e_b * (1.0 - g))
+                continue
             internal = e_b * (1.0 - np_fresnel_dielectric(mu, eta)) * g / (1.0 - e_b * (1.0 - g))
             predicted = e_b * np.sum((1.0 - np_fresnel_dielectric(centre, eta)) * ring)
             ref[idx] = internal / predicted
-        words.append("a smooth coat over a Lambertian: the geometric series over the binned prediction")
+        words.append("a smooth coat over a Lambertian: the geometric series")
     sel = np.isfinite(ref)
     return (ref, sel, "; ".join(words)) if sel.any() else None
 

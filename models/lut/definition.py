@@ -50,6 +50,9 @@ PARTS = ("both", "reflected", "transmitted")
 FRESNEL = ("white", "conductor", "dielectric")
 SIDES = ("outside", "inside")
 BASES = ("conductor", "lambertian")
+#: how a coat-darkening cell reads the runs (``docs/lut.md`` section 3): the layering's own albedo
+#: relation at the incident direction, or ``gonio production``'s estimator at that direction
+DARKENINGS = ("albedo", "production")
 PLACEMENTS = ("node", "texel")
 #: how an axis maps its coordinate u (after the clamp and the range) to its parameter
 MAPS = {
@@ -85,7 +88,7 @@ SECTION_KEYS = {
     "base": ("kind", "albedo", "roughness", "ior"),
 }
 TOP_KEYS = ("name", "description", "quantity", "part", "masking", "multiple_scattering", "rays", "stderr", "seed",
-            "average_nodes", "resolution", "axes", "interface", "coat", "base", "published", "score")
+            "average_nodes", "darkening", "resolution", "axes", "interface", "coat", "base", "published", "score")
 AXIS_KEYS = ("parameter", "nodes", "placement", "clamp", "range", "map")
 PUBLISHED_KEYS = ("source", "array", "decimals")
 SCORE_KEYS = ("tolerance",)
@@ -175,6 +178,7 @@ class Definition:
     part: str = "both"
     average_nodes: int = AVERAGE_NODES
     resolution: tuple[int, int] = COAT_RESOLUTION
+    darkening: str = "albedo"
     interface: Mapping[str, Any] = field(default_factory=dict)
     coat: Mapping[str, Any] = field(default_factory=dict)
     base: Mapping[str, Any] = field(default_factory=dict)
@@ -197,6 +201,12 @@ class Definition:
             if a.parameter in INCIDENT:
                 return k
         return None
+
+    @property
+    def uses_slices(self) -> bool:
+        """True if the runs record classic slices (``resolution``): the production estimators."""
+        return self.quantity == "coat-roughness" or (self.quantity == "coat-darkening"
+                                                     and self.darkening == "production")
 
     @property
     def c_name(self) -> str:
@@ -228,7 +238,9 @@ class Definition:
             d["part"] = self.part
         if self.quantity == "albedo-average":
             d["average_nodes"] = self.average_nodes
-        if self.quantity.startswith("coat"):
+        if self.quantity == "coat-darkening":
+            d["darkening"] = self.darkening
+        if self.uses_slices:
             d["resolution"] = list(self.resolution)
         for s in SECTIONS[self.quantity]:
             d[s] = dict(getattr(self, s))
@@ -291,9 +303,14 @@ def definition_from_dict(d: Mapping[str, Any]) -> Definition:
     if "average_nodes" in d and quantity != "albedo-average":
         raise LutError(f"average_nodes: only an albedo-average table takes it (this is {quantity})")
     _int_in(average_nodes, "average_nodes", 2, 512)
+    darkening = _choice(d.get("darkening", "albedo"), DARKENINGS, "darkening")
+    if "darkening" in d and quantity != "coat-darkening":
+        raise LutError(f"darkening: only a coat-darkening table takes it (this is {quantity})")
     resolution = d.get("resolution", list(COAT_RESOLUTION))
-    if "resolution" in d and not quantity.startswith("coat"):
-        raise LutError(f"resolution: only a coat table takes it (this is {quantity})")
+    if "resolution" in d and not (quantity == "coat-roughness" or (quantity == "coat-darkening"
+                                                                   and darkening == "production")):
+        raise LutError("resolution: only the production estimators record slices (coat-roughness, coat-darkening "
+                       "with darkening = \"production\")")
     if not isinstance(resolution, list) or len(resolution) != 2:
         raise LutError(f"resolution: {resolution!r} must be [n_theta, n_phi] (the coat runs' classic grid)")
     _int_in(resolution[0], "resolution (n_theta)", 2, 1000)
@@ -324,7 +341,8 @@ def definition_from_dict(d: Mapping[str, Any]) -> Definition:
     defn = Definition(name=name, quantity=quantity, axes=axes, masking=masking, multiple_scattering=ms,
                       rays=None if rays is None else int(rays), stderr=None if stderr is None else float(stderr),
                       seed=int(seed), part=part, average_nodes=int(average_nodes),
-                      resolution=(int(resolution[0]), int(resolution[1])), description=description,
+                      resolution=(int(resolution[0]), int(resolution[1])), darkening=darkening,
+                      description=description,
                       published=published, score_tolerance=float(tol), **sections)
     _check_quantity(defn)
     return defn
@@ -547,5 +565,5 @@ def _pair(v: Any, where: str) -> tuple[float, float]:
     return float(v[0]), float(v[1])
 
 
-__all__ = ["QUANTITIES", "PARTS", "FRESNEL", "SIDES", "BASES", "PLACEMENTS", "MAPS", "PARAMETERS", "LutError",
+__all__ = ["QUANTITIES", "PARTS", "FRESNEL", "SIDES", "BASES", "DARKENINGS", "PLACEMENTS", "MAPS", "PARAMETERS", "LutError",
            "Axis", "Published", "Definition", "load_definition", "definition_from_dict", "ior_from_f0"]

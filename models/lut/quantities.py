@@ -12,9 +12,14 @@ say) share it. Each quantity reuses the project's estimators:
 * ``albedo-average``: ``2 Int_0^1 E(mu) mu dmu`` by Gauss-Legendre in mu over the row's runs at
   the nodes, standard errors added in quadrature with the weights;
 * ``coat-albedo``: the albedo of the coated stack;
-* ``coat-darkening``: ``gonio production``'s effective darkening (``docs/production.md`` section
-  2) per incident direction: the internal albedo of the coated stack over the albedo-scaling
-  prediction from its bare twin (:mod:`models.production.study.effective`);
+* ``coat-darkening``: the factor ``Delta`` of the albedo-scaling layering at the incident
+  direction ``l``. ``darkening = "albedo"`` (default): the layering's own albedo relation
+  ``E(l) = E_coat(l) + (1 - E_coat(l)) Delta E_bare(l)`` solved for ``Delta`` with the coated
+  stack's internal albedo (bounce orders >= 2; :func:`models.production.study.effective.internal_albedo`),
+  the coat's reflection albedo ``E_coat`` (Belcour's FGD quadrature) and the bare twin's albedo,
+  ``Delta = E_int / ((1 - E_coat(l)) E_bare(l))``; ``"production"``: ``gonio production``'s
+  effective darkening (``docs/production.md`` section 2) per incident direction, ``E_int`` over
+  ``P = sum_cells (1 - E_coat(v)) f_bare Omega`` (the coat's exit weighting only);
 * ``coat-roughness``: ``gonio production``'s effective base roughness (GGX alpha; section 3) at
   normal incidence.
 
@@ -38,6 +43,7 @@ from models.furnace import GRID, simulated_albedo
 from models.lut.definition import Definition, LutError
 from models.production.study.effective import (coat_albedo_rows, effective_roughness, internal_albedo,
                                                layered_prediction)
+from models.tables import fgd_direct_many
 
 #: the index of a conductor that reflects everything (F = 1 at every angle, to double precision:
 #: ``tests/models/test_furnace.py``)
@@ -189,7 +195,7 @@ def row_runs(defn: Definition, params: dict[str, float], thetas: tuple[float, ..
     if defn.quantity in ("albedo", "albedo-average"):
         return [RunSpec(interface_stack(defn, params), thetas, GRID)]
     coated, bare = coat_stacks(defn, params)
-    grid = ("classic", defn.resolution)
+    grid = ("classic", defn.resolution) if defn.uses_slices else GRID
     if defn.quantity == "coat-albedo":
         return [RunSpec(coated, thetas, GRID)]
     if defn.quantity == "coat-roughness":
@@ -216,10 +222,16 @@ def reduce_row(defn: Definition, row: Row, results: list[SimulationResult],
         rough = effective_roughness(r)
         return np.array([rough.alpha]), np.array([rough.stderr])
     bare = results[1]
-    e_coat = coat_albedo_rows(r.stack.layers[0].roughness, r.stack.layers[0].ior[0], r.settings.masking,
-                              r.brdf.grid.n_theta)
+    coat = r.stack.layers[0]
     e, e_se = internal_albedo(r)
-    p, p_se = layered_prediction(bare, e_coat)
+    if defn.darkening == "albedo":
+        mu = np.cos(np.radians(np.asarray(r.settings.incident_deg)))
+        e_coat = fgd_direct_many(mu, coat.roughness, coat.ior[0], 0.0, r.settings.masking == "height-correlated")
+        e_bare, e_bare_se = simulated_albedo(bare)
+        p, p_se = (1.0 - e_coat)[:, None] * e_bare, (1.0 - e_coat)[:, None] * e_bare_se
+    else:
+        rows = coat_albedo_rows(coat.roughness, coat.ior[0], r.settings.masking, r.brdf.grid.n_theta)
+        p, p_se = layered_prediction(bare, rows)
     e, e_se, p, p_se = e[:, 0], e_se[:, 0], p[:, 0], p_se[:, 0]
     d = e / p
     se = np.abs(d) * np.sqrt((e_se / e) ** 2 + (p_se / p) ** 2)

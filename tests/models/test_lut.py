@@ -129,6 +129,10 @@ BAD = [
       "coat": {"ior": 1.5, "roughness": 0.1}, "base": {"kind": "conductor", "albedo": 1.5, "roughness": 0.1}},
      "base.albedo: 1.5 is outside [0, 1]"),
     ({"score": {"tolerance": 0.1}}, "score: only a coat-darkening table is scored"),
+    ({"darkening": "albedo"}, "darkening: only a coat-darkening table takes it"),
+    ({"quantity": "coat-darkening", "interface": None, "axes": [SMALL["axes"][0]], "resolution": [45, 1],
+      "coat": {"ior": 1.5, "roughness": 0.1}, "base": {"kind": "lambertian", "albedo": 0.5}},
+     "resolution: only the production estimators record slices"),
 ]
 
 
@@ -242,18 +246,24 @@ COAT = {"name": "dark", "quantity": "coat-darkening", "rays": 30_000,
                  {"parameter": "mu", "nodes": 2, "placement": "texel"}]}
 
 
-def test_coat_darkening_over_a_lambertian_has_its_closed_form():
-    r = compute_table(definition_from_dict(COAT), threads=1)
+@pytest.mark.parametrize("darkening", ["albedo", "production"])
+def test_coat_darkening_over_a_lambertian_has_its_closed_form(darkening):
+    r = compute_table(definition_from_dict(dict(COAT, darkening=darkening)), threads=1)
     checks = {c.name: c for c in check_table(r)}
     assert checks["closed-form"].passed and checks["closed-form"].cells == 4, checks["closed-form"].line()
     ref, sel, _ = coat_closed_form(r.definition)
     np.testing.assert_allclose(ref[0], 1.0)              # index-matched: absent
     assert np.all(ref[1] < 0.95) and sel.all()           # a coat of 1.5 darkens
+    if darkening == "production":    # the estimator's P leaves out the coat's entry: grazing light darkens more
+        assert ref[1, 0] < ref[1, 1]
+        return
     s = score_darkening(r)
     f = s["formulas"]
-    # over a rough (Lambertian) base the specification's formula and the corrected one agree
-    assert f["openpbr-1.1"]["rmse"] == pytest.approx(f["openpbr-corrected-269"]["rmse"], rel=1e-12)
     assert set(f) == {"openpbr-1.1", "openpbr-corrected-269", "openpbr-node-graph"}
+    # over a rough (Lambertian) base the specification's formula and the corrected one agree, and are
+    # the exact geometric series: no cell fails them
+    assert f["openpbr-1.1"]["rmse"] == pytest.approx(f["openpbr-corrected-269"]["rmse"], rel=1e-12)
+    assert f["openpbr-1.1"]["failing_cells"] == 0 and f["openpbr-1.1"]["rmse"] < 5 * r.stderr.max()
 
 
 def test_coat_roughness_of_an_index_matched_coat_is_the_bases():
@@ -335,3 +345,19 @@ def test_files_json_and_png(small, tmp_path):
     from models.lut.writers import image_layout
     np.testing.assert_array_equal(image_layout(cube), np.concatenate([cube[0], cube[1]], axis=1))
     assert png16(np.zeros((1, 1)))[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_white_base_under_a_coat_is_not_darkened_and_the_corrected_numerator_is():
+    # a smooth coat over a smooth-ish white conductor, both scattering multiply: nothing is
+    # absorbed, so the darkening is 1 (closed form); OpenPBR 1.1's (1 - K)/(1 - E_b K) is 1 at
+    # E_b = 1 for every K, the corrected (1 - K_r)/(1 - E_b K) is not where K = lerp(K_s, K_r, r_b) < K_r
+    d = definition_from_dict({"name": "white", "quantity": "coat-darkening", "rays": 20_000,
+                              "multiple_scattering": True, "coat": {"ior": 1.5, "roughness": 0.0},
+                              "base": {"kind": "conductor", "albedo": 1.0, "roughness": 0.04},
+                              "axes": [{"parameter": "mu", "nodes": 2, "placement": "texel"}]})
+    r = compute_table(d, threads=1)
+    checks = {c.name: c for c in check_table(r)}
+    assert checks["closed-form"].passed and checks["closed-form"].cells == 2, checks["closed-form"].line()
+    f = score_darkening(r)["formulas"]
+    assert f["openpbr-1.1"]["failing_cells"] == 0
+    assert f["openpbr-corrected-269"]["failing_cells"] == 2 and f["openpbr-corrected-269"]["max_abs_error"] > 0.05
