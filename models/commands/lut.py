@@ -208,13 +208,13 @@ def _finish(args: argparse.Namespace, result, published, out: Path, root: Path) 
     defn = result.definition
     say = (lambda text: None) if args.json else (lambda text: print(text, file=sys.stderr))
     document = result.to_json()
-    checks = []
+    checks, ref = [], None
     if args.checks:
         say("checking the table against the quadratures and closed forms ...")
-        checks = check_table(result)
+        ref = reference_values(defn)
+        checks = check_table(result, ref)
     document["checks"] = [c.to_json() for c in checks]
     if published is not None:
-        ref = reference_values(defn) if args.checks else None
         document["published"] = dict(source=defn.published.source, array=defn.published.array, file=str(args.published),
                                      **compare_published(result, published, defn.published.decimals, ref))
     if defn.quantity == "coat-darkening":

@@ -264,12 +264,13 @@ def coat_closed_form(defn: Definition) -> tuple[np.ndarray, np.ndarray, str] | N
     return (ref, sel, "; ".join(words)) if sel.any() else None
 
 
-def check_table(result: LutResult) -> list[CellCheck]:
-    """Every check that applies to ``result`` (module docstring)."""
+def check_table(result: LutResult, reference: tuple[np.ndarray, np.ndarray, str] | None = None) -> list[CellCheck]:
+    """Every check that applies to ``result`` (module docstring); ``reference``: the quadrature's
+    values (:func:`reference_values`) when the caller has them already."""
     d = result.definition
     v, se = result.values, result.stderr
     out: list[CellCheck | None] = []
-    ref = reference_values(d)
+    ref = reference if reference is not None else reference_values(d)
     if ref is not None:
         out.append(compare("quadrature", ref[2], v, se, ref[0], ref[1]))
     smooth = smooth_values(d)
