@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import (UsageError, add_device, add_overwrite, compile_kernels, output_path, progress_bar,
+from goniometer.cli.common import (UsageError, add_overwrite, compile_kernels, output_path, progress_bar,
                                    sigint_latch, usage_errors, whole_number, ResumeAware, THREADS_HELP)
 
 #: exit status of a table written whose own checks failed (docs/lut.md section 5)
@@ -33,7 +33,9 @@ def register(sub) -> None:
                            "or stderr (default: the definition's)")
     p.add_argument("--seed", type=whole_number, help="random seed (default: the definition's seed, else 1)")
     p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
-    add_device(p)
+    p.add_argument("--device", choices=("cpu", "cuda"),
+                   help="where the paths are traced: cpu (numba threads) or cuda (an NVIDIA GPU through numba-cuda; "
+                        "the same transport, other bits: docs/gpu.md) (default: cpu)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="trace on this Dask scheduler's workers (same bits; default: local threads)")
     p.add_argument("--published", metavar="FILE",

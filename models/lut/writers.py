@@ -54,8 +54,8 @@ def c_array(name: str, data: np.ndarray) -> str:
 
 
 def header_text(result: LutResult, source: str = "") -> str:
-    """The C/C++ header of a table: a comment saying what it holds, then the values and the
-    standard errors (``NAME_stderr``)."""
+    """The C/C++ header of a table: a comment saying what it holds, then, inside an include guard,
+    the values and the standard errors (``NAME_stderr``)."""
     d = result.definition
     axes = "".join(f"[{a.parameter} {a.nodes}]" for a in d.axes) or "[1]"
     lines = [f"/* {d.name}: {d.quantity} table computed by gonio lut (goniometer; docs/lut.md)",
@@ -71,7 +71,9 @@ def header_text(result: LutResult, source: str = "") -> str:
                 "ior=ior_from_F0(z^4)": " (index from F0 = z^4)"}.get(a.map, "")
         lines.insert(-2, f" * axis {a.parameter}{what}: {a.nodes} nodes ({a.placement}), values {nodes}")
     text = "\n".join(x for x in lines if x is not None)
-    return text + "\n" + c_array(d.c_name, result.values) + "\n" + c_array(f"{d.c_name}_stderr", result.stderr)
+    guard = f"GONIOMETER_LUT_{d.c_name.upper()}_H"
+    return (text + f"\n#ifndef {guard}\n#define {guard}\n\n" + c_array(d.c_name, result.values) + "\n"
+            + c_array(f"{d.c_name}_stderr", result.stderr) + f"\n#endif /* {guard} */\n")
 
 
 def image_layout(values: np.ndarray) -> np.ndarray | None:

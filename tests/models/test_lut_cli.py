@@ -110,6 +110,14 @@ def test_restart_discards_the_checkpoints(tmp_path, capsys, monkeypatch):
     assert json.loads((out / "small_E.json").read_text())["rays"][0] == [RAYS // 2] * 3
 
 
+def test_the_output_is_never_the_definition(tmp_path, capsys):
+    d = write(tmp_path)
+    before = d.read_bytes()
+    refused(capsys, ["lut", d, "--out", d], "--out", "input")
+    refused(capsys, ["lut", d, "--out", d, "--overwrite"], "input")
+    assert d.read_bytes() == before
+
+
 @pytest.mark.parametrize("argv, needles", [
     (["--rays", "0"], ["--rays: 0 is outside [1,"]),
     (["--stderr", "0.7"], ["--stderr: 0.7 is outside (0, 0.5)"]),
