@@ -375,8 +375,10 @@ def score_darkening(result: LutResult) -> dict[str, Any]:
     (v1.1.1, ``(1 - K) / (1 - E_b K)``), the corrected numerator of issue #269 (``(1 - K_r) /
     (1 - E_b K)``) and the node graph's (MaterialX 1.39.5, ``K = 1 - (1 - F0) / n^2``), each
     with ``K_s`` at the cell's incident cosine, ``E_b`` the base's albedo (a conductor's F0 in
-    air), ``r_b`` the conductor's perceptual roughness (1 for a Lambertian base). A cell fails a
-    formula where it is off by more than the tolerance and by more than Z_TOL standard errors."""
+    air), ``r_b`` the conductor's perceptual roughness (1 for a Lambertian base); over a
+    Lambertian also Standard Surface's ``base_color ** (1 + coat_affect_color)`` with
+    ``coat_affect_color = 1``, a factor ``E_b``. A cell fails a formula where it is off by more than
+    the tolerance and by more than Z_TOL standard errors."""
     from models.production.openpbr import coat_darkening, coat_darkening_spec
     d = result.definition
     if d.quantity != "coat-darkening":
@@ -389,6 +391,9 @@ def score_darkening(result: LutResult) -> dict[str, Any]:
         "openpbr-corrected-269": coat_darkening_spec(n, e_b, r_b, mu, corrected=True),
         "openpbr-node-graph": coat_darkening(n, e_b),
     }
+    if d.base["kind"] == "lambertian":   # Standard Surface darkens a diffuse base only
+        from models.production.standard_surface import coat_affected_color
+        predictions["standard-surface"] = coat_affected_color(e_b) / np.where(e_b > 0, e_b, 1.0)
     shown = {"mu": mu, "coat_ior": n, "base_albedo": e_b, "base_roughness_r": r_b}
     return _scored(result, predictions, d.score_tolerance, shown)
 

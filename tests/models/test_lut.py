@@ -270,7 +270,7 @@ def test_coat_darkening_over_a_lambertian_has_its_closed_form(darkening):
         return
     s = score_darkening(r)
     f = s["formulas"]
-    assert set(f) == {"openpbr-1.1", "openpbr-corrected-269", "openpbr-node-graph"}
+    assert set(f) == {"openpbr-1.1", "openpbr-corrected-269", "openpbr-node-graph", "standard-surface"}
     # over a rough (Lambertian) base the specification's formula and the corrected one agree, and are
     # the exact geometric series: no cell fails them
     assert f["openpbr-1.1"]["rmse"] == pytest.approx(f["openpbr-corrected-269"]["rmse"], rel=1e-12)

@@ -277,8 +277,10 @@ def test_pr261_roughening_by_hand():
     assert coat_roughening_pr261(1.0, 1.0, 2.0) ** 2 < 0.85
 
 
-def test_standard_surface_coat_affected_roughness():
-    from models.production.standard_surface import coat_affected_roughness
+def test_standard_surface_coat_affected_roughness_and_color():
+    from models.production.standard_surface import coat_affected_color, coat_affected_roughness
+    np.testing.assert_allclose(coat_affected_color(np.array([0.5, 0.2])), [0.25, 0.04])
+    np.testing.assert_allclose(coat_affected_color(np.array([0.5]), coat=0.5, coat_affect_color=0.5), [0.5 ** 1.25])
     assert coat_affected_roughness(0.3, 0.5) == pytest.approx(0.3 + 0.5 * 0.7)
     assert coat_affected_roughness(0.3, 0.5, coat_affect_roughness=0.0) == 0.3
     assert coat_affected_roughness(0.3, 1.0) == pytest.approx(1.0)
