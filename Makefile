@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.installed
 DEMO   := results/demo
 DEMO_RAYS ?= 200000
 
-.PHONY: setup test test-slow demo bench database report appendix-e validate-inverse tables ms-database clean
+.PHONY: setup test test-slow demo bench database report appendix-e validate-inverse tables ms-database lut clean
 
 QUALITY ?= quick
 DATABASE ?= configs/bati2019.toml
@@ -96,6 +96,17 @@ bench: $(STAMP)
 
 tables: $(STAMP)
 	$(GONIO) tables --masking all --check 200
+
+# Issue 35 (docs/lut.md): a renderer's table with a standard error per cell. Default: Blender Cycles'
+# 32 x 32 table_ggx_E at a target standard error of 1.5e-4 (~12 min on 2 cores); resumable (rerun after
+# an interruption), never replaces a finished table (LUT_FLAGS=--overwrite does). LUT_PUBLISHED=path/to/
+# shader.tables compares with Cycles' stored numbers; LUT=configs/lut/coat-darkening.toml for another table.
+LUT ?= configs/lut/cycles-ggx-E.toml
+LUT_OUT ?= results/lut
+LUT_PUBLISHED ?=
+LUT_FLAGS ?=
+lut: $(STAMP)
+	$(GONIO) lut $(LUT) --out $(LUT_OUT) $(if $(LUT_PUBLISHED),--published $(LUT_PUBLISHED),) $(LUT_FLAGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -14,7 +14,7 @@ import argparse
 import functools
 from typing import Callable
 
-from models.commands import evaluate, furnace, inverse, production, render, report, tables
+from models.commands import evaluate, furnace, inverse, lut, production, render, report, tables
 
 __all__ = ["register"]
 
@@ -29,6 +29,7 @@ def register(sub) -> None:
     furnace.register(sub)
     production.register(sub)
     render.register(sub)
+    lut.register(sub)
     for name in set(sub.choices) - before:
         parser = sub.choices[name]
         func = parser.get_default("func")

@@ -6,8 +6,9 @@ the subpackage :mod:`models.production.study`.
 """
 
 # --- OpenPBR and Autodesk Standard Surface coats (openpbr, fresnel, layering, openpbr_coat, standard_surface)
-from models.production.openpbr import (alpha_from_roughness, coat_darkening, coat_internal_reflection,
-                                       coat_roughening, roughness_from_alpha)
+from models.production.openpbr import (alpha_from_roughness, coat_darkening, coat_darkening_spec,
+                                       coat_internal_reflection, coat_roughening, coat_roughening_pr261,
+                                       roughness_from_alpha)
 from models.production.openpbr_coat import OpenPBRCoat, OpenPBRParameters, evaluate_openpbr, openpbr_parameters
 from models.production.standard_surface import (StandardSurfaceCoat, StandardSurfaceParameters,
                                                 evaluate_standard_surface, standard_surface_parameters)
@@ -19,7 +20,7 @@ from models.production.mitsuba import MitsubaBSDF, MitsubaPrincipled, MitsubaRou
 
 __all__ = [
     # --- OpenPBR and Autodesk Standard Surface coats
-    "coat_darkening", "coat_roughening", "coat_internal_reflection", "alpha_from_roughness",
+    "coat_darkening", "coat_roughening", "coat_darkening_spec", "coat_roughening_pr261", "coat_internal_reflection", "alpha_from_roughness",
     "roughness_from_alpha", "OpenPBRCoat", "OpenPBRParameters", "evaluate_openpbr", "openpbr_parameters",
     "StandardSurfaceCoat", "StandardSurfaceParameters", "evaluate_standard_surface",
     "standard_surface_parameters",

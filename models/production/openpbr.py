@@ -89,3 +89,51 @@ def coat_roughening(base_roughness: ArrayLike, coat_roughness: ArrayLike,
     rc = np.asarray(coat_roughness, dtype=np.float64)
     r_eff = np.minimum(1.0, rb ** 4 + 2.0 * rc ** 4) ** 0.25
     return rb + float(coat_weight) * (r_eff - rb)
+
+
+def coat_darkening_spec(coat_ior: ArrayLike, base_albedo: ArrayLike, base_roughness: ArrayLike, mu: ArrayLike,
+                        corrected: bool = False) -> np.ndarray:
+    """The specification's coat darkening ``Delta`` (the text's refinement of the node graph's
+    :func:`coat_darkening`), at the cosine ``mu`` of the direction it is evaluated for.
+
+    ``K = lerp(K_s, K_r, r_b)`` with ``K_s = F(mu; n)`` (a smooth base: the coat's Fresnel
+    reflectance) and ``K_r = 1 - (1 - E_F(n)) / n**2`` (a rough, diffusing base: the coat's internal
+    diffuse reflectance; ``E_F`` the hemispherical Fresnel albedo, exact here:
+    :func:`models.tables.microfacet_albedo.fresnel_average`), ``r_b`` the base's perceptual
+    roughness (1 for a diffuse base). OpenPBR 1.1 (the specification and its ``dev_1.2`` branch):
+    ``Delta = (1 - K) / (1 - E_b K)``. ``corrected``: the numerator of the write-up's listing
+    (OpenPBR issue #269, the comment of PR #253): ``Delta = (1 - K_r) / (1 - E_b K)``, the escape
+    fraction of diffuse light whatever the base's roughness. The two agree for a rough base
+    (``r_b = 1``). No coat weight or ``coat_darkening`` blend (both 1). Sources and our reading:
+    ``docs/lut.md`` section 8."""
+    from goniometer.optics import np_fresnel_dielectric
+    from models.tables.microfacet_albedo import fresnel_average
+    n = np.asarray(coat_ior, dtype=np.float64)
+    e_f = np.vectorize(lambda x: fresnel_average(float(x)))(n)
+    k_r = 1.0 - (1.0 - e_f) / (n * n)
+    k_s = np_fresnel_dielectric(np.asarray(mu, dtype=np.float64), n)
+    r_b = np.asarray(base_roughness, dtype=np.float64)
+    k = k_s + r_b * (k_r - k_s)
+    e = np.asarray(base_albedo, dtype=np.float64)
+    return ((1.0 - k_r) if corrected else (1.0 - k)) / (1.0 - e * k)
+
+
+def coat_roughening_pr261(base_roughness: ArrayLike, coat_roughness: ArrayLike, coat_ior: ArrayLike,
+                          coat_weight: float = 1.0) -> np.ndarray:
+    """The coat roughening of OpenPBR pull request #261 ("Roughening improvements", its version of
+    2026-03-31), in perceptual roughness like :func:`coat_roughening`.
+
+    In GGX alphas (``alpha = r**2``), ``n`` = ``coat_ior``:
+    ``B(n) = 1.05 (n - 1) sqrt(1 + n**2) / n``,
+    ``alpha_raw = sqrt((n alpha_base)**2 + (B(n) alpha_coat)**2)``,
+    ``alpha_eff = 0.85 tanh(alpha_raw / 0.85)`` (total internal reflection at the coat's exit caps
+    the lobe's width), ``r_eff = sqrt(alpha_eff)``, blended with the bare base roughness by
+    ``coat_weight``. Source: ``docs/lut.md`` section 8."""
+    rb = np.asarray(base_roughness, dtype=np.float64)
+    ab = rb * rb
+    ac = np.asarray(coat_roughness, dtype=np.float64) ** 2
+    n = np.asarray(coat_ior, dtype=np.float64)
+    b = 1.05 * (n - 1.0) * np.sqrt(1.0 + n * n) / n
+    raw = np.sqrt((n * ab) ** 2 + (b * ac) ** 2)
+    r_eff = np.sqrt(0.85 * np.tanh(raw / 0.85))
+    return rb + float(coat_weight) * (r_eff - rb)

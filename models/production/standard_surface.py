@@ -119,6 +119,21 @@ def standard_surface_parameters(stack: Stack) -> StandardSurfaceParameters:
                                      specular=0.0, specular_roughness=0.0)
 
 
+def coat_affected_roughness(specular_roughness, coat_roughness, coat: float = 1.0,
+                            coat_affect_roughness: float = 1.0):
+    """Standard Surface's base roughness under a coat (node ``coat_affected_roughness``):
+    ``mix(specular_roughness, 1, coat_affect_roughness * coat * coat_roughness)``, perceptual
+    roughness (``alpha = r**2``); scalars or arrays."""
+    return specular_roughness + coat_affect_roughness * coat * coat_roughness * (1.0 - specular_roughness)
+
+
+def coat_affected_color(base_color, coat: float = 1.0, coat_affect_color: float = 1.0):
+    """Standard Surface's diffuse base colour under a coat: ``base_color ** (1 + coat *
+    coat_affect_color)`` (``coat`` clamped to [0, 1]; negative colours as 0), i.e. the base darkened
+    by the factor ``base_color ** (coat * coat_affect_color)``."""
+    return np.maximum(base_color, 0.0) ** (1.0 + min(max(coat, 0.0), 1.0) * coat_affect_color)
+
+
 def standard_surface_layering(p: StandardSurfaceParameters, height_correlated: bool = True) -> CoatLayering:
     """Resolve ``p`` into the albedo-scaling coat. Raises :class:`ModelError` for inputs this
     evaluation does not cover: anisotropy, fractional metalness, a dielectric specular lobe on a
@@ -130,7 +145,7 @@ def standard_surface_layering(p: StandardSurfaceParameters, height_correlated: b
     zeros = np.zeros(3)
     color = np.asarray(p.base_color, dtype=float)
     if p.metalness == 1.0:
-        r_b = p.specular_roughness + p.coat_affect_roughness * p.coat * p.coat_roughness * (1.0 - p.specular_roughness)
+        r_b = coat_affected_roughness(p.specular_roughness, p.coat_roughness, p.coat, p.coat_affect_roughness)
         n, k = artistic_ior(p.base * color, p.specular * np.asarray(p.specular_color, dtype=float))
         kind = dict(base_kind=BASE_CONDUCTOR, rho=zeros, base_alpha=r_b * r_b, eta=n, kappa=k)
     else:
@@ -138,7 +153,7 @@ def standard_surface_layering(p: StandardSurfaceParameters, height_correlated: b
             raise ModelError("standard-surface-coat: a diffuse base needs specular 0 (no dielectric specular lobe)")
         if p.diffuse_roughness != 0.0:
             raise ModelError("standard-surface-coat: diffuse_roughness must be 0 (Lambertian)")
-        rho = p.base * np.maximum(color, 0.0) ** (1.0 + min(max(p.coat, 0.0), 1.0) * p.coat_affect_color)
+        rho = p.base * coat_affected_color(color, p.coat, p.coat_affect_color)
         kind = dict(base_kind=BASE_LAMBERTIAN, rho=rho, base_alpha=0.0, eta=np.ones(3), kappa=zeros)
     return CoatLayering(coat_weight=float(p.coat), coat_alpha=float(p.coat_roughness) ** 2, coat_ior=float(p.coat_IOR),
                         coat_color=np.asarray(p.coat_color, dtype=float), absorption=ABSORB_CONSTANT,

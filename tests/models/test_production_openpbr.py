@@ -243,3 +243,44 @@ def test_parameters_it_cannot_evaluate_are_refused():
         evaluate_openpbr(OpenPBRParameters(base_metalness=0.5), L, VIEWS)
     with pytest.raises(ModelError, match="specular_weight"):
         evaluate_openpbr(OpenPBRParameters(base_metalness=0.0, specular_weight=1.0), L, VIEWS)
+
+
+def test_specification_darkening_and_the_corrected_numerator_by_hand():
+    from goniometer.optics import np_fresnel_dielectric
+    from models.production.openpbr import coat_darkening_spec
+    from models.tables.microfacet_albedo import fresnel_average
+    n, e, mu = 1.5, 0.6, 0.7
+    g = (1.0 - fresnel_average(n)) / n ** 2          # the escaping fraction, 1 - K_r
+    f = float(np_fresnel_dielectric(mu, n))           # K_s
+    # a rough base (r_b = 1): K = K_r, both forms the interfaced-Lambertian series
+    for corrected in (False, True):
+        np.testing.assert_allclose(coat_darkening_spec(n, e, 1.0, mu, corrected), g / (1 - e * (1 - g)), rtol=1e-12)
+    # a smooth base (r_b = 0): K = K_s = F(mu); the specification's numerator is 1 - F, the corrected 1 - K_r
+    np.testing.assert_allclose(coat_darkening_spec(n, e, 0.0, mu), (1 - f) / (1 - e * f), rtol=1e-12)
+    np.testing.assert_allclose(coat_darkening_spec(n, e, 0.0, mu, True), g / (1 - e * f), rtol=1e-12)
+    # a white base: the specification's factor is 1 for every K, the corrected one is not
+    np.testing.assert_allclose(coat_darkening_spec(n, 1.0, 0.3, mu), 1.0, rtol=1e-12)
+    assert abs(coat_darkening_spec(n, 1.0, 0.3, mu, True) - 1.0) > 0.05
+    # an index-matched coat is absent
+    np.testing.assert_allclose(coat_darkening_spec(1.0, e, 0.3, mu, True), 1.0, rtol=1e-12)
+
+
+def test_pr261_roughening_by_hand():
+    from models.production.openpbr import coat_roughening_pr261
+    rb, rc, n = 0.4, 0.5, 1.5
+    b = 1.05 * (n - 1) * np.sqrt(1 + n * n) / n
+    raw = np.hypot(n * rb ** 2, b * rc ** 2)
+    np.testing.assert_allclose(coat_roughening_pr261(rb, rc, n), np.sqrt(0.85 * np.tanh(raw / 0.85)), rtol=1e-12)
+    # an index-matched coat leaves alpha_b, up to the cap 0.85 tanh(alpha / 0.85)
+    np.testing.assert_allclose(coat_roughening_pr261(0.3, 0.9, 1.0), np.sqrt(0.85 * np.tanh(0.09 / 0.85)), rtol=1e-12)
+    np.testing.assert_allclose(coat_roughening_pr261(rb, rc, n, coat_weight=0.0), rb)
+    assert coat_roughening_pr261(1.0, 1.0, 2.0) ** 2 < 0.85
+
+
+def test_standard_surface_coat_affected_roughness_and_color():
+    from models.production.standard_surface import coat_affected_color, coat_affected_roughness
+    np.testing.assert_allclose(coat_affected_color(np.array([0.5, 0.2])), [0.25, 0.04])
+    np.testing.assert_allclose(coat_affected_color(np.array([0.5]), coat=0.5, coat_affect_color=0.5), [0.5 ** 1.25])
+    assert coat_affected_roughness(0.3, 0.5) == pytest.approx(0.3 + 0.5 * 0.7)
+    assert coat_affected_roughness(0.3, 0.5, coat_affect_roughness=0.0) == 0.3
+    assert coat_affected_roughness(0.3, 1.0) == pytest.approx(1.0)
