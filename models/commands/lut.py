@@ -10,8 +10,8 @@ import json
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import (UsageError, add_overwrite, compile_kernels, output_path, progress_bar,
-                                   sigint_latch, usage_errors, whole_number, ResumeAware, THREADS_HELP)
+from goniometer.cli.common import (THREADS_HELP, ResumeAware, UsageError, add_device, add_overwrite, compile_kernels,
+                                   output_path, progress_bar, sigint_latch, thread_number, usage_errors, whole_number)
 
 #: exit status of a table written whose own checks failed (docs/lut.md section 5)
 EXIT_CHECKS_FAILED = 1
@@ -32,10 +32,8 @@ def register(sub) -> None:
                       help="target standard error per cell, rays from a pilot run, replacing the definition's rays "
                            "or stderr (default: the definition's)")
     p.add_argument("--seed", type=whole_number, help="random seed (default: the definition's seed, else 1)")
-    p.add_argument("--threads", type=whole_number, help=THREADS_HELP)
-    p.add_argument("--device", choices=("cpu", "cuda"),
-                   help="where the paths are traced: cpu (numba threads) or cuda (an NVIDIA GPU through numba-cuda; "
-                        "the same transport, other bits: docs/gpu.md) (default: cpu)")
+    p.add_argument("--threads", type=thread_number, help=THREADS_HELP)
+    add_device(p)
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="trace on this Dask scheduler's workers (same bits; default: local threads)")
     p.add_argument("--published", metavar="FILE",
@@ -52,7 +50,7 @@ def register(sub) -> None:
 
 def cmd_lut(args: argparse.Namespace) -> int:
     from goniometer.cli.simulate import checkpoint_refusals
-    from goniometer.tracer import DeviceError, check_device
+    from goniometer.kernel.tracer import DeviceError, check_device
     from models.lut.compute import PARTIAL, Runner, check_checkpoints, clear_checkpoints, kept_cells, plan_table
     from models.lut.definition import LutError, load_definition
 
@@ -63,10 +61,6 @@ def cmd_lut(args: argparse.Namespace) -> int:
         if args.seed is not None:
             from dataclasses import replace
             defn = replace(defn, seed=args.seed)
-    if args.threads is not None:
-        import numba
-        if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
-            raise UsageError(f"--threads: {args.threads} is outside [1, {numba.config.NUMBA_NUM_THREADS}]")
     inputs = [args.definition] + ([args.published] if args.published else [])
     _refuse_finished(Path(args.out), defn.name, args.overwrite)
     out = output_path(args.out, inputs=inputs, overwrite=args.overwrite, directory=True, marker=f"{defn.name}.json")
@@ -86,7 +80,7 @@ def cmd_lut(args: argparse.Namespace) -> int:
         print(f"resuming: {kept} finished cell(s) in {root} (--restart to discard them)", file=sys.stderr)
     client = None
     if args.scheduler:
-        from goniometer.distributed import ClusterError, dask_client
+        from goniometer.run.distributed import ClusterError, dask_client
         with usage_errors(ClusterError, prefix="--scheduler"):
             client = dask_client(args.scheduler)
     runner = Runner(threads=args.threads, device=device, client=client, root=root)
@@ -149,7 +143,7 @@ def _hours(seconds: float) -> str:
 
 def _compute(args: argparse.Namespace, plan, runner):
     """Compile, (pilot,) estimate, trace with checkpoints and progress (docs/lut.md section 5)."""
-    from goniometer.checkpoint import CheckpointMismatch
+    from goniometer.run.checkpoints import CheckpointMismatch
     from models.lut.compute import calibrate, pilot, run_table, start_checkpoints, warm_up
     defn = plan.definition
     quiet = args.json

@@ -5,9 +5,9 @@ error), the runs with per-cell checkpoints, and the table with its standard erro
 Checkpoints (``docs/outputs.md`` rule 3) live in ``OUT/.partial/``: ``meta.json`` holds the
 table's identity (:meth:`Definition.identity` and the simulator's code key), and each run keeps
 its finished incident directions -- its cells -- in ``run-<key>/`` (``pilot-<key>/`` for the
-pilot) through :class:`goniometer.checkpoint.Checkpoints`. A rerun of the same table resumes
+pilot) through :class:`goniometer.run.checkpoints.Checkpoints`. A rerun of the same table resumes
 them; one whose definition, rays or code differ is refused naming each differing key
-(:class:`goniometer.checkpoint.CheckpointMismatch`).
+(:class:`goniometer.run.checkpoints.CheckpointMismatch`).
 
 Seeds: run ``k`` of the table (in order of first use) is traced with seed ``seed + k`` and its
 pilot with ``seed + k + PILOT_SEED_OFFSET``, so no two runs share a random stream and the table
@@ -25,11 +25,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from goniometer import checkpoint as ckpt
-from goniometer.results import SimulationResult, run_description
-from goniometer.run import run_incidents
-from goniometer.settings import SimulationSettings
-from goniometer.tasks import warm_up_runs
+from goniometer.kernel.tracer import thread_count
+from goniometer.run import checkpoints as ckpt
+from goniometer.run.results import SimulationResult, run_description
+from goniometer.run.loop import run_incidents
+from goniometer.run.settings import SimulationSettings
+from goniometer.run.tasks import warm_up_runs
 from models.lut.definition import Definition
 from models.lut.quantities import Row, RunSpec, build_rows, incident_elevations, reduce_row
 
@@ -138,7 +139,7 @@ def table_meta(defn: Definition) -> dict[str, Any]:
 
 
 def check_checkpoints(root: Path, defn: Definition) -> None:
-    """Raise :class:`goniometer.checkpoint.CheckpointMismatch` if ``root`` holds checkpoints of
+    """Raise :class:`goniometer.run.checkpoints.CheckpointMismatch` if ``root`` holds checkpoints of
     another table (or code); changes nothing."""
     ckpt.check_meta(root, table_meta(defn), kept_runs(root))
 
@@ -179,7 +180,7 @@ def calibrate(plan: Plan, runner: Runner, samples: int = 3) -> float:
         s = plan.specs[k]
         mid = s.incident_deg[len(s.incident_deg) // 2]
         base = runner.settings(plan, k, rays=1)
-        n = base.chunk_rays * base.n_threads * CALIBRATION_CHUNKS
+        n = base.chunk_rays * thread_count(base.threads) * CALIBRATION_CHUNKS
         run_incidents(s.stack, base.with_overrides(rays=n, incident_deg=(mid,), incident_phi_deg=(0.0,)),
                       client=runner.client)
         rays += n

@@ -40,7 +40,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from goniometer.settings import MASKING
+from goniometer.run.settings import MASKING
 from goniometer.tomlfile import read_toml
 
 #: what a table holds (``docs/lut.md`` section 3)

@@ -3,7 +3,7 @@ a cell's value and standard error come out of the runs' results (``docs/lut.md``
 
 A table's cells are grouped into **rows**: the cells that share every parameter but the incident
 direction. A row reads one or two **runs** (a stack traced at the row's incident directions,
-:func:`goniometer.run.run_incidents`); rows that need the same run (a coat table's bare base,
+:func:`goniometer.run.loop.run_incidents`); rows that need the same run (a coat table's bare base,
 say) share it. Each quantity reuses the project's estimators:
 
 * ``albedo``: ``reflected + transmitted`` of the tracer's energy bookkeeping with its exact
@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from goniometer.results import SimulationResult
-from goniometer.settings import SimulationSettings
+from goniometer.run.results import SimulationResult
+from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Interface, Lambertian, Stack
 from models.furnace import GRID, simulated_albedo
 from models.lut.definition import Definition, LutError

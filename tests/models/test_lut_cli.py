@@ -121,12 +121,22 @@ def test_the_output_is_never_the_definition(tmp_path, capsys):
 @pytest.mark.parametrize("argv, needles", [
     (["--rays", "0"], ["--rays: 0 is outside [1,"]),
     (["--stderr", "0.7"], ["--stderr: 0.7 is outside (0, 0.5)"]),
-    (["--threads", "100000"], ["--threads: 100000 is outside [1,"]),
     (["--published", "missing.c"], ["--published: missing.c: cannot read"]),
 ])
 def test_bad_options_are_one_line(tmp_path, capsys, argv, needles):
     d = write(tmp_path)
     refused(capsys, ["lut", d, "--out", tmp_path / "out", *argv], *needles)
+    assert not (tmp_path / "out").exists()
+
+
+def test_more_threads_than_the_machine_are_refused_by_the_parser(tmp_path, capsys):
+    from goniometer.cli import main
+    d = write(tmp_path)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["lut", str(d), "--out", str(tmp_path / "out"), "--threads", "100000"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1 and "gonio lut: error: --threads: 100000 is outside [1," in err[0], err
     assert not (tmp_path / "out").exists()
 
 
