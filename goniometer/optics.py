@@ -24,6 +24,7 @@ Conventions (shared by the whole project)
 
 from __future__ import annotations
 
+import cmath
 import math
 
 import numba
@@ -431,6 +432,181 @@ def film_rt_channel(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3
     rs, ts, ds, rp, tp, dp = film_rt_terms(cos_i, n1, nf, kf, n3, k3, d_lam)
     inv = 0.5 / (ds * dp)
     return (rs * dp + rp * ds) * inv, (ts * dp + tp * ds) * inv
+
+
+# --------------------------------------------------------------------------- polarization (Mueller calculus)
+#
+# Conventions (docs/polarization.md): a beam travelling along k carries a Stokes vector (S0, S1, S2,
+# S3) in a frame (x, y = k x x): S1 > 0 linear along x, S2 > 0 along (x + y) / sqrt 2, S3 > 0 right
+# circular -- Mitsuba 3's convention (fields as exp(+i omega t), complex indices n - i k inside the
+# formulas, the "Verdet" sign of r_p: r_p = -r_s at normal incidence). A Fresnel event (reflection or
+# refraction on a plane) has, in the frames x = s (the unit normal of the plane of incidence, the
+# same vector for the beam before and after) and y = k x s, the Mueller matrix
+#
+#     [[a, b, 0, 0], [b, a, 0, 0], [0, 0, c, s], [0, 0, -s, c]]
+#
+# with a = (|r_s|^2 + |r_p|^2) / 2, b = (|r_s|^2 - |r_p|^2) / 2, c = Re(r_s r_p*), s = Im(r_s r_p*)
+# for a reflection (a is the unpolarized reflectance), and the same of the transmission amplitudes
+# times n_t cos(theta_t) / (n_i cos(theta_i)) for a refraction (a is the unpolarized transmittance).
+# The functions below return these four numbers; :func:`mueller_event` applies them.
+
+
+@numba.njit(cache=True, error_model='numpy')
+def _verdet(cos_i: float, eta: complex, cos_t: complex):
+    """The reflection and transmission amplitudes ``(r_s, r_p, t_s, t_p)`` of a plane interface
+    (Verdet's sign of ``r_p``) for the relative index ``eta`` (n - i k form) and ``cos_t``."""
+    ec = eta * cos_t
+    rs = (cos_i - ec) / (cos_i + ec)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    ts = 2.0 * cos_i / (cos_i + ec)
+    tp = 2.0 * cos_i / (eta * cos_i + cos_t)
+    return rs, rp, ts, tp
+
+
+@numba.njit(cache=True, error_model='numpy')
+def mueller_terms(x: complex, y: complex, factor: float):
+    """``(a, b, c, s)`` of the Mueller matrix of the Jones matrix ``diag(x, y)`` (s and p) times
+    ``factor`` (see the section's comment)."""
+    xx = x.real * x.real + x.imag * x.imag
+    yy = y.real * y.real + y.imag * y.imag
+    z = x * y.conjugate()
+    return 0.5 * factor * (xx + yy), 0.5 * factor * (xx - yy), factor * z.real, factor * z.imag
+
+
+@numba.njit(cache=True, error_model='numpy')
+def fresnel_dielectric_mueller(cos_i: float, eta: float):
+    """The Fresnel event of a dielectric interface, relative index ``eta`` (far side / arrival side),
+    light arriving at ``cos_i`` in (0, 1]: ``(ra, rb, rc, rs, ta, tb, tc, ts)``, the reflection's and
+    the refraction's ``(a, b, c, s)`` (section comment). Beyond the critical angle the reflection
+    keeps all the light with a retardance between s and p (``rs != 0``) and the refraction is 0.
+    ``ra`` equals :func:`fresnel_dielectric` (``cos_i``, ``eta``)."""
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    if sin2_t >= 1.0:
+        # total internal reflection: cos_t = -i sqrt(sin^2_t - 1) (the decaying wave of exp(+i omega t))
+        cos_t = complex(0.0, -math.sqrt(sin2_t - 1.0))
+        rs, rp, _, _ = _verdet(cos_i, complex(eta, 0.0), cos_t)
+        ra, rb, rc, rs_ = mueller_terms(rs, rp, 1.0)
+        return ra, rb, rc, rs_, 0.0, 0.0, 0.0, 0.0
+    ct = math.sqrt(1.0 - sin2_t)
+    rs, rp, ts, tp = _verdet(cos_i, complex(eta, 0.0), complex(ct, 0.0))
+    ra, rb, rc, rs_ = mueller_terms(rs, rp, 1.0)
+    ta, tb, tc, tsn = mueller_terms(ts, tp, eta * ct / cos_i)
+    return ra, rb, rc, rs_, ta, tb, tc, tsn
+
+
+@numba.njit(cache=True, error_model='numpy')
+def fresnel_conductor_mueller(cos_i: float, eta: float, kappa: float):
+    """The reflection ``(a, b, c, s)`` of a conductor of relative complex index ``eta + i kappa``
+    (the graphics convention, ``kappa >= 0``; the formulas use ``eta - i kappa``), light arriving at
+    ``cos_i`` in (0, 1]. ``a`` equals :func:`fresnel_conductor` (``cos_i``, ``eta``, ``kappa``)."""
+    n = complex(eta, -kappa)
+    ct = cmath.sqrt(1.0 - (1.0 - cos_i * cos_i) / (n * n))
+    if ct.imag > 0.0:        # the branch that decays into the metal (Im cos_t <= 0)
+        ct = ct.conjugate()
+    rs, rp, _, _ = _verdet(cos_i, n, ct)
+    return mueller_terms(rs, rp, 1.0)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def film_mueller(cos_i: float, n1: float, nf: float, kf: float, n3: float, k3: float, d_lam: float):
+    """The Fresnel event of a thin film (:func:`film_rt`'s arguments and Airy summation, with the
+    amplitudes' phases): ``(ra, rb, rc, rs, ta, tb, tc, ts)`` as :func:`fresnel_dielectric_mueller`
+    returns them. ``ra`` and ``ta`` equal :func:`film_rt`'s ``R`` and ``T``. The far side ``n3 + i
+    k3`` may absorb (a conductor: no transmission is asked for there)."""
+    c = min(abs(cos_i), 1.0)
+    n1c = complex(n1, 0.0)
+    n2 = complex(nf, -kf)
+    n3c = complex(n3, -k3)
+    s = n1 * math.sqrt(max(1.0 - c * c, 0.0))
+    # cos theta_j with the branch of decay (Im <= 0) in the film and the far side
+    c2 = cmath.sqrt(1.0 - (s / n2) * (s / n2))
+    if c2.imag > 0.0:
+        c2 = c2.conjugate()
+    c3 = cmath.sqrt(1.0 - (s / n3c) * (s / n3c))
+    if c3.imag > 0.0:
+        c3 = c3.conjugate()
+    r12s, r12p, t12s, t12p = _verdet(c, n2 / n1c, c2)
+    r23s, r23p, t23s, t23p = _verdet(c2, n3c / n2, c3)
+    # the phase thickness: fields as exp(+i omega t), exp(-i beta) per traversal, Im(beta) < 0 decays
+    beta = 2.0 * math.pi * d_lam * n2 * c2
+    e1 = cmath.exp(complex(0.0, -1.0) * beta)
+    e2 = e1 * e1
+    ds = 1.0 + r12s * r23s * e2
+    dp = 1.0 + r12p * r23p * e2
+    rs = (r12s + r23s * e2) / ds
+    rp = (r12p + r23p * e2) / dp
+    ra, rb, rc, rs_ = mueller_terms(rs, rp, 1.0)
+    q3 = n3c * c3
+    if k3 != 0.0 or q3.real <= 0.0:
+        return ra, rb, rc, rs_, 0.0, 0.0, 0.0, 0.0
+    ts = t12s * t23s * e1 / ds
+    tp = t12p * t23p * e1 / dp
+    ta, tb, tc, tsn = mueller_terms(ts, tp, q3.real / (n1 * c))
+    return ra, rb, rc, rs_, ta, tb, tc, tsn
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def stokes_rotation(kx: float, ky: float, kz: float, xx: float, xy: float, xz: float, sx: float, sy: float,
+                    sz: float):
+    """``(cos 2 theta, sin 2 theta)`` of the rotation by ``theta`` about the beam's direction ``k``
+    that takes its frame's ``x`` to ``s`` (both unit, normal to ``k``): the rotation of a Stokes
+    vector into the new frame is ``S1' = cos 2 theta S1 + sin 2 theta S2``, ``S2' = -sin 2 theta S1 +
+    cos 2 theta S2`` (Mitsuba 3's ``rotator(theta)``)."""
+    c = xx * sx + xy * sy + xz * sz
+    si = kx * (xy * sz - xz * sy) + ky * (xz * sx - xx * sz) + kz * (xx * sy - xy * sx)
+    return c * c - si * si, 2.0 * c * si
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def mueller_rotate(m, ch: int, c2: float, s2: float) -> None:
+    """Re-express channel ``ch`` of the accumulated Mueller matrices ``m`` ((C, 16), row-major 4 x 4
+    each: incident Stokes vector -> the beam's) in the frame rotated by ``theta`` (cos and sin of
+    ``2 theta`` from :func:`stokes_rotation`)."""
+    for j in range(4):
+        r1 = m[ch, 4 + j]
+        r2 = m[ch, 8 + j]
+        m[ch, 4 + j] = c2 * r1 + s2 * r2
+        m[ch, 8 + j] = c2 * r2 - s2 * r1
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def mueller_event(m, ch: int, a: float, b: float, c: float, s: float, f: float) -> None:
+    """Apply a Fresnel event ``(a, b, c, s)`` (section comment) times ``f`` to channel ``ch`` of the
+    accumulated Mueller matrices ``m`` (already in the event's frames)."""
+    for j in range(4):
+        r0 = m[ch, j]
+        r1 = m[ch, 4 + j]
+        r2 = m[ch, 8 + j]
+        r3 = m[ch, 12 + j]
+        m[ch, j] = f * (a * r0 + b * r1)
+        m[ch, 4 + j] = f * (b * r0 + a * r1)
+        m[ch, 8 + j] = f * (c * r2 + s * r3)
+        m[ch, 12 + j] = f * (c * r3 - s * r2)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def mueller_depolarize(m, ch: int, f: float) -> None:
+    """A depolarizing event of albedo ``f`` on channel ``ch`` (a Lambertian base, a
+    Henyey-Greenstein scattering: the light leaves unpolarized, ``docs/polarization.md``)."""
+    for j in range(4):
+        m[ch, j] *= f
+        m[ch, 4 + j] = 0.0
+        m[ch, 8 + j] = 0.0
+        m[ch, 12 + j] = 0.0
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def normal_frame(kx: float, ky: float, kz: float, hx: float, hy: float):
+    """The unit ``s = normalize(z x k)`` of a beam along ``k``: normal to the plane of ``k`` and the
+    surface normal ``z`` (the goniometer's s/p frame, ``docs/polarization.md``). Along the normal,
+    where that plane is not defined, the limit ``(-hy, hx, 0)`` of a beam whose horizontal part
+    points along the unit ``(hx, hy)`` (``-(cos phi_l, sin phi_l)`` for the incident beam ``-l``,
+    ``(cos phi_v, sin phi_v)`` for an exit ``v``)."""
+    n2 = kx * kx + ky * ky
+    if n2 < 1e-30:
+        return -hy, hx, 0.0
+    inv = 1.0 / math.sqrt(n2)
+    return -ky * inv, kx * inv, 0.0
 
 
 # --------------------------------------------------------------------------- GGX
