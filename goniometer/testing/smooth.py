@@ -3,7 +3,12 @@
 * :func:`adding_energies` -- reflected and transmitted flux fractions of a stack of smooth
   interfaces and absorbing media over a transmitting, conductor or absent base, by the adding
   equations (Stokes relations, inter-reflections summed as geometric series) with exact Fresnel
-  and Beer-Lambert attenuation ``exp(-tau / cos theta)`` along the refracted direction.
+  and Beer-Lambert attenuation ``exp(-tau / cos theta)`` along the refracted direction, for
+  scalar light (every Fresnel event sees unpolarized light: what the scalar tracer computes).
+* :func:`adding_mueller` -- the same stack's reflection and transmission Mueller matrices: the
+  adding of the Fresnel events' Mueller matrices (``docs/polarization.md``), s and p summed
+  separately and their cross terms as complex numbers; its ``a`` is the true intensity for
+  unpolarized light, which :func:`adding_energies` gets wrong off the normal.
 * :func:`coated_lambertian_brdf` -- the BRDF of a smooth dielectric coat (optionally absorbing)
   over a Lambertian base, without the specular reflection off the coat:
   ``f = rho T(l) T(v) a(l) a(v) / (pi eta^2 (1 - rho r_i))``, with ``T = 1 - F`` the coat
@@ -39,18 +44,7 @@ def adding_energies(stack: Stack, theta_deg: float) -> tuple[np.ndarray, np.ndar
         raise ValueError("adding_energies: a Lambertian base is not a smooth stack")
     _refuse_scattering(stack, "adding_energies")
     s0 = math.sin(math.radians(theta_deg))
-    # regions: index and attenuation
-    etas = [1.0]
-    taus = [np.zeros(3)]
-    interfaces: list[Interface] = []
-    for layer in stack.layers:
-        if isinstance(layer, Interface):
-            interfaces.append(layer)
-            if not layer.is_conductor:
-                etas.append(layer.ior[0])
-                taus.append(np.zeros(3))
-        elif isinstance(layer, Medium):
-            taus[-1] = np.asarray(layer.optical_depth, dtype=float)
+    etas, taus, interfaces = _regions(stack)
 
     def cos_in(region: int) -> float:
         s = s0 / etas[region]
@@ -80,6 +74,75 @@ def adding_energies(stack: Stack, theta_deg: float) -> tuple[np.ndarray, np.ndar
         denom = 1.0 - r * a * a * R
         R, T = r + t * t * a * a * R / denom, t * a * T / denom
     return R, T
+
+
+def adding_mueller(stack: Stack, theta_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """The reflection and transmission Mueller matrices of a smooth stack lit at ``theta_deg`` from
+    air, as their four numbers ``(a, b, c, s)`` per channel (arrays (4, 3); the matrix
+    ``[[a, b, 0, 0], [b, a, 0, 0], [0, 0, c, s], [0, 0, -s, c]]`` in the s/p frames of the plane of
+    incidence, ``docs/polarization.md``). Every beam of a smooth stack has the one plane of
+    incidence, so the events' matrices keep that form: the s and p intensities add as two scalar
+    adding problems, the cross terms ``c + i s`` multiply as complex numbers. Media only absorb."""
+    if isinstance(stack.layers[-1], Lambertian):
+        raise ValueError("adding_mueller: a Lambertian base is not a smooth stack")
+    _refuse_scattering(stack, "adding_mueller")
+    s0 = math.sin(math.radians(theta_deg))
+    etas, taus, interfaces = _regions(stack)
+
+    def cos_in(region: int) -> float:
+        s = s0 / etas[region]
+        return math.sqrt(max(0.0, 1.0 - s * s))
+
+    def parts(terms) -> np.ndarray:
+        """The s intensity, the p intensity and the cross term ``c + i s`` of an event's (a, b, c, s)."""
+        a, b, c, s = terms
+        return np.array([a + b, a - b, complex(c, s)])
+
+    R_out = np.zeros((4, 3))
+    T_out = np.zeros((4, 3))
+    last = interfaces[-1]
+    for ch in range(3):
+        # bottom-up: what lies below region r, seen from region r
+        if last.is_conductor:
+            n_above = etas[-1]
+            R = parts(optics.fresnel_conductor_mueller(cos_in(len(etas) - 1), last.ior[ch] / n_above,
+                                                       last.extinction[ch] / n_above))
+            T = np.zeros(3, dtype=complex)
+            k_top = len(interfaces) - 2
+        else:
+            R = np.zeros(3, dtype=complex)
+            T = np.ones(3, dtype=complex)
+            k_top = len(interfaces) - 1
+        for k in range(k_top, -1, -1):
+            below = k + 1
+            cb = cos_in(below)
+            a = math.exp(-taus[below][ch] / cb) if cb > 0 else 0.0
+            eta = etas[below] / etas[k]
+            down = optics.fresnel_dielectric_mueller(cos_in(k), eta)
+            up = optics.fresnel_dielectric_mueller(cb, 1.0 / eta) if cb > 0 else (0.0,) * 8
+            r, t, r_up, t_up = parts(down[:4]), parts(down[4:]), parts(up[:4]), parts(up[4:])
+            loop = 1.0 / (1.0 - r_up * a * a * R)
+            R, T = r + t * t_up * a * a * R * loop, t * a * T * loop
+        R_out[:, ch] = [0.5 * (R[0] + R[1]).real, 0.5 * (R[0] - R[1]).real, R[2].real, R[2].imag]
+        T_out[:, ch] = [0.5 * (T[0] + T[1]).real, 0.5 * (T[0] - T[1]).real, T[2].real, T[2].imag]
+    return R_out, T_out
+
+
+def _regions(stack: Stack) -> tuple[list[float], list[np.ndarray], list[Interface]]:
+    """The real index and the optical depth of each region of a smooth stack (air first), and its
+    interfaces."""
+    etas = [1.0]
+    taus = [np.zeros(3)]
+    interfaces: list[Interface] = []
+    for layer in stack.layers:
+        if isinstance(layer, Interface):
+            interfaces.append(layer)
+            if not layer.is_conductor:
+                etas.append(layer.ior[0])
+                taus.append(np.zeros(3))
+        elif isinstance(layer, Medium):
+            taus[-1] = np.asarray(layer.optical_depth, dtype=float)
+    return etas, taus, interfaces
 
 
 def internal_diffuse_reflectance(eta: float, tau: np.ndarray | float) -> np.ndarray:

@@ -76,3 +76,48 @@ def test_coated_lambertian_albedo_is_the_integral_of_its_brdf():
         np.testing.assert_allclose(integral, smooth.coated_lambertian_albedo(st, cl), rtol=1e-6)
     with pytest.raises(ValueError):
         smooth.adding_energies(st, 0.0)
+
+
+# ---------------------------------------------------------------------- polarized adding
+
+def _inc_tmm(stack_n: list, theta_deg: float, tau: float, lam: float = 500.0, d: float = 1e5) -> dict:
+    """tmm's incoherent transfer matrices (an independent code): the slab's R and T per polarization,
+    its absorption as an index ``n + i k`` with ``exp(-4 pi k d / (lambda cos)) = exp(-tau / cos)``."""
+    import tmm
+    k = tau * lam / (4 * math.pi * d)
+    n = [stack_n[0], complex(stack_n[1], k), stack_n[2]]
+    return {pol: tmm.inc_tmm(pol, n, [np.inf, d, np.inf], ["i", "i", "i"], math.radians(theta_deg), lam)
+            for pol in "sp"}
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0, 56.31, 70.0, 80.0, 89.0])
+@pytest.mark.parametrize("tau", [0.0, 1.0])
+def test_the_polarized_adding_of_a_slab_is_tmm_and_the_scalar_adding_is_not(theta, tau):
+    """A smooth slab between air and air: s and p added separately (tmm's incoherent layers) against
+    adding_mueller; the scalar adding (every event unpolarized, what a scalar tracer computes) differs
+    off the normal by more than the agreement."""
+    slab = Stack("slab", (Interface(0.0, (1.5,) * 3), Medium((tau,) * 3), Interface(0.0, (1.0,) * 3)), "slab")
+    R, T = smooth.adding_mueller(slab, theta)
+    ref = _inc_tmm([1.0, 1.5, 1.0], theta, tau)
+    # the absorbing index tmm needs moves its interface Fresnel terms by ~k^2 ~ 1e-14; 1e-7 covers
+    # its own quadrature of the thick layer
+    for side, M in (("R", R), ("T", T)):
+        s, p = ref["s"][side], ref["p"][side]
+        assert M[0] == pytest.approx(0.5 * (s + p), abs=1e-7)
+        assert M[1] == pytest.approx(0.5 * (s - p), abs=1e-7)
+    scalar_R, scalar_T = smooth.adding_energies(slab, theta)
+    gap = max(abs(scalar_R[0] - R[0, 0]), abs(scalar_T[0] - T[0, 0]))
+    assert gap < 1e-12 if theta == 0.0 else gap > 1e-4
+    # an incoherent sum of paths depolarizes partly: c^2 + s^2 <= a^2 - b^2, equal for one path
+    for M in (R, T):
+        assert np.all(M[2] ** 2 + M[3] ** 2 <= (M[0] + M[1]) * (M[0] - M[1]) + 1e-15)
+
+
+def test_the_polarized_adding_over_a_conductor_has_retardance():
+    """A clear coat over a metal: the cross term of the reflection is complex (the metal's phase)."""
+    coat = Stack("coat", (Interface(0.0, (1.5,) * 3), Medium((0.0,) * 3),
+                          Interface(0.0, (0.2,) * 3, (3.0,) * 3)), "metal")
+    R, T = smooth.adding_mueller(coat, 60.0)
+    assert not T.any() and abs(R[3, 0]) > 1e-3 and np.allclose(R[:, 0], R[:, 2])
+    # a metal under a smooth clear coat reflects as polarized light as it receives: no loss but absorption
+    assert np.all(R[2] ** 2 + R[3] ** 2 <= (R[0] + R[1]) * (R[0] - R[1]) + 1e-15)
