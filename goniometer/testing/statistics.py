@@ -15,10 +15,10 @@ The statistic is ``sum z^2`` over the judged cells, ``z = (sim - model) / sigma`
 :func:`chi2_limit` of as many degrees of freedom as cells. Three rules make it honest:
 
 * **Which cells.** A cell is judged where the *model* expects at least ``min_expected`` exits
-  (:data:`MIN_EXPECTED`, about 20): ``N f Omega`` is the cell's expected weight, and with exit
-  weights of at most 1 no fewer exits than that. Below about 20 exits a cell's estimate is skewed
-  (a sum of a Poisson number of weights), ``z^2`` is no longer a chi-square of one degree and the
-  false-alarm probability no longer holds. The selection uses the model, not the simulation, so
+  (about 20; :data:`MIN_EXPECTED` = 25 by default): ``N f Omega`` is the cell's expected weight,
+  and with exit weights of at most 1 no fewer exits than that. Below about 20 exits a cell's
+  estimate is skewed (a sum of a Poisson number of weights), ``z^2`` is no longer a chi-square of
+  one degree and the false-alarm probability no longer holds. The selection uses the model, not the simulation, so
   it does not depend on the noise: selecting on the simulated value would keep cells that happened
   to be hit often and drop those hit rarely, and bias the statistic.
 * **Sparse regions in aggregate** (:func:`sparse_flux`, :func:`assert_sparse_flux_matches`).
