@@ -12,7 +12,8 @@
 
 Tolerances are statistical: z-scores within Z_TOL (false-alarm probability P_FALSE_ALARM = 1e-6,
 two-sided) of the Monte Carlo standard error and chi-square limits at the same probability
-(:mod:`goniometer.testing`, docs/testing.md), plus, where a reference is only bracketed, the stated rigorous bound.
+(:mod:`goniometer.testing`, docs/testing.md), plus, where a reference is only bracketed, the
+stated rigorous bound.
 """
 
 from __future__ import annotations
@@ -462,8 +463,8 @@ def test_chromatic_extinction_equals_one_channel_at_a_time():
         one = simulate(stack((t,) * 3), SimulationSettings(seed=2 + c, **s))
         for k in ("reflected", "transmitted", "absorbed"):
             assert_z_close(chrom.energy[k][:, c], chrom.energy_stderr[k][:, c],
-                    one.energy[k][:, c], one.energy_stderr[k][:, c],
-                    extra=np.abs(chrom.roulette[:, c]) + np.abs(one.roulette[:, c]))
+                           one.energy[k][:, c], one.energy_stderr[k][:, c],
+                           extra=np.abs(chrom.roulette[:, c]) + np.abs(one.roulette[:, c]))
 
 
 def test_a_channel_without_scattering_is_beer_lambert():
@@ -476,7 +477,7 @@ def test_a_channel_without_scattering_is_beer_lambert():
     assert np.all(r.energy["reflected"][:, 0] == 0) and np.all(r.energy["reflected"][:, 2] == 0)
     for c, ref in ((0, np.exp(-0.5 / mu)), (2, np.ones_like(mu))):
         assert_z_close(r.energy["transmitted"][:, c], r.energy_stderr["transmitted"][:, c], ref,
-                extra=np.abs(r.roulette[:, c]))
+                       extra=np.abs(r.roulette[:, c]))
 
 
 # ----------------------------------------------------------------------------- reciprocity, g -> 0
@@ -507,7 +508,7 @@ def test_tiny_g_is_isotropic_scattering():
         assert_samples_match(sa_.value, sa_.stderr, sb_.value, sb_.stderr, sel, min_cells=501)
     for k in ("reflected", "transmitted", "absorbed"):
         assert_z_close(a.energy[k], a.energy_stderr[k], b.energy[k], b.energy_stderr[k],
-                extra=np.abs(a.roulette) + np.abs(b.roulette))
+                       extra=np.abs(a.roulette) + np.abs(b.roulette))
 
 
 # ----------------------------------------------------------------------------- determinism
