@@ -1,4 +1,8 @@
-"""Shared fixtures and statistical helpers for the test suite."""
+"""Shared fixtures of the test suite (stacks, a material file, a refusal's check, the slow cases).
+
+The statistical checks (false-alarm probability, chi-square limits, cells against a model, two
+samples, energies) are the library's, :mod:`goniometer.testing` (``docs/testing.md``), which the
+tests import as a plugin author's tests do."""
 
 from __future__ import annotations
 
@@ -13,54 +17,9 @@ if _WORKER:
         __file__))), "build", "numba-cache")
     os.environ["NUMBA_CACHE_DIR"] = os.path.join(_BASE, _WORKER)
 
-import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from scipy import stats  # noqa: E402
 
-from goniometer.stack import Interface, Lambertian, Medium, Stack
-
-#: false-alarm probability of every statistical test in the suite
-P_FALSE_ALARM = 1e-6
-#: number of standard errors matching a two-sided false-alarm probability of P_FALSE_ALARM
-Z_TOL = float(stats.norm.isf(P_FALSE_ALARM / 2))  # about 4.9
-
-
-def chi2_limit(dof: int) -> float:
-    """Upper limit of a chi-square statistic with ``dof`` degrees of freedom at P_FALSE_ALARM."""
-    return float(stats.chi2.isf(P_FALSE_ALARM, dof))
-
-
-def cell_chi2(sim: np.ndarray, stderr: np.ndarray, model: np.ndarray, omega: np.ndarray, rays: int,
-              min_expected: float = 25.0, where: np.ndarray | None = None) -> tuple[float, int]:
-    """Chi-square of simulated cell values against a model, over cells the model says are well hit.
-
-    Cells are selected by the *model's* expected number of hits ``rays * model * Omega`` (weights
-    are at most 1), so the selection does not depend on the noise. A cell's variance is taken
-    under the model: a cell value is a sum of rare weighted hits, so Var ~ mean x (mean squared
-    weight / mean weight) / (N Omega); the mean comes from the model, the weight ratio from the
-    simulation, i.e. sigma = stderr_sim sqrt(model / sim). (The raw sample stderr is correlated
-    with the deviation at low counts and biases the statistic upwards.) A cell the simulation
-    never hit gets the bound sqrt(model / (N Omega)) (weights are at most 1). Returns (chi2, dof).
-    """
-    omega = np.broadcast_to(omega, model.shape)
-    model = np.maximum(model, 0.0)
-    expected = rays * model * omega
-    sel = expected >= min_expected
-    if where is not None:
-        sel &= np.broadcast_to(where, model.shape)
-    bound = np.sqrt(model / (rays * np.where(omega > 0, omega, np.inf)))
-    hit = (stderr > 0) & (sim > 0)
-    sigma = np.where(hit, stderr * np.sqrt(model / np.where(hit, sim, 1.0)), bound)
-    z = (sim - model)[sel] / sigma[sel]
-    return float(np.sum(z * z)), int(np.count_nonzero(sel))
-
-
-def assert_cells_match(sim, stderr, model, omega, rays, min_expected=25.0, where=None, min_cells=100):
-    chi2, dof = cell_chi2(sim, stderr, model, omega, rays, min_expected, where)
-    assert dof >= min_cells, f"only {dof} cells are hit well enough for a test"
-    limit = chi2_limit(dof)
-    assert chi2 < limit, f"chi2 = {chi2:.1f} over {dof} cells exceeds {limit:.1f} (chi2/dof = {chi2 / dof:.3f})"
-    return chi2, dof
+from goniometer.stack import Interface, Lambertian, Medium, Stack  # noqa: E402
 
 
 @pytest.fixture

@@ -161,10 +161,11 @@ def fit_lobes(data: np.ndarray, stderr: np.ndarray, edges: np.ndarray, rays: int
               energy0: Sequence[float]) -> LobeFit:
     """Least-squares fit of ``len(alpha0)`` normalised GGX lobes to ring energies ``data``.
 
-    Each ring's standard deviation is taken under the model, as ``tests/conftest.cell_chi2`` does
-    (a ring value is a sum of rare weighted exits: Var ~ model x (mean squared weight / mean weight)
-    / N, the weight ratio from the simulation, ``stderr^2 N / data``; 1 for rings never hit), so that
-    rings the model fills but the simulation did not hit count, and noise does not bias the weights.
+    Each ring's standard deviation is taken under the model, as :func:`goniometer.testing.cell_chi2`
+    does (``docs/testing.md``): a ring value is a sum of rare weighted exits, Var ~ model x (mean
+    squared weight / mean weight) / N, the weight ratio from the simulation, ``stderr^2 N / data``;
+    1 for rings never hit. So rings the model fills but the simulation did not hit count, and noise
+    does not bias the weights.
     """
     D = np.asarray(data, dtype=float)
     se = np.asarray(stderr, dtype=float)

@@ -72,7 +72,7 @@ def _models_copy(fn, inline: str = "never", **replace):
     The simulator's lane kernel inlines :func:`goniometer.optics.hg_scatter_cs`, which calls
     ``sample_hg_cos``; if any other code compiled ``sample_hg_cos`` into the simulator's cache first,
     a fresh compilation of the lane kernel would link that cached object instead of inlining it,
-    and its scattering step would no longer vectorise (``tests/goniometer/kernel/test_vectorised.py``).
+    and its scattering step would no longer vectorise (``docs/kernel.md`` §4, which names the test).
     So this module never compiles those dispatchers: it uses copies (the formula stays in
     ``goniometer.optics``)."""
     py = fn.py_func

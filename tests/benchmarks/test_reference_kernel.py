@@ -7,6 +7,7 @@ with another base roughness is told apart (the test can fail)."""
 from __future__ import annotations
 
 import importlib
+import math
 import sys
 from pathlib import Path
 
@@ -17,7 +18,7 @@ from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import CLASSIC, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from goniometer.run.tasks import n_tasks, trace_tasks
-from tests.conftest import Z_TOL, chi2_limit
+from goniometer.testing import Z_TOL, chi2_limit, effective_exits, mean_stderr, two_sample_chi2
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 reference_kernel = importlib.import_module("reference_kernel")
@@ -53,16 +54,16 @@ def _chi2(stack_sim: Stack, stack_ref: Stack) -> tuple[float, int, float]:
     sim, sim_sq, e_sim, e_sq = _simulator(stack_sim)
     ref, _, e_ref, ref_sq = reference_kernel.trace_reference(stack_ref, light_direction(THETA), RAYS, CLASSIC, *RES,
                                                              seed=2, squares=True)
-    # variance of the difference of the two cell means, each from its own sums of squares (a cell
-    # mixes many small weights with rare large ones: one sample alone may have missed those)
-    var = (sim_sq / RAYS - (sim / RAYS) ** 2 + ref_sq / RAYS - (ref / RAYS) ** 2) / RAYS
-    # effective number of exits in the cell, both samples
-    hits = (sim + ref) ** 2 / np.maximum(sim_sq + ref_sq, 1e-300)
-    sel = hits >= 100.0
-    chi2 = float(np.sum(((sim - ref)[sel] / RAYS) ** 2 / var[sel]))
-    e_var = 2.0 * (e_sq / RAYS - (e_sim / RAYS) ** 2) / RAYS
-    z = float(np.max(np.abs(e_sim - e_ref[0]) / RAYS / np.sqrt(e_var)))
-    return chi2, int(sel.sum()), z
+    # each sample's cell means and standard errors from its own sums of squares (a cell mixes many
+    # small weights with rare large ones: one sample alone may have missed those), cells selected
+    # by the effective number of exits of both samples together
+    a, sa = mean_stderr(sim, sim_sq, RAYS)
+    b, sb = mean_stderr(ref, ref_sq, RAYS)
+    chi2, dof = two_sample_chi2(a, sa, b, sb, effective_exits(sim + ref, sim_sq + ref_sq) >= 100.0)
+    # the reflected energy: the yardstick's error taken as the simulator's (same physics, same rays)
+    e_a, e_sa = mean_stderr(e_sim, e_sq, RAYS)
+    z = float(np.max(np.abs(e_a - e_ref[0] / RAYS) / (math.sqrt(2.0) * e_sa)))
+    return chi2, dof, z
 
 
 @pytest.mark.parametrize("stack", [_metal(0.2), PLASTIC], ids=["metal", "plastic"])

@@ -13,7 +13,7 @@ from goniometer.run.settings import SimulationSettings
 from goniometer.run.loop import simulate
 from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Stack, StackError, load_toml
-from tests.conftest import assert_cells_match, chi2_limit
+from goniometer.testing import assert_cells_match, assert_samples_match, chi2_limit, two_sample_chi2
 
 ETA, KAPPA = (1.45, 1.2, 0.9), (1.0, 0.5, 2.0)
 
@@ -66,13 +66,10 @@ def test_rotating_interface_and_light_together_rotates_the_slice():
     va, sa = a.brdf.value[0], a.brdf.stderr[0]
     vb, sb = np.roll(b.brdf.value[0], -30, axis=-1), np.roll(b.brdf.stderr[0], -30, axis=-1)
     sel = (sa > 0) & (sb > 0) & (va > 20 * sa / np.sqrt(20)) & (vb > 20 * sb / np.sqrt(20))
-    z = (va - vb)[sel] / np.hypot(sa, sb)[sel]
-    assert sel.sum() > 1000
-    assert np.sum(z * z) < chi2_limit(int(sel.sum()))
+    assert_samples_match(va, sa, vb, sb, sel, min_cells=1001)
     # and it is not trivially so: the unrotated slice differs from the rotated one without the shift
-    vb0 = b.brdf.value[0]
-    z0 = (va - vb0)[sel] / np.hypot(sa, sb)[sel]
-    assert np.sum(z0 * z0) > chi2_limit(int(sel.sum()))
+    chi2, dof = two_sample_chi2(va, sa, b.brdf.value[0], sb, sel)
+    assert chi2 > chi2_limit(dof)
 
 
 def test_equal_roughnesses_reproduce_the_isotropic_path_bit_for_bit(tmp_path):

@@ -17,7 +17,7 @@ from goniometer import optics
 from goniometer.run.loop import simulate
 from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack, StackError
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 WL = (450.0, 550.0, 650.0)
 

@@ -13,7 +13,8 @@
 
 Tolerances are statistical: z-scores within Z_TOL (false-alarm probability P_FALSE_ALARM = 1e-6,
 two-sided) of the combined Monte Carlo standard errors and chi-square limits at the same
-probability (``tests/conftest.py``); quantities that hold path by path are checked to 1e-9.
+probability (:mod:`goniometer.testing`, docs/testing.md); quantities that hold path by path are
+checked to 1e-9.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import boundary_tables, cell_index_fast, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, stack_from_dict
 from goniometer.kernel.tracer import microsurface_walk
-from tests.conftest import Z_TOL, chi2_limit
+from goniometer.testing import Z_TOL, assert_samples_match, assert_z_close
 
 #: a conductor whose Fresnel reflectance is exactly 1.0 in double precision at every angle
 MIRROR = dict(ior=(1.0,) * 3, extinction=(1e10,) * 3)
@@ -41,19 +42,6 @@ MIRROR = dict(ior=(1.0,) * 3, extinction=(1e10,) * 3)
 def mirror(alpha, ms=True, rotation=0.0) -> Stack:
     ax, ay = (alpha, None) if np.isscalar(alpha) else alpha
     return Stack("mirror", (Interface(ax, roughness_y=ay, rotation_deg=rotation, multiple_scattering=ms, **MIRROR),))
-
-
-def z_close(a, sa, b, sb):
-    a, sa, b, sb = map(np.asarray, (a, sa, b, sb))
-    tol = Z_TOL * np.sqrt(sa**2 + sb**2)
-    assert np.all(np.abs(a - b) <= tol), f"{a} vs {b}: |diff| {np.abs(a - b)} > {tol}"
-
-
-def two_sample_chi2(a, sa, b, sb, sel, min_cells):
-    z = (a - b)[sel] / np.sqrt(sa**2 + sb**2)[sel]
-    dof = int(sel.sum())
-    assert dof >= min_cells, f"only {dof} cells"
-    assert np.sum(z * z) < chi2_limit(dof), f"chi2/dof = {np.mean(z * z):.3f} over {dof} cells"
 
 
 # ----------------------------------------------------------------------------- the walk, histogrammed
@@ -162,11 +150,11 @@ def test_first_bounce_is_single_scattering(case):
             b = np.where(om > 0, counts / (rays * om), 0.0)
             sb = np.where(om > 0, np.sqrt(counts) / (rays * om), 0.0)
         sel = ((a + b) * rays * om >= 50.0) & (om > 0)
-        two_sample_chi2(a, sa, b, sb, sel, min_cells=60)
+        assert_samples_match(a, sa, b, sb, sel, min_cells=60)
         first += counts.sum() / rays
     ss = ref.energy["reflected"][0, 0] + ref.energy["transmitted"][0, 0]
     ss_se = math.hypot(ref.energy_stderr["reflected"][0, 0], ref.energy_stderr["transmitted"][0, 0])
-    z_close(first, math.sqrt(first * (1 - first) / rays), ss, ss_se)
+    assert_z_close(first, math.sqrt(first * (1 - first) / rays), ss, ss_se)
     if not case.get("power"):
         return
     # the test can tell the masking models apart: separable masking's energy is rejected
@@ -195,7 +183,7 @@ def test_masking_loss_is_what_higher_orders_add_back(alpha):
         assert per_order.sum() == rays
         higher = per_order[1] / rays
         loss, loss_se = ss.energy["masking_loss"][m, 0], ss.energy_stderr["masking_loss"][m, 0]
-        z_close(higher, math.sqrt(higher * (1 - higher) / rays), loss, loss_se)
+        assert_z_close(higher, math.sqrt(higher * (1 - higher) / rays), loss, loss_se)
 
 
 # ----------------------------------------------------------------------------- reciprocity
@@ -210,7 +198,7 @@ def test_multiple_scattering_brdf_is_reciprocal():
     a, sa = r.brdf.value[0][:, 25, :], r.brdf.stderr[0][:, 25, :]
     b, sb = r.brdf.value[1][:, 10, :], r.brdf.stderr[1][:, 10, :]
     sel = (sa > 0) & (sb > 0)
-    two_sample_chi2(a, sa, b, sb, sel, min_cells=200)
+    assert_samples_match(a, sa, b, sb, sel, min_cells=200)
     # the higher orders matter here: the reflected energy exceeds single scattering's
     ss = simulate(st.with_multiple_scattering(False), SimulationSettings(
         incident_deg=(51.0,), rays=100_000, resolution=(3, 4), masking="height-correlated"))

@@ -11,7 +11,7 @@ from scipy import integrate, stats
 
 from goniometer import optics
 from goniometer.kernel.rng import next_disk, stream_state
-from tests.conftest import P_FALSE_ALARM
+from goniometer.testing import P_FALSE_ALARM, chi2_limit
 
 # ----------------------------------------------------------------------------- quadrature helpers
 
@@ -142,7 +142,7 @@ def test_vndf_samples_follow_visible_normal_density(ax, ay, theta_deg, phi_deg, 
     chi2 = np.sum((observed[keep] - expected[keep]) ** 2 / expected[keep])
     dof = int(keep.sum()) - 1
     assert observed[~keep].sum() <= max(50.0, 3 * expected[~keep].sum())
-    assert chi2 < stats.chi2.isf(P_FALSE_ALARM, dof), f"chi2 {chi2:.1f} dof {dof}"
+    assert chi2 < chi2_limit(dof), f"chi2 {chi2:.1f} dof {dof}"
 
 
 def test_vndf_smooth_limit_returns_normal():

@@ -13,7 +13,7 @@ from goniometer.run.loop import simulate
 from goniometer.run.settings import SimulationSettings
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from goniometer.files.slices import read, write
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 SETTINGS = SimulationSettings(incident_deg=(0.0, 45.0, 75.0), rays=60_000, resolution=(9, 18), seed=5)
 MEDIUM = Medium((0.6, 0.6, 1.5), (0.5, 0.5, 0.8), 0.6)

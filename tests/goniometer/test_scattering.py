@@ -12,7 +12,8 @@
 
 Tolerances are statistical: z-scores within Z_TOL (false-alarm probability P_FALSE_ALARM = 1e-6,
 two-sided) of the Monte Carlo standard error and chi-square limits at the same probability
-(``tests/conftest.py``), plus, where a reference is only bracketed, the stated rigorous bound.
+(:mod:`goniometer.testing`, docs/testing.md), plus, where a reference is only bracketed, the
+stated rigorous bound.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from pathlib import Path
 import numba
 import numpy as np
 import pytest
-from scipy import integrate, stats
+from scipy import integrate
 from scipy.special import roots_legendre
 
 from goniometer import optics
@@ -35,7 +36,8 @@ from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, load_toml, stack_from_dict
 from goniometer.kernel.packing import pack
-from tests.conftest import P_FALSE_ALARM, Z_TOL, assert_cells_match, chi2_limit
+from goniometer.testing import (Z_TOL, assert_cells_match, assert_energy_conserved, assert_energy_matches,
+                                assert_samples_match, assert_z_close, chi2_interval, chi2_limit)
 
 # ----------------------------------------------------------------------------- references
 
@@ -48,13 +50,6 @@ def hg_density(c, g):
 def matched(medium: Medium, name: str = "slab") -> Stack:
     """``medium`` between two smooth index-matched interfaces (no Fresnel, no refraction)."""
     return Stack(name, (Interface(0.0, (1.0,) * 3), medium, Interface(0.0, (1.0,) * 3)))
-
-
-def z_close(a, sa, b, sb=0.0, extra=0.0):
-    """|a - b| within Z_TOL combined standard errors (+ a stated bound ``extra``), elementwise."""
-    a, sa, b, sb = map(np.asarray, (a, sa, b, sb))
-    tol = Z_TOL * np.sqrt(sa**2 + sb**2) + extra
-    assert np.all(np.abs(a - b) <= tol), f"{a} vs {b}: |diff| {np.abs(a - b)} > {tol}"
 
 
 # ----------------------------------------------------------------------------- HG sampling
@@ -198,7 +193,7 @@ def test_path_level_spectral_mis_is_unbiased_with_bounded_weights(taus, albedo):
     t, a = np.asarray(taus, float), np.asarray(albedo, float)
     out, wmax = _rods(n, t, a, length, 11)
     assert wmax <= 3.0 + 1e-12
-    z_close(out.mean(axis=0), out.std(axis=0) / math.sqrt(n), np.exp(-t * (1.0 - a) * length))
+    assert_z_close(out.mean(axis=0), out.std(axis=0) / math.sqrt(n), np.exp(-t * (1.0 - a) * length))
 
 
 # ----------------------------------------------------------------------------- the stack contract
@@ -283,9 +278,8 @@ def test_conservative_chromatic_slab_absorbs_nothing_on_average():
     still closes exactly."""
     r = simulate(matched(Medium((0.5, 1.0, 3.0), (1.0,) * 3, 0.3)),
                  SimulationSettings(incident_deg=(0.0, 70.0), rays=200_000, resolution=(9, 18), seed=2))
-    total = sum(r.energy[k] for k in r.energy) + r.roulette + r.capped
-    np.testing.assert_allclose(total, 1.0, rtol=0, atol=1e-10)
-    z_close(r.energy["absorbed"], r.energy_stderr["absorbed"], 0.0, extra=np.abs(r.roulette))
+    assert_energy_conserved(r, atol=1e-10)
+    assert_energy_matches(r, "absorbed", 0.0, extra=np.abs(r.roulette))
 
 
 SCATTER_STACKS = {
@@ -305,8 +299,7 @@ SCATTER_STACKS = {
 def test_energy_terms_of_scattering_stacks_sum_to_one(name):
     r = simulate(SCATTER_STACKS[name], SimulationSettings(incident_deg=(0.0, 45.0, 89.0), rays=40_000,
                                                           resolution=(9, 18), parametrization="half"))
-    total = sum(r.energy[k] for k in r.energy) + r.roulette + r.capped
-    np.testing.assert_allclose(total, 1.0, rtol=0, atol=1e-10)
+    assert_energy_conserved(r, atol=1e-10)
     for sd in (r.brdf, r.btdf):
         if sd is not None:
             for a in (sd.value, sd.stderr, sd.orders):
@@ -382,7 +375,7 @@ def test_single_scattering_matches_closed_form(g):
     for m, t in enumerate(t_direct):
         cell = r.btdf.grid.cell_of(light_direction(r.theta_deg[m]), -light_direction(r.theta_deg[m]))
         direct = r.btdf.orders[m, :, :, cell[0], cell[1]].sum(axis=0)[1] * r.btdf.proj_solid_angle[m][cell]
-        z_close(direct, math.sqrt(t * (1 - t) / s.rays), t, extra=A_SMALL)
+        assert_z_close(direct, math.sqrt(t * (1 - t) / s.rays), t, extra=A_SMALL)
 
 
 # ----------------------------------------------------------------------------- semi-infinite medium
@@ -469,9 +462,9 @@ def test_chromatic_extinction_equals_one_channel_at_a_time():
     for c, t in enumerate(taus):
         one = simulate(stack((t,) * 3), SimulationSettings(seed=2 + c, **s))
         for k in ("reflected", "transmitted", "absorbed"):
-            z_close(chrom.energy[k][:, c], chrom.energy_stderr[k][:, c],
-                    one.energy[k][:, c], one.energy_stderr[k][:, c],
-                    extra=np.abs(chrom.roulette[:, c]) + np.abs(one.roulette[:, c]))
+            assert_z_close(chrom.energy[k][:, c], chrom.energy_stderr[k][:, c],
+                           one.energy[k][:, c], one.energy_stderr[k][:, c],
+                           extra=np.abs(chrom.roulette[:, c]) + np.abs(one.roulette[:, c]))
 
 
 def test_a_channel_without_scattering_is_beer_lambert():
@@ -483,8 +476,8 @@ def test_a_channel_without_scattering_is_beer_lambert():
     mu = np.cos(np.radians(r.theta_deg))
     assert np.all(r.energy["reflected"][:, 0] == 0) and np.all(r.energy["reflected"][:, 2] == 0)
     for c, ref in ((0, np.exp(-0.5 / mu)), (2, np.ones_like(mu))):
-        z_close(r.energy["transmitted"][:, c], r.energy_stderr["transmitted"][:, c], ref,
-                extra=np.abs(r.roulette[:, c]))
+        assert_z_close(r.energy["transmitted"][:, c], r.energy_stderr["transmitted"][:, c], ref,
+                       extra=np.abs(r.roulette[:, c]))
 
 
 # ----------------------------------------------------------------------------- reciprocity, g -> 0
@@ -499,10 +492,7 @@ def test_scattering_brdf_is_reciprocal():
     r = simulate(st, SimulationSettings(incident_deg=(21.0, 51.0), rays=1_500_000, resolution=(45, 90), seed=4))
     a, sa = r.brdf.value[0][:, 25, :], r.brdf.stderr[0][:, 25, :]
     b, sb = r.brdf.value[1][:, 10, :], r.brdf.stderr[1][:, 10, :]
-    sel = (sa > 0) & (sb > 0)
-    z = (a - b)[sel] / np.sqrt(sa**2 + sb**2)[sel]
-    assert sel.sum() > 200
-    assert np.sum(z * z) < chi2_limit(int(sel.sum())), f"chi2/dof = {np.mean(z * z):.2f}"
+    assert_samples_match(a, sa, b, sb, (sa > 0) & (sb > 0), min_cells=201)
 
 
 def test_tiny_g_is_isotropic_scattering():
@@ -515,12 +505,10 @@ def test_tiny_g_is_isotropic_scattering():
     a, b = runs
     for sa_, sb_ in ((a.brdf, b.brdf), (a.btdf, b.btdf)):
         sel = (sa_.stderr > 0) & (sb_.stderr > 0) & (sa_.value > 0) & (sb_.value > 0)
-        z = (sa_.value - sb_.value)[sel] / np.hypot(sa_.stderr, sb_.stderr)[sel]
-        assert sel.sum() > 500
-        assert np.sum(z * z) < chi2_limit(int(sel.sum()))
+        assert_samples_match(sa_.value, sa_.stderr, sb_.value, sb_.stderr, sel, min_cells=501)
     for k in ("reflected", "transmitted", "absorbed"):
-        z_close(a.energy[k], a.energy_stderr[k], b.energy[k], b.energy_stderr[k],
-                extra=np.abs(a.roulette) + np.abs(b.roulette))
+        assert_z_close(a.energy[k], a.energy_stderr[k], b.energy[k], b.energy_stderr[k],
+                       extra=np.abs(a.roulette) + np.abs(b.roulette))
 
 
 # ----------------------------------------------------------------------------- determinism
@@ -626,5 +614,5 @@ def test_deep_chromatic_medium_standard_errors_match_replicates():
     r = np.array([x.energy["reflected"][0] for x in runs])
     se = np.array([x.energy_stderr["reflected"][0] for x in runs])
     ratio = r.var(axis=0, ddof=1) / np.mean(se ** 2, axis=0)
-    lo, hi = stats.chi2.ppf(P_FALSE_ALARM / 2, k - 1) / (k - 1), stats.chi2.isf(P_FALSE_ALARM / 2, k - 1) / (k - 1)
+    lo, hi = (x / (k - 1) for x in chi2_interval(k - 1))
     assert np.all((ratio > lo) & (ratio < hi)), (ratio, lo, hi)

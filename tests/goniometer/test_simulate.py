@@ -8,6 +8,7 @@ import pytest
 
 from goniometer.run.settings import SettingsError, SimulationSettings
 from goniometer.run.loop import simulate
+from goniometer.testing import P_FALSE_ALARM, energy_total
 
 
 def _arrays(r):
@@ -34,8 +35,7 @@ def test_same_seed_same_bits_whatever_the_threads(request, fixture):
 
 def test_partial_last_chunk_counts_every_ray(plastic):
     r = simulate(plastic, SimulationSettings(incident_deg=(30.0,), rays=10_001, chunk_rays=1000, resolution=(9, 18)))
-    total = sum(r.energy[k] for k in r.energy) + r.roulette
-    np.testing.assert_allclose(total, 1.0, atol=1e-12)
+    np.testing.assert_allclose(energy_total(r), 1.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("kw, field", [
@@ -78,8 +78,7 @@ def test_event_cap_is_reported_and_booked(plastic, tmp_path):
     energy terms still add up), and the CLI warns about them."""
     r = simulate(plastic, SimulationSettings(incident_deg=(30.0,), rays=20_000, resolution=(9, 18), event_cap=3))
     assert r.capped_paths[0] > 0 and np.all(r.capped[0] > 0)
-    total = sum(r.energy[k] for k in r.energy) + r.roulette + r.capped
-    np.testing.assert_allclose(total, 1.0, atol=1e-12)
+    np.testing.assert_allclose(energy_total(r), 1.0, atol=1e-12)
     from goniometer.files import slices as store
     from goniometer.cli.simulate import _print_summary
     import io
@@ -103,7 +102,6 @@ def test_russian_roulette_is_unbiased_in_expectation(plastic):
     vals = np.array(vals)
     mean, se = vals.mean(axis=0), vals.std(axis=0, ddof=1) / np.sqrt(len(vals))
     from scipy import stats
-    from tests.conftest import P_FALSE_ALARM
     t_lim = stats.t.isf(P_FALSE_ALARM / 2, len(vals) - 1)  # Student t: the stderr is estimated
     assert np.all(np.abs(mean) < t_lim * se + 1e-12), (mean, se)
     assert np.any(vals != 0)  # roulette did happen

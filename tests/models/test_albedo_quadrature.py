@@ -19,7 +19,7 @@ from models.base import Model, ModelValue
 from models.compare.albedo import (directional_albedo, graded_breakpoints, hemisphere_rule, smooth_interface,
                                    transmission_horizon)
 
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 
 class Constant(Model):

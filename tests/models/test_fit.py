@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from scipy import integrate, special, stats
+from scipy import integrate, special
 
 from goniometer import optics
 from goniometer.run.results import SimulationResult, SliceData
@@ -19,7 +19,7 @@ from models import fitted as F
 from models.base import ModelError
 from models.compare import integrate_slice, rmse
 from models.fitted import fitting, hp15
-from tests.conftest import P_FALSE_ALARM, Z_TOL
+from goniometer.testing import Z_TOL, chi2_interval
 
 STACK = Stack("synthetic", (Interface(0.1, (1.5,) * 3), Lambertian((0.5,) * 3)), "plastic")
 LAM = F.WAVELENGTHS_UM
@@ -268,7 +268,8 @@ def test_fit_recovers_known_parameters(index):
     fitted = np.stack([sum(integrate_slice(result.model, STACK, sd.grid, light_direction(t), 5)) for t in thetas])
     dof = sd.value.size - truth.x.size
     chi2 = float(np.sum(((sd.value - fitted) / sd.stderr) ** 2))
-    assert stats.chi2.ppf(P_FALSE_ALARM / 2, dof) < chi2 < stats.chi2.isf(P_FALSE_ALARM / 2, dof)
+    lo, hi = chi2_interval(dof)
+    assert lo < chi2 < hi
     # the optimiser found the global minimum: its cost is not above the true parameters' cost
     family = F.FAMILIES[kind]()
     true_cost = fitting._Problem(family, F.fit_data(ref)).cost(family.to_internal(truth.x))

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from goniometer import optics
 from goniometer.cli import main
@@ -21,7 +20,7 @@ from models import registry
 from models.compare.albedo import directional_albedo
 from models.furnace import ENERGY_TERMS, GRID, INCIDENT_DEG, furnace_settings, run_furnace, simulated_albedo
 
-from tests.conftest import P_FALSE_ALARM, Z_TOL
+from goniometer.testing import P_FALSE_ALARM, Z_TOL, chi2_interval
 
 FURNACE = Path(__file__).resolve().parents[2] / "configs" / "furnace"
 CONFIGS = sorted(FURNACE.glob("*.toml"))
@@ -133,7 +132,7 @@ def test_albedo_standard_error_matches_the_scatter_of_independent_runs():
     assert np.all(stderr > 0)
     sigma = np.sqrt(np.mean(stderr ** 2, axis=0))
     chi2 = np.sum(((albedo - albedo.mean(axis=0)) / sigma) ** 2, axis=0)
-    lo, hi = stats.chi2.ppf(P_FALSE_ALARM, K - 1), stats.chi2.isf(P_FALSE_ALARM, K - 1)
+    lo, hi = chi2_interval(K - 1, 2 * P_FALSE_ALARM)     # P_FALSE_ALARM on each side
     assert np.all((chi2 > lo) & (chi2 < hi)), (chi2, lo, hi)
 
 

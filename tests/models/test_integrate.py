@@ -12,7 +12,7 @@ from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Interface, Stack
 from models.base import Model, ModelValue
 from models.compare.integrate import integrate, integrate_slice
-from tests.conftest import assert_cells_match
+from goniometer.testing import assert_cells_match
 
 
 class Constant(Model):

@@ -29,7 +29,7 @@ from models.belcour import roughness_to_variance
 from models.inverse import InverseError, MeasuredRings, fit_measured_lobes, lobe_albedo, lobe_ring_fractions
 from models.inverse import invert_measured, simulate_against
 from models.inverse.validation import forward_lobes
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 ALPHA = 0.2
 #: fitted vs the stack's energy, relative (largest of six seeds: 0.095 %)

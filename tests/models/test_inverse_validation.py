@@ -4,7 +4,7 @@ simulated slices, the report, and the ``gonio invert`` / ``gonio validate-invers
 Tolerances: the forward check uses the paper's 1 % (figure 25) widened to the inherent channel
 spread of coloured lobes below an interface (see tests/models/test_inverse.py); estimator tests
 compare to the truth within ``Z_TOL`` (about 4.9) standard errors of the fit (false-alarm
-probability 1e-6, tests/conftest.py), plus the FGD table's own error where FGD is the truth.
+probability 1e-6, goniometer.testing), plus the FGD table's own error where FGD is the truth.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from models import belcour
 from models import inverse as I
 from models import inverse as V
 from models.report import inverse as report_inverse
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 CASES = Path(__file__).resolve().parents[2] / "configs" / "inverse" / "cases.toml"
 #: FGD at normal incidence from the tables vs an exact quadrature, where Fresnel is smooth

@@ -20,7 +20,7 @@ from models.base import ModelError, scattering_reason
 from models.compare import hemisphere_rule
 from models.compare import integrate
 from models.pbrt_layered import PBRTLayered, PBRTLayeredConverged, PBRTLayeredFixed, pbrt_parameters
-from tests.conftest import Z_TOL, chi2_limit
+from goniometer.testing import Z_TOL, cell_chi2, chi2_limit, flux
 
 NAMES = ("pbrt-layered", "pbrt-layered-converged", "pbrt-layered-fixed")
 #: Bati 2019's P1 colours under a smooth coat
@@ -57,28 +57,14 @@ def _internal(result: g.SimulationResult) -> tuple[np.ndarray, np.ndarray]:
     return sd.orders[:, 1:].astype(np.float64).sum(axis=1), sd.stderr_internal
 
 
-def cell_chi2(sim, se, model, model_se, omega, rays, min_expected=25.0) -> tuple[float, int]:
-    """:func:`tests.conftest.cell_chi2` for a stochastic model: cells selected by the model's
-    expected hits, the simulation's sigma taken under the model, and the model's own variance
-    added."""
-    omega = np.broadcast_to(omega, model.shape)
-    model = np.maximum(model, 0.0)
-    sel = rays * model * omega >= min_expected
-    bound = np.sqrt(model / (rays * np.where(omega > 0, omega, np.inf)))
-    hit = (se > 0) & (sim > 0)
-    sigma = np.where(hit, se * np.sqrt(model / np.where(hit, sim, 1.0)), bound)
-    z = (sim - model)[sel] / np.sqrt(sigma[sel] ** 2 + model_se[sel] ** 2)
-    return float(np.sum(z * z)), int(np.count_nonzero(sel))
-
-
 def ring_z(sim, se, model, model_se, omega, shift=None) -> np.ndarray:
     """z of the rings (all azimuths of one theta row, per incident and channel): the integral of
     f |cos| over the ring, simulation against model (minus ``shift``, a known bias), with both
     noises. Rings keep every sub-cell's variance estimate in one sum, which is what a heavy-tailed
     per-direction estimate needs."""
     w = omega[:, None]
-    a, sa = (sim * w).sum(-1), np.sqrt((se ** 2 * w ** 2).sum(-1))
-    b, sb = (model * w).sum(-1), np.sqrt((model_se ** 2 * w ** 2).sum(-1))
+    a, sa = flux(sim, se, w, axis=-1)
+    b, sb = flux(model, model_se, w, axis=-1)
     if shift is not None:
         b = b - (shift * w).sum(-1)
     z = (a - b) / np.hypot(sa, sb)
@@ -87,8 +73,7 @@ def ring_z(sim, se, model, model_se, omega, shift=None) -> np.ndarray:
 
 def albedo(values, se, omega) -> tuple[np.ndarray, np.ndarray]:
     """The hemispherical integral of f |cos| (M, 3) and its standard error."""
-    w = omega[:, None]
-    return (values * w).sum(axis=(2, 3)), np.sqrt((se ** 2 * w ** 2).sum(axis=(2, 3)))
+    return flux(values, se, omega[:, None], axis=(2, 3))
 
 
 def _simulate(stack: Stack, rays: int, masking: str, incident=INCIDENT, resolution=(30, 60), seed: int = 11):
@@ -265,14 +250,14 @@ def test_converged_row_on_a_tiny_grid_and_a_wrong_coat_index_fails():
     model = PBRTLayeredConverged()
     ms = integrate(model, res, "brdf", s=2)
     assert ms.stochastic and ms.stderr("internal").shape == ms.internal.shape
-    chi2, dof = cell_chi2(sim, se, ms.internal, ms.stderr("internal"), omega, res.settings.rays)
+    chi2, dof = cell_chi2(sim, se, ms.internal, omega, res.settings.rays, model_stderr=ms.stderr("internal"))
     assert dof > 500 and chi2 < chi2_limit(dof), (chi2, dof)
     a, sa = albedo(sim, se, res.brdf.proj_solid_angle)
     b, sb = albedo(ms.internal, ms.stderr("internal"), res.brdf.proj_solid_angle)
     assert np.all(np.abs(a - b) < Z_TOL * np.hypot(sa, sb)), (a, b)
     wrong = Stack("wrong", (Interface(0.0, (1.4,) * 3),) + SMOOTH_PLASTIC.layers[1:], "plastic")
     mw = integrate(model, res, "brdf", s=2, stack=wrong)
-    chi2, dof = cell_chi2(sim, se, mw.internal, mw.stderr("internal"), omega, res.settings.rays)
+    chi2, dof = cell_chi2(sim, se, mw.internal, omega, res.settings.rays, model_stderr=mw.stderr("internal"))
     assert chi2 > 3.0 * chi2_limit(dof)
 
 
@@ -298,7 +283,8 @@ def test_converged_matches_the_simulator_on_a_smooth_coat_plastic():
     sim, se = _internal(res)
     om = res.brdf.proj_solid_angle
     ms = integrate(PBRTLayeredConverged(), res, "brdf", s=3)
-    chi2, dof = cell_chi2(sim, se, ms.internal, ms.stderr("internal"), om[:, None], res.settings.rays)
+    chi2, dof = cell_chi2(sim, se, ms.internal, om[:, None], res.settings.rays,
+                          model_stderr=ms.stderr("internal"))
     assert dof > 5000 and chi2 < chi2_limit(dof), (chi2, dof)
     a, sa = albedo(sim, se, om)
     b, sb = albedo(ms.internal, ms.stderr("internal"), om)
@@ -313,7 +299,8 @@ def test_converged_matches_the_simulator_on_a_coated_conductor_with_an_hg_slab_a
     om = res.brdf.proj_solid_angle
     model = PBRTLayeredConverged()
     ms = integrate(model, res, "brdf", s=3)
-    chi2, dof = cell_chi2(sim, se, ms.internal, ms.stderr("internal"), om[:, None], res.settings.rays)
+    chi2, dof = cell_chi2(sim, se, ms.internal, om[:, None], res.settings.rays,
+                          model_stderr=ms.stderr("internal"))
     assert dof > 2000 and chi2 < chi2_limit(dof), (chi2, dof)
     a, sa = albedo(sim, se, om)
     b, sb = albedo(ms.internal, ms.stderr("internal"), om)
@@ -321,7 +308,8 @@ def test_converged_matches_the_simulator_on_a_coated_conductor_with_an_hg_slab_a
     for medium in (Medium((0.5,) * 3, (0.8,) * 3, 0.0), Medium((0.5,) * 3, (0.6,) * 3, 0.5)):
         wrong = Stack("wrong", (HG_METAL.layers[0], medium, HG_METAL.layers[2]), "metal")
         mw = integrate(model, res, "brdf", s=3, stack=wrong)
-        chi2, dof = cell_chi2(sim, se, mw.internal, mw.stderr("internal"), om[:, None], res.settings.rays)
+        chi2, dof = cell_chi2(sim, se, mw.internal, om[:, None], res.settings.rays,
+                              model_stderr=mw.stderr("internal"))
         assert chi2 > 2.0 * chi2_limit(dof), (medium, chi2, dof)
 
 

@@ -20,7 +20,7 @@ from goniometer.stack import Interface, Lambertian, Stack
 from models.production.study.effective import (ALPHA_MAX, ALPHA_MIN, ProductionError, bare_key, coat_albedo_rows,
                                                coated_base, darkening_from, effective_darkening, effective_roughness,
                                                median_angle, model_ring_energy, roughness_from)
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 GOLD = dict(ior=(0.17, 0.43, 1.38), extinction=(3.15, 2.45, 1.9))
 SETTINGS = dict(incident_deg=(0.0, 40.0), resolution=(45, 90), parametrization="classic", seed=5)

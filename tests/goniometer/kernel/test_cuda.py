@@ -19,7 +19,7 @@ from goniometer.cli import main
 from goniometer.run.settings import SettingsError, SimulationSettings
 from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.kernel.packing import pack
-from tests.conftest import Z_TOL, chi2_limit
+from goniometer.testing import Z_TOL, chi2_limit
 from tests.goniometer.kernel import test_two_kernels as two
 
 ROOT = Path(__file__).resolve().parents[3]

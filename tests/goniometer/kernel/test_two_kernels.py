@@ -16,7 +16,7 @@ from goniometer.kernel import tracer
 from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack
 from goniometer.kernel.packing import pack
-from tests.conftest import Z_TOL, chi2_limit
+from goniometer.testing import Z_TOL, chi2_limit
 
 RAYS = 240_000
 RES = (9, 36)

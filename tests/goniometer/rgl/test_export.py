@@ -21,7 +21,7 @@ from goniometer.files.rgl_export import bsdf_fields, check_readers, fields_from_
 from goniometer.grids.warp import bilinear
 from goniometer.grids.rgl import grid_for
 from goniometer.files.rgl_tensor import write_tensor
-from tests.conftest import Z_TOL, assert_cells_match
+from goniometer.testing import Z_TOL, assert_cells_match
 
 mi = pytest.importorskip("mitsuba")
 

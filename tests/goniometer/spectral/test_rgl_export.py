@@ -13,7 +13,7 @@ from goniometer.files.rgl_export import bsdf_fields, check_readers, fields_from_
 from goniometer.grids.rgl import grid_for
 from goniometer.files.rgl_tensor import write_tensor
 from goniometer.stack import stack_from_dict
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 from tests.goniometer.rgl.test_export import _expected_estimates, _random_pairs
 
 mi = pytest.importorskip("mitsuba")
