@@ -45,8 +45,8 @@ from models.production.study.effective import (coat_albedo_rows, effective_rough
                                                layered_prediction)
 from models.tables import fgd_direct_many
 
-#: the index of a conductor that reflects everything (F = 1 at every angle, to double precision:
-#: ``tests/models/test_furnace.py``)
+#: the index of a conductor that reflects everything: an index all but purely imaginary has
+#: |r_s| = |r_p| = 1, F = 1 at every angle to double precision (``docs/furnace.md``)
 WHITE_IOR, WHITE_EXTINCTION = 1e-9, 1.0
 
 
