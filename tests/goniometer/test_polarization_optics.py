@@ -123,3 +123,37 @@ def test_the_mueller_algebra():
     # the normal frame: normal to k and z, along the limit at the normal
     assert np.allclose(optics.normal_frame(0.6, 0.0, -0.8, 1.0, 0.0), (0.0, 1.0, 0.0))
     assert np.allclose(optics.normal_frame(0.0, 0.0, -1.0, -1.0, 0.0), optics.normal_frame(-1e-9, 0.0, -1.0, 0, 0))
+
+
+# ---------------------------------------------------------------------- frames: Mitsuba 3 as the reference
+
+def _mat(a, b, c, s) -> np.ndarray:
+    return np.array([[a, b, 0, 0], [b, a, 0, 0], [0, 0, c, s], [0, 0, -s, c]])
+
+
+@pytest.mark.parametrize("theta_deg, phi_deg", [(50.0, 30.0), (20.0, 200.0), (80.0, 300.0), (5.0, 90.0)])
+def test_smooth_events_are_mitsubas_in_its_frames(theta_deg, phi_deg):
+    """Mitsuba 3's polarized smooth conductor and dielectric (scalar_spectral_polarized) against our
+    Fresnel events taken from the s/p frames into its stokes_basis frames: the conventions (signs of
+    r_p and of S3, the frames, which way the matrix acts) are Mitsuba's, to its float precision."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_spectral_polarized")
+    from goniometer.grids.stokes import convert_mueller
+    th, ph = math.radians(theta_deg), math.radians(phi_deg)
+    v = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])   # to the viewer
+    si = mi.SurfaceInteraction3f()
+    si.wi = mi.Vector3f(*v)
+    si.wavelengths = [550.0] * 4
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    si.n = mi.Vector3f(0, 0, 1)
+    for bsdf, terms in ((mi.load_dict({"type": "conductor", "eta": 0.2, "k": 3.0}),
+                         lambda c: (optics.fresnel_conductor_mueller(c, 0.2, 3.0), 1.0)),
+                        (mi.load_dict({"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}),
+                         lambda c: (optics.fresnel_dielectric_mueller(c, 1.5)[:4],
+                                    optics.fresnel_dielectric(c, 1.5)))):
+        bs, weight = bsdf.sample(mi.BSDFContext(), si, 0.01, mi.Point2f(0.5, 0.5))   # the reflection
+        l = np.array(bs.wo)                      # Mitsuba's wo is where the light comes from: our l
+        assert l[2] > 0
+        e, pdf = terms(l[2])
+        ours = convert_mueller(_mat(*e), l, v, "sp", "mitsuba", phi_l_deg=phi_deg + 180.0, phi_v_deg=phi_deg) / pdf
+        assert np.allclose(ours, np.array(weight)[:, :, 0], atol=2e-6), (ours, np.array(weight)[:, :, 0])
