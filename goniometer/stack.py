@@ -323,7 +323,7 @@ _LAYER_KEYS = {
 _FILM_KEYS = {"thickness_nm", "ior", "extinction"}
 _TOP_KEYS = {"name", "category", "layers", "simulation"}
 SIMULATION_KEYS = {"incident_deg", "rays", "parametrization", "resolution", "seed", "masking",
-                   "max_order", "threads", "first_order", "rgl_grid", "spectral", "wavelength_bins"}
+                   "max_order", "threads", "first_order", "rgl_grid", "spectral", "wavelength_bins", "polarized"}
 
 
 def load_toml(path: str | Path) -> tuple[Stack, dict[str, Any]]:

@@ -81,6 +81,8 @@ def _write(f: h5py.File, r: SimulationResult) -> None:
     if s.device != "cpu":   # docs/gpu.md: absent on a CPU run's file (whose bytes predate the field)
         sim.attrs["device"] = s.device
     wl = r.wavelengths_nm
+    if s.polarized:   # docs/slices-format.md: /brdf/mueller, /btdf/mueller (absent on a scalar run's file)
+        sim.attrs["polarized"] = True
     if s.spectral:   # docs/slices-format.md: the channel axis holds wavelength bins
         sim.attrs["spectral"] = True
         sim.attrs["wavelength_bins"] = s.wavelength_bins
@@ -281,6 +283,12 @@ class SliceGroupWriter:
         if self.has_phi:
             _incident_phi(g, self.scales["incident"], phi_deg)
 
+    def mueller_scales(self) -> None:
+        """The dimension scales of a Mueller matrix's rows and columns (a polarized run's slices)."""
+        for dim, what in (("mueller_row", "row (the exit beam's Stokes component)"),
+                          ("mueller_col", "column (the incident beam's Stokes component)")):
+            self.scales[dim] = _scaled(self.group, dim, np.arange(4, dtype=np.int64), None, f"Mueller matrix {what}")
+
     def put(self, name: str, data: np.ndarray, dims: tuple[str, ...], units: str | None = None,
             dtype=None, description: str | None = None, long_name: str | None = None) -> h5py.Dataset:
         d = self.group.create_dataset(name, data=data, dtype=dtype, chunks=True, **_COMPRESSION)
@@ -337,6 +345,15 @@ def _write_slices(f: h5py.File, name: str, sd: SliceData, theta_deg: np.ndarray,
           long_name=f"{what} cell mean per bounce order",
           description="value of each bounce order (events at the top layer); the last order holds "
                       "that order or more; float32." + _MASKED)
+    if sd.mueller is not None:
+        w.mueller_scales()
+        dims = CELLS + ("mueller_row", "mueller_col")
+        w.put("mueller", sd.mueller, dims, unit, long_name=f"{what} Mueller matrix cell mean",
+              description="the cell mean of the Mueller matrix (the incident beam's Stokes vector to the exit "
+                          "beam's, each in the s/p frame of its plane of incidence, docs/polarization.md section 2), "
+                          "all bounce orders, without the cosine; [..., 0, 0] is value." + _MASKED)
+        w.put("mueller_stderr", sd.mueller_stderr, dims, unit, long_name="standard error of the Mueller matrix",
+              description="Monte Carlo standard error of each element of mueller." + _MASKED)
     w.put("mask", sd.mask, MAPS, "1", long_name="cell valid for comparisons", description=MASK_DESCRIPTION)
     if rgl:
         w.put("proj_solid_angle", sd.proj_solid_angle, MAPS, "1", long_name="sample-space area of the dual cell",
@@ -400,9 +417,12 @@ def describe(path: str | Path) -> tuple[Stack, SimulationSettings]:
             sides = ["brdf"] + (["btdf"] if stack.transmits else [])
             C = settings.n_channels
             for side in sides:
-                for name, shape in (("value", (M, C, nt, nph)), ("stderr", (M, C, nt, nph)),
-                                    ("orders", (M, settings.max_order, C, nt, nph)), ("mask", (M, nt, nph)),
-                                    ("proj_solid_angle", (M, nt, nph))):
+                checked = [("value", (M, C, nt, nph)), ("stderr", (M, C, nt, nph)),
+                           ("orders", (M, settings.max_order, C, nt, nph)), ("mask", (M, nt, nph)),
+                           ("proj_solid_angle", (M, nt, nph))]
+                if settings.polarized:
+                    checked += [("mueller", (M, C, nt, nph, 4, 4)), ("mueller_stderr", (M, C, nt, nph, 4, 4))]
+                for name, shape in checked:
                     key = f"{side}/{name}"
                     if key not in f or f[key].shape != shape:
                         raise StoreError(f"{p}: /{key} is missing or not of shape {shape}")
@@ -452,6 +472,8 @@ def _header(f: h5py.File, p: Path) -> tuple[Stack, SimulationSettings]:
     if bool(sim.get("spectral", False)):
         d["spectral"] = True
         d["wavelength_bins"] = int(sim["wavelength_bins"])
+    if bool(sim.get("polarized", False)):
+        d["polarized"] = True
     if d["parametrization"] == "rgl":
         if "rgl" not in f or "grid" not in f["rgl"].attrs:
             raise StoreError(f"{p}: an RGL-grid file without /rgl (its warp)")
@@ -498,4 +520,6 @@ def _read_slices(g: h5py.Group) -> SliceData:
     grid = SliceGrid(str(g.attrs["parametrization"]), int(g.attrs["n_theta"]), int(g.attrs["n_phi"]), str(side))
     return SliceData(grid=grid, value=g["value"][()], stderr=g["stderr"][()], orders=g["orders"][()],
                      mask=g["mask"][()].astype(bool), proj_solid_angle=g["proj_solid_angle"][()],
-                     stderr_internal=g["stderr_internal"][()] if "stderr_internal" in g else None)
+                     stderr_internal=g["stderr_internal"][()] if "stderr_internal" in g else None,
+                     mueller=g["mueller"][()] if "mueller" in g else None,
+                     mueller_stderr=g["mueller_stderr"][()] if "mueller_stderr" in g else None)

@@ -33,12 +33,14 @@ from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Stack
 
 ENERGY_TERMS = ("reflected", "transmitted", "absorbed", "masking_loss")
+#: elements of a Mueller matrix (row-major 4 x 4), per exit of a polarized run
+N_MUELLER = 16
 
 #: the settings that make two runs of one stack the same run (``threads`` is not one of them:
 #: results are bit-identical whatever the thread count)
 RUN_KEYS = ("incident_deg", "incident_phi_deg", "rays", "parametrization", "resolution", "seed", "masking",
             "max_order", "chunk_rays", "chunks_per_task", "event_cap", "first_order", "rgl", "spectral",
-            "wavelength_bins", "device")
+            "wavelength_bins", "device", "polarized")
 
 
 def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any]:
@@ -48,7 +50,7 @@ def run_description(stack: Stack, settings: SimulationSettings) -> dict[str, Any
     d = settings.to_dict()
     s = {k: d[k] for k in RUN_KEYS
          if not (k == "first_order" and settings.first_order == "traced") and not (k == "rgl" and settings.rgl is None)
-         and k in d}   # an RGB run's dict has no spectral keys, a CPU run's no device
+         and k in d}   # an RGB run's dict has no spectral keys, a CPU run's no device, a scalar run's no polarized
     return {"stack": json.loads(stack.to_json()), "settings": json.loads(json.dumps(s))}
 
 
@@ -65,6 +67,10 @@ class SliceData:
     (M, K, 3, n_theta, n_phi), order K meaning "K or more"; ``mask`` and
     ``proj_solid_angle``: (M, n_theta, n_phi); ``stderr_internal``: standard error of the
     internal part (orders >= 2, i.e. ``value - orders[:, 0]``), or None if unknown.
+    ``mueller``/``mueller_stderr``: a polarized run's Mueller matrices, ``value.shape + (4, 4)``
+    (1/sr, no cosine; the incident beam's Stokes vector to the exit beam's, in the s/p frames of
+    ``docs/polarization.md`` section 2), ``mueller[..., 0, 0]`` equal to ``value``; None for scalar
+    light.
     """
 
     grid: SliceGrid
@@ -74,6 +80,13 @@ class SliceData:
     mask: np.ndarray
     proj_solid_angle: np.ndarray
     stderr_internal: np.ndarray | None = None
+    mueller: np.ndarray | None = None
+    mueller_stderr: np.ndarray | None = None
+
+    @property
+    def polarized(self) -> bool:
+        """True when the slices hold Mueller matrices (a polarized run)."""
+        return self.mueller is not None
 
 
 @dataclass
@@ -136,7 +149,9 @@ class Sums:
 
     ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.kernel.tracer.trace_chunk`;
     ``btdf`` is (1, 1, K + 2, 3) for opaque stacks); ``energy`` (N_ENERGY, 3); ``energy_sq``
-    (N_ENERGY_SQ, 3); ``counts`` (N_COUNTS,) int64.
+    (N_ENERGY_SQ, 3); ``counts`` (N_COUNTS,) int64. A polarized run's ``mbrdf``/``mbtdf``:
+    (n_theta, n_phi, 2 * N_MUELLER, 3), the sums of the 16 Mueller elements of the exits (row-major)
+    then of their squares; None for scalar light.
     """
 
     brdf: np.ndarray
@@ -144,14 +159,18 @@ class Sums:
     energy: np.ndarray
     energy_sq: np.ndarray
     counts: np.ndarray
+    mbrdf: np.ndarray | None = None
+    mbtdf: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, stack: Stack, settings: SimulationSettings) -> "Sums":
         nt, nph = settings.resolution
         k2 = settings.max_order + 2
         bt = (nt, nph) if stack.transmits else (1, 1)
+        pol = (lambda shape: np.zeros(shape + (2 * N_MUELLER, 3))) if settings.polarized else (lambda shape: None)
         return cls(np.zeros((nt, nph, k2, 3)), np.zeros(bt + (k2, 3)), np.zeros((tracer.N_ENERGY, 3)),
-                   np.zeros((tracer.N_ENERGY_SQ, 3)), np.zeros(tracer.N_COUNTS, dtype=np.int64))
+                   np.zeros((tracer.N_ENERGY_SQ, 3)), np.zeros(tracer.N_COUNTS, dtype=np.int64), pol((nt, nph)),
+                   pol(bt))
 
     def add(self, other: "Sums") -> None:
         """In-place ``self += other`` (field by field; the order of additions is the caller's)."""
@@ -160,6 +179,9 @@ class Sums:
         self.energy += other.energy
         self.energy_sq += other.energy_sq
         self.counts += other.counts
+        if self.mbrdf is not None:
+            self.mbrdf += other.mbrdf
+            self.mbtdf += other.mbtdf
 
 
 @dataclass
@@ -175,18 +197,31 @@ class IncidentPart:
     energy_sq: np.ndarray      # (N_ENERGY_SQ, 3)
     counts: np.ndarray         # (N_COUNTS,)
     elapsed_s: float
+    #: a polarized run's Mueller element sums and sums of squares, (N_MUELLER, 3, n_theta, n_phi) each
+    brdf_mueller: np.ndarray | None = None
+    brdf_mueller_sq: np.ndarray | None = None
+    btdf_mueller: np.ndarray | None = None
+    btdf_mueller_sq: np.ndarray | None = None
+
+    #: the arrays with a channel axis (axis 1), which a spectral run's launches write into their bins
+    PER_CHANNEL = ("brdf", "brdf_sq", "btdf", "btdf_sq", "brdf_mueller", "brdf_mueller_sq", "btdf_mueller",
+                   "btdf_mueller_sq")
 
     @classmethod
     def from_sums(cls, m: int, acc: Sums, K: int, transmits: bool, elapsed_s: float) -> "IncidentPart":
-        def split(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            # (n_theta, n_phi, K + 2, 3) -> orders (K, 3, n_theta, n_phi) and squared weights
-            # (2, 3, n_theta, n_phi): [all exits, internal exits (order >= 2)]
-            return (np.ascontiguousarray(h[:, :, :K, :].transpose(2, 3, 0, 1)),
-                    np.ascontiguousarray(h[:, :, K:, :].transpose(2, 3, 0, 1)))
+        def split(h: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+            # (n_theta, n_phi, rows, 3) -> rows [0, k) and [k, rows) as (rows, 3, n_theta, n_phi): orders
+            # (K) and squared weights (2: all exits, internal exits (order >= 2)); Mueller element sums and
+            # their squares
+            return (np.ascontiguousarray(h[:, :, :k, :].transpose(2, 3, 0, 1)),
+                    np.ascontiguousarray(h[:, :, k:, :].transpose(2, 3, 0, 1)))
 
-        brdf, brdf_sq = split(acc.brdf)
-        btdf, btdf_sq = split(acc.btdf) if transmits else (None, None)
-        return cls(m, brdf, brdf_sq, btdf, btdf_sq, acc.energy, acc.energy_sq, acc.counts, elapsed_s)
+        brdf, brdf_sq = split(acc.brdf, K)
+        btdf, btdf_sq = split(acc.btdf, K) if transmits else (None, None)
+        mueller: tuple = (None,) * 4
+        if acc.mbrdf is not None:
+            mueller = split(acc.mbrdf, N_MUELLER) + (split(acc.mbtdf, N_MUELLER) if transmits else (None, None))
+        return cls(m, brdf, brdf_sq, btdf, btdf_sq, acc.energy, acc.energy_sq, acc.counts, elapsed_s, *mueller)
 
     def save(self, path) -> None:
         """Checkpoint to an ``.npz`` file, compressed (lossless: :meth:`load` gives the same bits) and
@@ -200,15 +235,19 @@ class IncidentPart:
         with np.load(path) as z:
             get = (lambda k: z[k] if k in z.files else None)
             return cls(int(z["index"]), z["brdf"], z["brdf_sq"], get("btdf"), get("btdf_sq"), z["energy"],
-                       z["energy_sq"], z["counts"], float(z["elapsed_s"]))
+                       z["energy_sq"], z["counts"], float(z["elapsed_s"]), get("brdf_mueller"),
+                       get("brdf_mueller_sq"), get("btdf_mueller"), get("btdf_mueller_sq"))
 
 
 def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.ndarray],
                      sums: list[np.ndarray], sqs: list[np.ndarray], n: int,
-                     first: list[np.ndarray] | None = None) -> SliceData:
+                     first: list[np.ndarray] | None = None, mueller: list[np.ndarray] | None = None,
+                     mueller_sq: list[np.ndarray] | None = None) -> SliceData:
     """Cell values and standard errors from the traced sums; ``first`` (per direction, (3, n_theta,
     n_phi) flux fractions) is bounce order 1 integrated (:mod:`goniometer.run.first_order`): it is added
-    to order 1, whose traced exits were not deposited, and adds no variance."""
+    to order 1, whose traced exits were not deposited, and adds no variance. ``mueller``,
+    ``mueller_sq``: a polarized run's Mueller element sums and their squares per direction
+    ((N_MUELLER, C, n_theta, n_phi)), estimated as the values are."""
     M = len(omegas)
     K = sums[0].shape[0]
     nt, nph = grid.shape
@@ -233,7 +272,16 @@ def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.n
         if first is not None:
             orders[m, 0] += first[m] * (n * inv)
             value[m] += first[m] * (n * inv)
-    return SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas), stderr_internal)
+    out = SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas), stderr_internal)
+    if mueller is not None:
+        mu = np.zeros((M, C, nt, nph, 4, 4))
+        mu_se = np.zeros((M, C, nt, nph, 4, 4))
+        for m, om in enumerate(omegas):
+            inv = np.divide(1.0, n * om, out=np.zeros_like(om), where=om > 0)
+            mu[m] = np.moveaxis(mueller[m] * inv, 0, -1).reshape(C, nt, nph, 4, 4)
+            mu_se[m] = np.moveaxis(std_error(mueller[m], mueller_sq[m], inv), 0, -1).reshape(C, nt, nph, 4, 4)
+        out.mueller, out.mueller_stderr = mu, mu_se
+    return out
 
 
 @lru_cache(maxsize=64)
@@ -278,11 +326,16 @@ def assemble(stack: Stack, settings: SimulationSettings, parts: list[IncidentPar
     if settings.first_order == "integrated":
         first = [_first_order(stack, settings, light_direction(t, p))
                  for t, p in zip(settings.incident_deg, settings.incident_phi_deg)]
-    brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n, first)
+    def mueller(name: str) -> list[np.ndarray] | None:
+        return [getattr(p, name) for p in parts] if settings.polarized else None
+
+    brdf = _slice_from_sums(grid, omegas, masks, [p.brdf for p in parts], [p.brdf_sq for p in parts], n, first,
+                            mueller("brdf_mueller"), mueller("brdf_mueller_sq"))
     btdf = None
     if stack.transmits and settings.rgl is None:  # the RGL format is reflection-only
         btdf = _slice_from_sums(SliceGrid(settings.parametrization, nt, nph, "transmission"), omegas, masks,
-                                [p.btdf for p in parts], [p.btdf_sq for p in parts], n)
+                                [p.btdf for p in parts], [p.btdf_sq for p in parts], n, None,
+                                mueller("btdf_mueller"), mueller("btdf_mueller_sq"))
     energy: dict[str, np.ndarray] = {}
     energy_se: dict[str, np.ndarray] = {}
     for t, name in enumerate(ENERGY_TERMS):

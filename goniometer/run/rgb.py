@@ -15,7 +15,8 @@ __all__ = ["to_rgb"]
 
 def to_rgb(result):
     """A spectral result in linear sRGB (D65, CIE 1931 2-degree observer; ``docs/spectral.md``
-    section 4): values, bounce orders and energies mapped linearly; standard errors by
+    section 4): values, bounce orders, a polarized run's Mueller matrices and energies mapped
+    linearly; standard errors by
     :func:`goniometer.spectral.combined_stderr` over the launches (an upper bound: bins of one
     launch share paths). The stack is the material's RGB equivalent; the settings say RGB."""
     from goniometer.spectral import combined_stderr, rgb_weights, wavelength_bins
@@ -34,7 +35,9 @@ def to_rgb(result):
         if sd is None:
             return None
         return dataclasses.replace(sd, value=lin(sd.value, 1), stderr=se(sd.stderr, 1), orders=lin(sd.orders, 2),
-                                   stderr_internal=None if sd.stderr_internal is None else se(sd.stderr_internal, 1))
+                                   stderr_internal=None if sd.stderr_internal is None else se(sd.stderr_internal, 1),
+                                   mueller=None if sd.mueller is None else lin(sd.mueller, 1),
+                                   mueller_stderr=None if sd.mueller_stderr is None else se(sd.mueller_stderr, 1))
 
     rgb_stack = Stack(result.stack.name, result.stack.layers, result.stack.category)
     return dataclasses.replace(

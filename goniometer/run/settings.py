@@ -106,6 +106,9 @@ class SimulationSettings(_Channels):
     #: numba-cuda, ``docs/gpu.md``; the same transport, other summation: the same run statistically,
     #: not in bits)
     device: str = "cpu"
+    #: trace polarized light (``docs/polarization.md``): every path carries the Mueller matrices of
+    #: its channels, and the slices hold each cell's Mueller matrix beside its intensity
+    polarized: bool = False
 
     def __post_init__(self) -> None:
         inc = tuple(float(x) for x in self.incident_deg)
@@ -154,6 +157,11 @@ class SimulationSettings(_Channels):
             raise SettingsError(f"first_order: {self.first_order!r} is not one of {', '.join(FIRST_ORDER)}")
         if not isinstance(self.spectral, (bool, np.bool_)):
             raise SettingsError(f"spectral: {self.spectral!r} is not a boolean (true or false)")
+        if not isinstance(self.polarized, (bool, np.bool_)):
+            raise SettingsError(f"polarized: {self.polarized!r} is not a boolean (true or false)")
+        if self.polarized and self.first_order == "integrated":
+            raise SettingsError("first_order: integrated is for scalar runs (it integrates the intensity of order 1, "
+                                "not its Mueller matrix); a polarized run traces it")
         _int_in(self.wavelength_bins, "wavelength_bins", 3, 471)
         if self.wavelength_bins % 3:
             raise SettingsError(f"wavelength_bins: {self.wavelength_bins} must be a multiple of 3 (each path "
@@ -202,6 +210,8 @@ class SimulationSettings(_Channels):
         if not self.spectral:
             out.pop("spectral")
             out.pop("wavelength_bins")
+        if not self.polarized:   # (the identities of scalar runs predate the field)
+            out.pop("polarized")
         if self.device == "cpu":   # (the dicts of CPU runs predate the field: their identity stays)
             out.pop("device")
         return out
@@ -269,7 +279,7 @@ class SimulationSettings(_Channels):
         except RGLGridError as e:
             raise SettingsError(f"{source}.rgl_grid: {str(e).split(': ', 1)[-1]}") from None
         fields = {k: getattr(plain, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
-                                                 "spectral", "wavelength_bins")}
+                                                 "spectral", "wavelength_bins", "polarized")}
         try:
             return cls.on_rgl_grid(grid, **fields)
         except SettingsError as e:

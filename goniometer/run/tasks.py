@@ -273,7 +273,7 @@ def merge_launches(launched: Iterable[tuple[tuple[int, ...], IncidentPart]], B: 
         # the launch's channels as a strided view of the bin axis: bins (k, k + G, k + 2G), or one bin
         dst = slice(bins[0], None, bins[1] - bins[0]) if len(bins) == 3 else slice(bins[0], bins[0] + 1)
         n = len(bins)
-        for name in ("brdf", "brdf_sq", "btdf", "btdf_sq"):
+        for name in IncidentPart.PER_CHANNEL:
             a = getattr(part, name)
             if a is not None:
                 getattr(merged, name)[:, dst] = a[:, :n]
@@ -293,6 +293,6 @@ def _empty_part(part: IncidentPart, B: int) -> IncidentPart:
         shape = list(a.shape)
         shape[axis] = B
         return np.zeros(shape, dtype=a.dtype)
-    return IncidentPart(part.index, widen(part.brdf, 1), widen(part.brdf_sq, 1), widen(part.btdf, 1),
-                        widen(part.btdf_sq, 1), widen(part.energy, 1), widen(part.energy_sq, 1),
-                        np.zeros_like(part.counts), 0.0)
+    channels = {name: widen(getattr(part, name), 1) for name in IncidentPart.PER_CHANNEL}
+    return IncidentPart(part.index, energy=widen(part.energy, 1), energy_sq=widen(part.energy_sq, 1),
+                        counts=np.zeros_like(part.counts), elapsed_s=0.0, **channels)
