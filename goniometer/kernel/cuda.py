@@ -1,19 +1,26 @@
 """The CUDA kernel (``docs/gpu.md``): one GPU thread per path, through numba-cuda.
 
 Each thread traces one path with :func:`goniometer.kernel.onepath.trace_path` -- the per-path
-transport, compiled for the device from the same Python source as the CPU's (numba-cuda compiles
-the ``numba.njit`` functions a kernel calls: the optics, the walks, the free flights, the cell
-lookup) -- seeded from the path's own key, so a path draws the same numbers on any device, in any
-thread. The grid is two-dimensional: ``blockIdx.y`` is the chunk slot, ``blockIdx.x * blockDim.x +
-threadIdx.x`` the path in the chunk.
+transport, the CPU per-path kernel's too (:mod:`goniometer.kernel.paths`): numba-cuda compiles the
+``numba.njit`` functions a kernel calls for the device from the same Python source (the optics,
+the walks, the free flights, the cell lookup) -- seeded from the path's own key, so a path draws
+the same numbers on any device, in any thread, and on the CPU's per-path kernel. The grid is
+two-dimensional: ``blockIdx.y`` is the chunk slot, ``blockIdx.x * blockDim.x + threadIdx.x`` the
+path in the chunk.
 
-Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)``
-(:func:`goniometer.kernel.onepath.fixed_point`) with integer atomics, which commute, so a run's
-sums do not depend on the order in which threads finish, nor on the block size: they are the same
-bits on every launch on the same device and compiler. A block first sums into its shared memory
-(the energies always; the histograms when the grid's two histograms fit,
-:data:`SHARED_BYTES`), then adds what it holds to global memory; otherwise it adds to global
-memory directly. The integers are turned into float64 at the end (``/ 2^32``).
+Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)`` (:func:`fixed_point`) with
+integer atomics, which commute, so a run's sums do not depend on the order in which threads
+finish, nor on the block size: they are the same bits on every launch on the same device and
+compiler. A block first sums into its shared memory (the energies always; the histograms when the
+grid's two histograms fit, :data:`SHARED_BYTES`), then adds what it holds to global memory;
+otherwise it adds to global memory directly. The integers are turned into float64 at the end
+(``/ 2^32``).
+
+The kernel is compiled for :data:`BLOCK` threads per block and at least :data:`MIN_BLOCKS` blocks
+per multiprocessor (its launch bounds, :data:`KERNEL_OPTIONS`): ptxas then keeps a thread's
+registers within ``65536 / (BLOCK * MIN_BLOCKS)`` = 128, and
+``tests/goniometer/kernel/test_cuda_compile.py`` checks, without a GPU, that it compiles for sm_80
+and sm_90 without spilling (:mod:`goniometer.kernel.cuda_build`).
 
 This module imports ``numba.cuda``; :func:`goniometer.kernel.tracer.check_device` says why a run cannot
 use it (no numba-cuda, no GPU) before anything imports it. Under numba-cuda's simulator
@@ -23,36 +30,42 @@ threads calling the CPU's compiled functions: the tests' way to run it without a
 
 from __future__ import annotations
 
-import numpy as np
-from numba import config, cuda, int64, uint64
+import math
 
+import numpy as np
+from numba import config, cuda, float64, int64, uint64
+
+from goniometer.grids.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.slice_grid import cell_index_fast
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
                                       E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, N_COUNTS, N_ENERGY,
                                       N_ENERGY_SQ, P_TABULATE)
-from goniometer.kernel.onepath import FIXED_SCALE, X_NONE, X_REFLECTED, X_TRANSMITTED, fixed_point, path_state, trace_path
-from goniometer.grids.halfdiff import cell_of as halfdiff_cell
-from goniometer.grids.slice_grid import cell_index_fast
+from goniometer.kernel.onepath import (B_ABSORBED, B_MASKING, B_ROULETTE, N_BOOKS, X_CAPPED, X_REFLECTED,
+                                       X_TRANSMITTED, path_light, trace_path)
+from goniometer.kernel.rng import path_state
 
 #: threads per block
 BLOCK = 128
+#: blocks per multiprocessor the kernel is compiled to fit (launch bounds; module docstring)
+MIN_BLOCKS = 4
+#: the kernel's compile options: its launch bounds (the most threads per block, the fewest blocks
+#: per multiprocessor), which the compile check reads too
+KERNEL_OPTIONS = {"launch_bounds": (BLOCK, MIN_BLOCKS)}
 #: shared memory a block's histograms may take (the energies' few hundred bytes come on top)
 SHARED_BYTES = 40_960
+#: the CUDA kernel's sums are integers: a weight ``w`` adds ``round(w * FIXED_SCALE)`` (2^32), so the
+#: order of the atomic additions cannot change a sum (``docs/gpu.md``, determinism)
+FIXED_SCALE = 4294967296.0
 #: a block's energy sums: N_ENERGY x 3 weights, N_ENERGY_SQ x 3 squares, N_COUNTS counters
 _N_EN = N_ENERGY * 3
 _N_ENSQ = N_ENERGY_SQ * 3
 _N_ACC = _N_EN + _N_ENSQ + N_COUNTS
 
 
-if config.ENABLE_CUDASIM:
-    def _plain(a):
-        """In the simulator a kernel's array argument is a wrapper that the CPU's compiled functions
-        cannot take: its numpy array."""
-        return a._item._ary
-else:
-    @cuda.jit(device=True, inline=True)
-    def _plain(a):
-        """On the device an array argument is what the compiled functions take."""
-        return a
+@cuda.jit(device=True, inline=True)
+def fixed_point(w):
+    """``w`` in the CUDA kernel's fixed point: the nearest integer to ``w * 2^32`` (ties upward)."""
+    return int64(math.floor(w * FIXED_SCALE + 0.5))
 
 
 @cuda.jit(device=True, inline=True)
@@ -93,20 +106,17 @@ def _book(acc, row, x0, x1, x2, squares):
         _add(acc, _N_EN + row * 3 + 2, fixed_point(x2 * x2))
 
 
-@cuda.jit
-def _trace_kernel(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
-                  eta_dn, eta_up, lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, stream, param, n_theta, n_phi,
-                  row_cos, col_cos, col_sin, max_order, event_cap, skip_first, height_correlated, shared_hist, hist,
-                  acc_g, exit_cell, exit_w):
-    """Trace the paths of a batch of chunks (module docstring). ``hist``: (B, 2 * cells * row)
-    int64, the BRDF then the BTDF of each slot, flat; ``acc_g``: (B, _N_ACC) int64 energy sums;
-    ``exit_cell`` / ``exit_w``: per path of a tabulation ((B, 0) otherwise). ``shared_hist``: the
-    block sums its histograms in dynamic shared memory before adding them to ``hist``."""
+def _kernel(stack, run, tables, sizes, height_correlated, shared_hist, hist, acc_g, exit_cell, exit_w):
+    """Trace the paths of a batch of chunks (module docstring). ``stack``, ``run``, ``tables``,
+    ``sizes``: the CPU kernels' arguments (:func:`goniometer.kernel.tracer.launch`);
+    ``height_correlated``, ``shared_hist``: bools; ``hist``: (B, 2 * cells * row) int64, the BRDF
+    then the BTDF of each slot, flat; ``acc_g``: (B, _N_ACC) int64 energy sums; ``exit_cell`` /
+    ``exit_w``: per path of a tabulation ((B, 0) otherwise). With ``shared_hist`` the block sums
+    its histograms in dynamic shared memory before adding them to ``hist``."""
     b = cuda.blockIdx.y
     tid = cuda.threadIdx.x
     r = cuda.blockIdx.x * cuda.blockDim.x + tid
-    c = first_chunk + b
-    n = min(chunk_rays, n_rays_total - c * chunk_rays)
+    lx, ly, lz, first_chunk, seed, stream, param, n_theta, n_phi, max_order, event_cap, skip_first = run
     n_hist = hist.shape[1]
     sh = cuda.shared.array(0, dtype=int64)        # shared_hist: the block's histograms
     acc = cuda.shared.array(_N_ACC, dtype=int64)  # the block's energy sums
@@ -116,60 +126,52 @@ def _trace_kernel(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, r
         for q in range(tid, n_hist, cuda.blockDim.x):
             sh[q] = int64(0)
     cuda.syncthreads()
-    if r < n:
-        if_alpha = _plain(if_alpha)
-        if_rot = _plain(if_rot)
-        if_ms = _plain(if_ms)
-        if_film = _plain(if_film)
-        region_tau = _plain(region_tau)
-        region_albedo = _plain(region_albedo)
-        region_g = _plain(region_g)
-        cond = _plain(cond)
-        rho = _plain(rho)
-        tau_mode = _plain(tau_mode)
-        eta_dn = _plain(eta_dn)
-        eta_up = _plain(eta_up)
-        row_cos = _plain(row_cos)
-        col_cos = _plain(col_cos)
-        col_sin = _plain(col_sin)
+    if r < sizes[b]:
         state = cuda.local.array(4, dtype=uint64)
-        path_state(state, seed, stream, c, r)
+        books = cuda.local.array(N_BOOKS, dtype=float64)
+        for q in range(N_BOOKS):
+            books[q] = 0.0
+        path_state(state, seed, stream, first_chunk + b, r)
         tabulate = param == P_TABULATE
-        (kind, plx, ply, plz, dx, dy, dz, w0, w1, w2, order, single, based, ab0, ab1, ab2, mk0, mk1, mk2,
-         rl0, rl1, rl2, cp0, cp1, cp2, capped, events) = trace_path(
-            if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
-            eta_dn, eta_up, lx, ly, lz, tabulate, height_correlated, event_cap, state)
+        plx, ply, plz = path_light(state, tabulate, lx, ly, lz)
+        kind, dx, dy, dz, w0, w1, w2, order, single, based, events = trace_path(
+            stack, -plx, -ply, -plz, height_correlated, event_cap, state, books)
+        refl = kind == X_REFLECTED
+        trans = kind == X_TRANSMITTED
         if tabulate:
-            exit_cell[b, r] = -1
-            if kind == X_REFLECTED:
-                exit_cell[b, r] = halfdiff_cell(plx, ply, plz, dx, dy, dz)
+            cell = -1
+            if refl:
+                # the path's light again, from its key (not kept through the path: registers)
+                path_state(state, seed, stream, first_chunk + b, r)
+                plx, ply, plz = path_light(state, True, lx, ly, lz)
+                cell = halfdiff_cell(plx, ply, plz, dx, dy, dz)
                 exit_w[b, r, 0] = w0
                 exit_w[b, r, 1] = w1
                 exit_w[b, r, 2] = w2
-        elif kind != X_NONE and not (skip_first and kind == X_REFLECTED and order == 1 and single):
-            trans = kind == X_TRANSMITTED
+            exit_cell[b, r] = cell
+        elif (refl and not (skip_first and order == 1 and single)) or trans:
+            row_cos, col_cos, col_sin = tables
             i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
             if i >= 0:
-                row = (max_order + 2) * 3
-                base = (i * n_phi + j) * row + (n_hist // 2 if trans else 0)
+                base = (i * n_phi + j) * (max_order + 2) * 3 + (n_hist // 2 if trans else 0)
                 o = min(order, max_order) - 1
                 if shared_hist:
                     _deposit(sh, base, o, max_order, w0, w1, w2)
                 else:
                     _deposit(hist[b], base, o, max_order, w0, w1, w2)
-        refl = kind == X_REFLECTED
         if refl:
             _book(acc, E_REFLECTED, w0, w1, w2, True)
             if not based:
                 _book(acc, E_REFLECTED_WITHOUT_BASE, w0, w1, w2, True)
-        if kind == X_TRANSMITTED:
+        elif trans:
             _book(acc, E_TRANSMITTED, w0, w1, w2, True)
-        _book(acc, E_ABSORBED, ab0, ab1, ab2, True)
-        _book(acc, E_MASKING, mk0, mk1, mk2, True)
-        _book(acc, E_ROULETTE, rl0, rl1, rl2, False)
-        _book(acc, E_CAPPED, cp0, cp1, cp2, False)
-        _add(acc, _N_EN + _N_ENSQ + C_CAPPED, capped)
-        _add(acc, _N_EN + _N_ENSQ + C_EVENTS, events)
+        elif kind == X_CAPPED:
+            _book(acc, E_CAPPED, w0, w1, w2, False)
+            _add(acc, _N_EN + _N_ENSQ + C_CAPPED, int64(1))
+        _book(acc, E_ABSORBED, books[B_ABSORBED], books[B_ABSORBED + 1], books[B_ABSORBED + 2], True)
+        _book(acc, E_MASKING, books[B_MASKING], books[B_MASKING + 1], books[B_MASKING + 2], True)
+        _book(acc, E_ROULETTE, books[B_ROULETTE], books[B_ROULETTE + 1], books[B_ROULETTE + 2], False)
+        _add(acc, _N_EN + _N_ENSQ + C_EVENTS, int64(events))
     cuda.syncthreads()
     # the block's sums into the slot's (integer additions: in any order the same)
     for q in range(tid, _N_ACC, cuda.blockDim.x):
@@ -181,36 +183,50 @@ def _trace_kernel(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, r
                 cuda.atomic.add(hist, (b, q), sh[q])
 
 
-def trace_batch(run, first_chunk: int, outs: tuple, exits: tuple) -> None:
+#: the kernel as launched (its Python function is :func:`_kernel`, which the compile check compiles
+#: with the same :data:`KERNEL_OPTIONS`)
+_trace_kernel = cuda.jit(_kernel) if config.ENABLE_CUDASIM else cuda.jit(**KERNEL_OPTIONS)(_kernel)
+# (the simulator runs Python threads: it has no registers, and takes no launch bounds)
+
+
+def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: int, exit_shape: tuple,
+                to_device=None) -> tuple:
+    """The CUDA kernel's arguments for a batch of ``B`` chunks of ``run`` (a
+    :class:`goniometer.kernel.tracer.Launch`) starting at ``first_chunk``: ``hist_cells`` numbers per
+    slot's two histograms, ``exit_shape`` the per-path records' ``(B, n)`` (``n`` 0 but for a
+    tabulation). ``to_device`` (None: the arrays stay on the host, as the compile check types them)
+    moves an array to the GPU. Returns ``(args, shared_hist, dynamic_shared_bytes)``."""
+    dev = to_device if to_device is not None else (lambda a: a)
+    keep = dev if not config.ENABLE_CUDASIM else (lambda a: a)   # the simulator's CPU functions read host arrays
+    stack = type(run.stack_args)(*(keep(np.ascontiguousarray(x)) if isinstance(x, np.ndarray) else x
+                                   for x in run.stack_args))
+    tables = tuple(keep(np.ascontiguousarray(t, dtype=np.float64)) for t in run.tables)
+    shared_hist = hist_cells * 8 <= SHARED_BYTES
+    tabulate = run.param == P_TABULATE
+    args = (stack, run.scalars(first_chunk), tables, dev(np.ascontiguousarray(sizes, dtype=np.int64)),
+            run.variant.height_correlated is not None, shared_hist, dev(np.zeros((B, hist_cells), dtype=np.int64)),
+            dev(np.zeros((B, _N_ACC), dtype=np.int64)),
+            dev(np.full(exit_shape, -1, dtype=np.int64) if tabulate else np.zeros((B, 0), dtype=np.int64)),
+            dev(np.zeros(exit_shape + (3,)) if tabulate else np.zeros((B, 0, 3))))
+    return args, shared_hist, hist_cells * 8 if shared_hist else 0
+
+
+def trace_batch(run, first_chunk: int, sizes: np.ndarray, outs: tuple, exits: tuple) -> None:
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` of ``run`` (a
-    :class:`goniometer.kernel.tracer.Launch`) on the GPU into the CPU arrays ``outs`` / ``exits``, as
-    :func:`goniometer.kernel.tracer.launch` documents (each slot's sums are the integers' values)."""
+    :class:`goniometer.kernel.tracer.Launch`; ``sizes`` their rays, :meth:`Launch.chunk_sizes`) on the
+    GPU into the CPU arrays ``outs`` / ``exits``, as :func:`goniometer.kernel.tracer.launch`
+    documents (each slot's sums are the integers' values)."""
     brdf, btdf, energy, energy_sq, counts = outs
     exit_cell, exit_w = exits
     B = brdf.shape[0]
     if B == 0:
         return
-    f = run.facts
-    p = f.packed
     nb = brdf[0].size
     transmits = btdf.shape[1:] == brdf.shape[1:]
-    n_hist = 2 * nb
-    shared_hist = n_hist * 8 <= SHARED_BYTES
-    d = cuda.to_device
-    hist = cuda.to_device(np.zeros((B, n_hist), dtype=np.int64))
-    acc = cuda.to_device(np.zeros((B, _N_ACC), dtype=np.int64))
-    tabulate = run.param == P_TABULATE
-    ec = d(np.full(exit_cell.shape, -1, dtype=np.int64) if tabulate else np.zeros((B, 0), dtype=np.int64))
-    ew = d(np.zeros(exit_w.shape) if tabulate else np.zeros((B, 0, 3)))
-    row_cos, col_cos, col_sin = (np.ascontiguousarray(t, dtype=np.float64) for t in run.tables)
+    args, _, dyn = kernel_args(run, first_chunk, sizes, B, 2 * nb, exit_cell.shape, cuda.to_device)
     blocks = (max(1, -(-run.chunk_rays // BLOCK)), B)
-    dyn = n_hist * 8 if shared_hist else 0
-    _trace_kernel[blocks, BLOCK, 0, dyn](
-        d(p.if_alpha), d(p.if_rot), d(p.if_ms), d(p.if_film), d(p.region_tau), d(p.region_albedo), d(p.region_g),
-        d(p.cond), d(p.rho), int(p.base_kind), d(f.tau_mode), d(f.eta_dn), d(f.eta_up), *run.light, run.n_rays,
-        run.chunk_rays, first_chunk, run.seed, run.stream, run.param, run.n_theta, run.n_phi, d(row_cos), d(col_cos),
-        d(col_sin), run.max_order, run.event_cap, run.skip_first, run.flags[1] is not None, shared_hist, hist, acc,
-        ec, ew)
+    _trace_kernel[blocks, BLOCK, 0, dyn](*args)
+    hist, acc, ec, ew = args[6:]
     h = hist.copy_to_host().astype(np.float64) / FIXED_SCALE
     a = acc.copy_to_host()
     brdf[...] = h[:, :nb].reshape(brdf.shape)
@@ -221,6 +237,6 @@ def trace_batch(run, first_chunk: int, outs: tuple, exits: tuple) -> None:
     energy[...] = (a[:, :_N_EN].astype(np.float64) / FIXED_SCALE).reshape(energy.shape)
     energy_sq[...] = (a[:, _N_EN:_N_EN + _N_ENSQ].astype(np.float64) / FIXED_SCALE).reshape(energy_sq.shape)
     counts[...] = a[:, _N_EN + _N_ENSQ:]
-    if tabulate:
+    if run.param == P_TABULATE:
         exit_cell[...] = ec.copy_to_host()
         exit_w[...] = ew.copy_to_host()
