@@ -46,7 +46,8 @@ from goniometer.kernel.event import RR_START, RR_THRESHOLD
 from goniometer.kernel.layout import TAU_SCATTER
 from goniometer.kernel.packing import FL_ON
 from goniometer.kernel.rng import next_disk, next_float
-from goniometer.kernel.steps import film_choice, film_rt3, free_flight, microsurface_walk
+from goniometer.kernel import polarized
+from goniometer.kernel.steps import film_choice, film_p, film_rt3, free_flight, microsurface_walk
 
 #: how a path ended (:func:`trace_path`'s first value): inside the stack with nothing to book but
 #: its books (killed by roulette, lost to masking, no weight left), out of the top (BRDF), out of
@@ -83,8 +84,20 @@ def _absorb(books, w0, w1, w2, a0, a1, a2):
     return w0 * a0, w1 * a1, w2 * a2
 
 
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def _fresnel_books(books, pol, w0, w1, w2):
+    """A polarized path's weights after a Fresnel event (its Mueller matrices' ``[0, 0]``), what
+    they changed by booked as absorbed (signed: a conductor's or a film's absorption, and the
+    difference between the state's own reflectance and the unpolarized one that chose the event)."""
+    v0, v1, v2 = polarized.weights(pol)
+    books[B_ABSORBED] += w0 - v0
+    books[B_ABSORBED + 1] += w1 - v1
+    books[B_ABSORBED + 2] += w2 - v2
+    return v0, v1, v2
+
+
 @numba.njit(cache=True, error_model='numpy')
-def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
+def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books, pol=None):
     """Trace one path (the module docstring's transport) entering the stack from above along
     ``d`` (``-l``; unit, ``d_z < 0``), drawing from the xoshiro256** stream ``state``
     (uint64[4], seeded by the driver from the path's key, :mod:`goniometer.kernel.rng`).
@@ -92,7 +105,12 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
     ``stack``: the kernels' stack argument (:data:`goniometer.kernel.variants.KernelStack`: the
     packed arrays and the facts the run derived once); ``height_correlated``: the masking
     (bool); ``event_cap``: the most events of a path; ``books``: float64[:data:`N_BOOKS`], zeroed by
-    the driver, to which the path adds its absorbed, masking and roulette weights (``B_*``).
+    the driver, to which the path adds its absorbed, masking and roulette weights (``B_*``);
+    ``pol``: None (scalar light), or a polarized path's state (:mod:`goniometer.kernel.polarized`,
+    set up by the driver), which every event then changes too: the path's weights are its Mueller
+    matrices' ``[0, 0]``, a Fresnel event's change of them booked as absorbed (signed per path: the
+    reflection's and refraction's choice is the unpolarized one, ``docs/polarization.md``), and at the
+    exit the frames are the exit beam's s/p frame.
 
     Returns ``(kind, dx, dy, dz, w0, w1, w2, order, single, based, events)``: how the path ended
     (``X_*``), its exit direction and weight (the capped weight for ``X_CAPPED``), its bounce order
@@ -130,6 +148,7 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
         if tm >= TAU_SCATTER:
             tau = stack.region_tau
             alb = stack.region_albedo
+            v0, v1, v2 = w0, w1, w2
             scattered, hpos, dx, dy, dz, w0, w1, w2, ab0, ab1, ab2, hero, q0, q1, q2 = free_flight(
                 tm == TAU_SCATTER, tau[region, 0], tau[region, 1], tau[region, 2], alb[region, 0], alb[region, 1],
                 alb[region, 2], stack.region_g[region], hpos, dx, dy, dz, w0, w1, w2, books[B_ABSORBED],
@@ -137,6 +156,10 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
             books[B_ABSORBED] = ab0
             books[B_ABSORBED + 1] = ab1
             books[B_ABSORBED + 2] = ab2
+            if pol is not None:
+                polarized.rescale(pol, v0, v1, v2, w0, w1, w2)
+                if scattered:
+                    polarized.depolarize(pol, 1.0, 1.0, 1.0, dx, dy, dz)
         elif tm != 0:
             inv_mu = 1.0 / abs(dz)
             a0 = math.exp(-stack.region_tau[region, 0] * inv_mu)
@@ -147,6 +170,8 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
                 a1 = math.exp(-stack.region_tau[region, 1] * inv_mu)
                 a2 = math.exp(-stack.region_tau[region, 2] * inv_mu)
             w0, w1, w2 = _absorb(books, w0, w1, w2, a0, a1, a2)
+            if pol is not None:
+                polarized.scale(pol, a0, a1, a2)
         # ---- what lies at the end of this traversal
         at_interface = True
         k = -1
@@ -178,6 +203,8 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
             w0, w1, w2 = _absorb(books, w0, w1, w2, stack.rho[0], stack.rho[1], stack.rho[2])
             qx, qy = next_disk(state)
             dx, dy, dz = optics.cosine_from_disk(qx, qy)
+            if pol is not None:
+                polarized.depolarize(pol, stack.rho[0], stack.rho[1], stack.rho[2], dx, dy, dz)
         # ---- interface event
         if at_interface:
             events += 1
@@ -214,8 +241,10 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
                     # masking loss); each further microfacet bounce counts toward the event cap
                     ox, oy, oz, f0, f1, f2, nb, transmitted = microsurface_walk(
                         wx, wy, wz, ax, ay, is_cond, cond, stack.g_is_r, stack.b_is_g, eta, inv_eta,
-                        max(1, event_cap - events + 1), state, True, stack.if_film[k], from_above)
-                    if is_cond or filmed:
+                        max(1, event_cap - events + 1), state, True, stack.if_film[k], from_above, pol, c, s)
+                    if pol is not None:
+                        w0, w1, w2 = _fresnel_books(books, pol, w0, w1, w2)
+                    elif is_cond or filmed:
                         w0, w1, w2 = _absorb(books, w0, w1, w2, f0, f1, f2)
                     if k == 0:
                         single = nb == 1
@@ -230,23 +259,41 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
                     wm = wx * mx + wy * my + wz * mz
                     transmitted = False
                     cos_t = 0.0
+                    if pol is not None:
+                        # the plane of incidence on the microfacet, in the stack's frame
+                        polarized.to_plane(pol, dx, dy, dz, c * mx - s * my, s * mx + c * my, mz if from_above else -mz)
                     if filmed:
                         # the thin film, from the side the light arrives from
                         r0, r1, r2, t0, t1, t2 = film_rt3(wm, stack.if_film[k], from_above)
                         if is_cond:
-                            w0, w1, w2 = _absorb(books, w0, w1, w2, r0, r1, r2)
+                            if pol is None:
+                                w0, w1, w2 = _absorb(books, w0, w1, w2, r0, r1, r2)
+                            else:
+                                polarized.film(pol, wm, stack.if_film[k], from_above, True, 1.0)
                         else:
                             _, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
                             refl, a0, a1, a2 = film_choice(next_float(state), r0, r1, r2, t0, t1, t2)
-                            w0, w1, w2 = _absorb(books, w0, w1, w2, a0, a1, a2)
+                            if pol is None:
+                                w0, w1, w2 = _absorb(books, w0, w1, w2, a0, a1, a2)
+                            else:
+                                polarized.film(pol, wm, stack.if_film[k], from_above, refl,
+                                               film_p(r0, r1, r2, t0, t1, t2))
                             transmitted = not refl
                     elif is_cond:
-                        f0, f1, f2 = optics.fresnel_conductor_channels(wm, cond[0], cond[3], cond[1], cond[4],
-                                                                       cond[2], cond[5], stack.g_is_r, stack.b_is_g)
-                        w0, w1, w2 = _absorb(books, w0, w1, w2, f0, f1, f2)
+                        if pol is None:
+                            f0, f1, f2 = optics.fresnel_conductor_channels(wm, cond[0], cond[3], cond[1], cond[4],
+                                                                           cond[2], cond[5], stack.g_is_r,
+                                                                           stack.b_is_g)
+                            w0, w1, w2 = _absorb(books, w0, w1, w2, f0, f1, f2)
+                        else:
+                            polarized.conductor(pol, wm, cond)
                     else:
                         f, cos_t = optics.fresnel_dielectric_cos_t_inv(wm, eta, inv_eta)
                         transmitted = next_float(state) >= f
+                        if pol is not None:
+                            polarized.dielectric(pol, wm, eta, not transmitted, f)
+                    if pol is not None:
+                        w0, w1, w2 = _fresnel_books(books, pol, w0, w1, w2)
                     if transmitted:
                         ox, oy, oz = optics.refract_known(wx, wy, wz, mx, my, mz, inv_eta, wm, cos_t)
                     else:
@@ -269,6 +316,8 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
                     w0 *= g
                     w1 *= g
                     w2 *= g
+                    if pol is not None:
+                        polarized.scale(pol, g, g, g)
                 if rot:
                     tx = c * ox - s * oy
                     oy = s * ox + c * oy
@@ -293,9 +342,13 @@ def trace_path(stack, dx, dy, dz, height_correlated, event_cap, state, books):
                     w0 *= 1.0 / p
                     w1 *= 1.0 / p
                     w2 *= 1.0 / p
+                    if pol is not None:
+                        polarized.scale(pol, 1.0 / p, 1.0 / p, 1.0 / p)
                 else:
                     books[B_ROULETTE] += w0
                     books[B_ROULETTE + 1] += w1
                     books[B_ROULETTE + 2] += w2
                     break
+    if pol is not None and (kind == X_REFLECTED or kind == X_TRANSMITTED):
+        polarized.to_exit(pol, dx, dy, dz)
     return kind, dx, dy, dz, w0, w1, w2, order, single, based, events

@@ -19,6 +19,7 @@ import numpy as np
 
 from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.grids.slice_grid import cell_index_fast
+from goniometer.kernel import polarized
 from goniometer.kernel.codegen import prefetch
 from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
                                       E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE)
@@ -69,9 +70,20 @@ def _book(energy, energy_sq, row, x0, x1, x2):
     energy_sq[row, 2] += x2 * x2
 
 
+@numba.njit(cache=True, error_model='numpy', _nrt=False)
+def _deposit_mueller(mh, i, j, pol):
+    """Add a polarized exit's Mueller matrices to cell ``(i, j)`` of ``mh`` (n_theta, n_phi, 32, 3):
+    rows 0-15 the elements, rows 16-31 their squares, per channel."""
+    for e in range(16):
+        for c in range(3):
+            v = pol[c, e]
+            mh[i, j, e, c] += v
+            mh[i, j, 16 + e, c] += v * v
+
+
 @numba.njit(cache=True, error_model='numpy')
 def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, height_correlated,
-                event_cap, skip_first, outs):
+                event_cap, skip_first, outs, polar=None):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.kernel.rng.chunk_key`)
     one after the other for light direction ``l`` and accumulate into the given arrays (arguments
     as :func:`goniometer.kernel.tracer._trace_chunk`'s: ``stack``, ``tables`` and ``outs`` tuples;
@@ -92,14 +104,19 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     int64. ``skip_first``: reflected exits of bounce order 1 whose top event was one microfacet
     reflection (on a multiple-scattering top, a walk of one bounce) are booked in ``energy`` but
     not deposited (``first_order = "integrated"``, :mod:`goniometer.run.first_order`).
+    ``polar``: None (scalar light), or the initial state of a polarized path
+    (:func:`goniometer.kernel.polarized.initial_state`); each exit's Mueller matrices then go to
+    ``mbrdf``/``mbtdf`` (the last two of ``outs``: (n_theta, n_phi, 2 * 16, 3), the 16 elements'
+    sums then their squares' per channel; ``docs/polarization.md``).
     """
     row_cos, col_cos, col_sin = tables
-    brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
+    brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w, mbrdf, mbtdf = outs
     hr = brdf.reshape(-1)
     ht = btdf.reshape(-1)
     row = (max_order + 2) * 3
     state = np.empty(4, dtype=np.uint64)
     books = np.empty(N_BOOKS)
+    pol = np.empty((4, 16)) if polar is not None else None
     tabulate = param == P_TABULATE
     n_events = 0
     n_capped = 0
@@ -114,8 +131,10 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
         seed_state(state, path_key(ckey, np.uint64(r)))
         plx, ply, plz = path_light(state, tabulate, lx, ly, lz)
         books[:] = 0.0
+        if polar is not None:
+            polarized.start(pol, polar, -plx, -ply, -plz)
         kind, dx, dy, dz, w0, w1, w2, order, single, based, events = trace_path(
-            stack, -plx, -ply, -plz, height_correlated, event_cap, state, books)
+            stack, -plx, -ply, -plz, height_correlated, event_cap, state, books, pol)
         n_events += events
         refl = kind == X_REFLECTED
         trans = kind == X_TRANSMITTED
@@ -136,6 +155,8 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
                 elif pend == 2:
                     _deposit(ht, pbase, po, max_order, pw0, pw1, pw2)
                 pend, pbase, po, pw0, pw1, pw2 = 2 if trans else 1, base, o, w0, w1, w2
+                if polar is not None:
+                    _deposit_mueller(mbtdf if trans else mbrdf, i, j, pol)
         if refl:
             _book(energy, energy_sq, E_REFLECTED, w0, w1, w2)
             if not based:

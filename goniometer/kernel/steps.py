@@ -23,6 +23,7 @@ from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_D
                                       F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, LANES,
                                       ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED, ST_TRANSMITTED)
 from goniometer.kernel.rng import next_disk, next_float, seed_state
+from goniometer.kernel import polarized
 from goniometer.kernel.packing import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
 LN = LANES
@@ -68,6 +69,26 @@ def film_choice(u, r0, r1, r2, t0, t1, t2):
         return True, r0 * q, r1 * q, r2 * q
     q = s_rt / max(s_rt - s_r, 1e-300)
     return False, t0 * q, t1 * q, t2 * q
+
+
+@numba.njit(cache=True, error_model='numpy', inline="always")
+def film_p(r0, r1, r2, t0, t1, t2):
+    """The probability :func:`film_choice` reflects with."""
+    s_r = r0 + r1 + r2
+    return s_r / max(s_r + t0 + t1 + t2, 1e-300)
+
+
+@numba.njit(cache=True, error_model='numpy', inline="always")
+def _walk_frame(pol, vx, vy, vz, mx, my, mz, inside, up, rc, rs):
+    """Turn a polarized walk's frame to the plane of incidence of a bounce: the ray travelling along
+    ``v`` onto the microfacet ``m``, both in the walk's frame (negated ``inside``; the interface's
+    tangent frame of the arrival side, rotated by ``(rc, rs)``, its z the stack's if ``up``), taken to
+    the stack's frame (:func:`goniometer.kernel.polarized.to_plane`)."""
+    sg = -1.0 if inside else 1.0
+    zs = 1.0 if up else -1.0
+    kx, ky, kz = sg * vx, sg * vy, sg * vz
+    nx, ny, nz = sg * mx, sg * my, sg * mz
+    polarized.to_plane(pol, rc * kx - rs * ky, rs * kx + rc * ky, zs * kz, rc * nx - rs * ny, rs * nx + rc * ny, zs * nz)
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -130,7 +151,7 @@ def free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1,
 
 @numba.njit(cache=True, error_model='numpy')
 def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces, state,
-                      film=None, fr=None, from_above=True):
+                      film=None, fr=None, from_above=True, pol=None, rc=1.0, rs=0.0):
     """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
     GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
 
@@ -154,6 +175,12 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, 
     factors ``R_c / P``, and otherwise refracts (the film-free direction), factors
     ``T_c / (1 - P)`` (``docs/material-format.md``, thin films).
 
+    With ``pol`` a polarized path's state (:mod:`goniometer.kernel.polarized`), every bounce also
+    applies its Fresnel event's Mueller matrix to it (divided by the probability of the choice it
+    made), in the stack's frame: ``(rc, rs)`` the cosine and sine of the interface's tangent-frame
+    rotation, ``from_above`` whether the local frame's z is the stack's; the returned factors are then
+    1 (``pol`` carries them).
+
     Returns ``(ox, oy, oz, f0, f1, f2, n, transmitted)``: the exit direction (``o_z > 0``
     reflected, ``< 0`` transmitted), the product of the conductor's Fresnel factors per channel
     (1 for a dielectric; the film's factors with a film) and the number ``n >= 1`` of microfacet
@@ -162,14 +189,14 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, 
     """
     if film is None:
         return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
-                         max_bounces, state, None, np.empty(0), True)
+                         max_bounces, state, None, np.empty(0), from_above, pol, rc, rs)
     return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
-                     max_bounces, state, film, fr, from_above)
+                     max_bounces, state, film, fr, from_above, pol, rc, rs)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces,
-              state, film, fr, from_above):
+              state, film, fr, from_above, pol=None, rc=1.0, rs=0.0):
     """:func:`microsurface_walk` from a given point of the walk: the ray travels along ``v`` at
     height CDF ``c`` after ``n`` bounces, on the far side of the microsurface if ``inside`` (there
     ``v`` and ``c`` are in the flipped frame); with ``hit`` its next hit is already drawn, at ``c``.
@@ -196,22 +223,30 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, cond, g_is_r, b_
         qx, qy = next_disk(state)
         mx, my, mz = optics.sample_vndf_disk(ix, iy, iz, ax, ay, qx, qy)
         im = ix * mx + iy * my + iz * mz
+        if pol is not None:
+            _walk_frame(pol, vx, vy, vz, mx, my, mz, inside, from_above, rc, rs)
         if fon:
             # the film, seen from the side this bounce's light arrives from
             r0, r1, r2, t0, t1, t2 = film_rt3(im, fr, from_above != inside)
             if conductor:
-                f0 *= r0
-                f1 *= r1
-                f2 *= r2
+                if pol is None:
+                    f0 *= r0
+                    f1 *= r1
+                    f2 *= r2
+                else:
+                    polarized.film(pol, im, fr, from_above != inside, True, 1.0)
                 vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
             else:
                 e = inv_eta if inside else eta
                 ie = eta if inside else inv_eta
                 _, cos_t = optics.fresnel_dielectric_cos_t_inv(im, e, ie)
                 refl, a0, a1, a2 = film_choice(next_float(state), r0, r1, r2, t0, t1, t2)
-                f0 *= a0
-                f1 *= a1
-                f2 *= a2
+                if pol is None:
+                    f0 *= a0
+                    f1 *= a1
+                    f2 *= a2
+                else:
+                    polarized.film(pol, im, fr, from_above != inside, refl, film_p(r0, r1, r2, t0, t1, t2))
                 if refl:
                     vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
                 else:
@@ -224,17 +259,23 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, cond, g_is_r, b_
         elif conductor:
             # (the complex index read where it is used: on a GPU it then takes no registers through
             # the walk's other branches)
-            r0, r1, r2 = optics.fresnel_conductor_channels(im, cond[0], cond[3], cond[1], cond[4], cond[2], cond[5],
-                                                           g_is_r, b_is_g)
-            f0 *= r0
-            f1 *= r1
-            f2 *= r2
+            if pol is None:
+                r0, r1, r2 = optics.fresnel_conductor_channels(im, cond[0], cond[3], cond[1], cond[4], cond[2],
+                                                               cond[5], g_is_r, b_is_g)
+                f0 *= r0
+                f1 *= r1
+                f2 *= r2
+            else:
+                polarized.conductor(pol, im, cond)
             vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
         else:
             e = inv_eta if inside else eta
             ie = eta if inside else inv_eta
             f, cos_t = optics.fresnel_dielectric_cos_t_inv(im, e, ie)
-            if next_float(state) < f:
+            refl = next_float(state) < f
+            if pol is not None:
+                polarized.dielectric(pol, im, e, refl, f)
+            if refl:
                 vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
             else:
                 tx, ty, tz = optics.refract_known(ix, iy, iz, mx, my, mz, ie, im, cos_t)
@@ -282,7 +323,7 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
     ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from(
         S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1, True,
         if_alpha[k, 0], if_alpha[k, 1], is_cond, cond, g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs,
-        film, if_film[k], from_above)
+        film, if_film[k], from_above, None, 1.0, 0.0)
     st = ST_ALIVE
     if is_cond or (False if film is None else if_film[k, FL_ON] != 0.0):
         w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)

@@ -134,6 +134,9 @@ class Launch:
     skip_first: bool
     device: str
     derived: Derived
+    #: a polarized run's initial path state (:func:`goniometer.kernel.polarized.initial_state`; the
+    #: incident beam's s/p frame), None for scalar light
+    polar: np.ndarray | None = None
 
     @property
     def stack_args(self) -> KernelStack:
@@ -167,16 +170,29 @@ class Launch:
 def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int, stream: int, param: int,
             n_theta: int, n_phi: int, tables: tuple, max_order: int, event_cap: int, skip_first: bool = False,
             height_correlated: bool = False, tabulate: bool = False, kernel: int = KERNEL_AUTO,
-            device: str = "cpu") -> Launch:
+            device: str = "cpu", polarized: bool = False, phi_deg: float = 0.0) -> Launch:
     """The :class:`Launch` of a run: the stack's facts, the variant and the kernels' derived
     arguments worked out once. ``device``: ``"cpu"`` or ``"cuda"`` (:mod:`goniometer.kernel.cuda`,
-    one kernel for every stack; ``kernel`` then must be ``KERNEL_AUTO``)."""
+    one kernel for every stack; ``kernel`` then must be ``KERNEL_AUTO``). ``polarized``: trace
+    polarized light (``docs/polarization.md``), the incident beam's s/p frame taking its limit along
+    the azimuth ``phi_deg`` at the normal (a tabulation's paths take their own); on the CPU the
+    per-path kernel traces it (the lane kernel's vectorised event carries no Mueller matrices)."""
     if device not in ("cpu", "cuda"):
         raise ValueError(f"device: {device!r}: the kernels trace on cpu or cuda")
     if device != "cpu" and kernel != KERNEL_AUTO:
         raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
     facts = stack_facts(packed)
+    if polarized and device == "cpu":
+        kernel = KERNEL_PATHS
     variant = variant_flags(facts, height_correlated, tabulate, kernel)
+    polar = None
+    if polarized:
+        from goniometer import optics
+        from goniometer.kernel.polarized import initial_state
+        phi = np.radians(phi_deg)
+        frame = (0.0, 0.0, 0.0) if tabulate else optics.normal_frame(-light[0], -light[1], -light[2], -np.cos(phi),
+                                                                      -np.sin(phi))
+        polar = initial_state(frame)
     p = packed
     table, off = stack_table(p.if_alpha, p.if_rot, p.if_ms, facts.eta_dn, facts.eta_up, p.region_tau, p.region_albedo,
                              p.region_g, facts.tau_mode, facts.n_if, facts.conductor, p.if_film,
@@ -186,19 +202,25 @@ def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int,
                          f"({STACK_BLOCK}): too many layers")
     return Launch(facts, variant, (float(light[0]), float(light[1]), float(light[2])), int(n_rays), int(chunk_rays),
                   int(seed), int(stream), int(param), int(n_theta), int(n_phi), tuple(tables), int(max_order),
-                  int(event_cap), bool(skip_first), device, derive(facts, table, off))
+                  int(event_cap), bool(skip_first), device, derive(facts, table, off), polar)
 
 
-def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = None, parallel: bool = True) -> None:
+def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = None, parallel: bool = True,
+           mueller: tuple | None = None) -> None:
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` of ``run`` into ``outs`` = (brdf, btdf,
     energy, energy_sq, counts), each with a leading dimension B (one slot per chunk, zeroed here;
     the layouts of :func:`_trace_chunk`); ``exits`` = (exit_cell, exit_w) per path for a
     tabulation (None: none). On the CPU ``parallel`` runs the chunks on numba's threads (the
     caller sets their number), otherwise one after the other: the same bits. A ``"cuda"`` run
-    traces on the GPU (:func:`goniometer.kernel.cuda.trace_batch`)."""
+    traces on the GPU (:func:`goniometer.kernel.cuda.trace_batch`). ``mueller``: a polarized run's
+    (mbrdf, mbtdf), (B, n_theta, n_phi, 32, 3) each (:func:`goniometer.kernel.paths.trace_paths`)."""
     B = outs[0].shape[0]
     if exits is None:
         exits = np.empty((B, 0), dtype=np.int64), np.empty((B, 0, 3))
+    if (mueller is None) != (run.polar is None):
+        raise ValueError("mueller: a polarized launch needs its Mueller histograms, a scalar one has none")
+    if mueller is None:
+        mueller = (np.empty((B, 0, 0, 0, 3)),) * 2
     sizes = run.chunk_sizes(first_chunk, B)
     if run.device == "cuda":
         check_device(run.device)
@@ -206,7 +228,8 @@ def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = Non
         cuda.trace_batch(run, first_chunk, sizes, outs, exits)
         return
     kernel = _trace_batch if parallel else _trace_batch_serial
-    kernel(run.stack_args, run.scalars(first_chunk), run.tables, sizes, *run.variant, tuple(outs) + tuple(exits))
+    kernel(run.stack_args, run.scalars(first_chunk), run.tables, sizes, *run.variant,
+           tuple(outs) + tuple(exits) + tuple(mueller), run.polar)
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -331,7 +354,7 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
 
 @numba.njit(cache=True, error_model='numpy')
 def _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
-                b_is_g, aniso, ms, film, outs):
+                b_is_g, aniso, ms, film, outs, polar):
     """Zero histogram slot ``b`` of ``outs`` and trace chunk ``first_chunk + b`` (``sizes[b]``
     rays) into it.
 
@@ -356,12 +379,14 @@ def _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate
     slot[3].fill(0.0)
     slot[4].fill(0)
     slot[5].fill(-1)
+    outs[7][b].fill(0.0)
+    outs[8][b].fill(0.0)
     if n <= 0:
         return
     ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(first_chunk + b))
     if lanes is None:
         trace_paths(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order,
-                    height_correlated is not None, event_cap, skip_first, slot)
+                    height_correlated is not None, event_cap, skip_first, slot + (outs[7][b], outs[8][b]), polar)
     else:
         _trace_chunk(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
                      height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, slot)
@@ -369,18 +394,18 @@ def _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
 def _trace_batch(stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
-                 b_is_g, aniso, ms, film, outs):
+                 b_is_g, aniso, ms, film, outs, polar):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
     (:func:`_trace_slot`, which gives the arguments; :func:`launch` makes them from a
     :class:`Launch`). Output arrays carry a leading dimension B (the batch)."""
     for b in numba.prange(outs[0].shape[0]):
         _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor,
-                    g_is_r, b_is_g, aniso, ms, film, outs)
+                    g_is_r, b_is_g, aniso, ms, film, outs, polar)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def _trace_batch_serial(stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor,
-                        g_is_r, b_is_g, aniso, ms, film, outs):
+                        g_is_r, b_is_g, aniso, ms, film, outs, polar):
     """:func:`_trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
@@ -388,4 +413,4 @@ def _trace_batch_serial(stack, run, tables, sizes, lanes, height_correlated, tab
     """
     for b in range(outs[0].shape[0]):
         _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor,
-                    g_is_r, b_is_g, aniso, ms, film, outs)
+                    g_is_r, b_is_g, aniso, ms, film, outs, polar)

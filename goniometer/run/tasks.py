@@ -17,7 +17,7 @@ import numba
 import numpy as np
 
 from goniometer.kernel import tracer
-from goniometer.run.results import IncidentPart, Sums
+from goniometer.run.results import N_MUELLER, IncidentPart, Sums
 from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import PARAMETRIZATIONS, boundary_tables, light_direction
 from goniometer.stack import Stack
@@ -34,7 +34,8 @@ def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
         return tuple(sorted({run_variant(st, s) for _, st, s in launch_stacks(stack, settings)}, key=repr))
     flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
     key = (flags, settings.parametrization, settings.first_order)
-    return key if settings.device == "cpu" else key + (settings.device,)
+    key = key if settings.device == "cpu" else key + (settings.device,)
+    return key + ("polarized",) if settings.polarized else key
 
 
 def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = None) -> float:
@@ -90,12 +91,16 @@ def n_tasks(settings: SimulationSettings) -> int:
 
 
 def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[np.ndarray, ...]:
-    """Per-chunk output arrays of the kernel for ``n`` chunks (reusable between calls)."""
+    """Per-chunk output arrays of the kernel for ``n`` chunks (reusable between calls), in the order
+    of :class:`Sums`' fields (a polarized run's Mueller histograms last)."""
     nt, nph = settings.resolution
     k2 = settings.max_order + 2
     bt = (nt, nph) if stack.transmits else (1, 1)
-    return (np.empty((n, nt, nph, k2, 3)), np.empty((n,) + bt + (k2, 3)), np.empty((n, tracer.N_ENERGY, 3)),
-            np.empty((n, tracer.N_ENERGY_SQ, 3)), np.empty((n, tracer.N_COUNTS), dtype=np.int64))
+    out = (np.empty((n, nt, nph, k2, 3)), np.empty((n,) + bt + (k2, 3)), np.empty((n, tracer.N_ENERGY, 3)),
+           np.empty((n, tracer.N_ENERGY_SQ, 3)), np.empty((n, tracer.N_COUNTS), dtype=np.int64))
+    if settings.polarized:
+        out += (np.empty((n, nt, nph, 2 * N_MUELLER, 3)), np.empty((n,) + bt + (2 * N_MUELLER, 3)))
+    return out
 
 
 def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
@@ -130,9 +135,9 @@ def _add_task(acc: Sums, outs: tuple[np.ndarray, ...], first: int, last: int) ->
     """``acc += (task sum of chunks first .. last - 1)``, bit for bit what adding the
     :func:`trace_tasks` sum does, without materialising it: each histogram element's chunk values
     are added in chunk order and the total added to ``acc`` in one pass (:func:`_add_chunk_sum`)."""
-    for a, o in zip((acc.brdf, acc.btdf), outs[:2]):
+    for a, o in zip((acc.brdf, acc.btdf, acc.mbrdf, acc.mbtdf), outs[:2] + outs[5:]):
         _add_chunk_sum(a.reshape(-1), o.reshape(o.shape[0], -1), first, last)
-    for a, o in zip((acc.energy, acc.energy_sq, acc.counts), outs[2:]):
+    for a, o in zip((acc.energy, acc.energy_sq, acc.counts), outs[2:5]):
         total = o[first].copy()
         for b in range(first + 1, last):
             total += o[b]
@@ -180,7 +185,8 @@ def _kernel_inputs(stack: Stack, settings: SimulationSettings, m: int) -> tracer
     return tracer.prepare(pack(stack), l, settings.rays, settings.chunk_rays, settings.seed, m,
                           PARAMETRIZATIONS[settings.parametrization], nt, nph, tables, settings.max_order,
                           settings.event_cap, settings.first_order == "integrated",
-                          height_correlated=settings.masking == "height-correlated", device=settings.device)
+                          height_correlated=settings.masking == "height-correlated", device=settings.device,
+                          polarized=settings.polarized, phi_deg=settings.incident_phi_deg[m])
 
 
 def _run_kernel(run: tracer.Launch, settings: SimulationSettings, first_chunk: int, outs: tuple[np.ndarray, ...],
@@ -188,7 +194,7 @@ def _run_kernel(run: tracer.Launch, settings: SimulationSettings, first_chunk: i
     """Trace chunks ``first_chunk .. first_chunk + len(outs[0]) - 1`` into ``outs``."""
     if parallel and run.device == "cpu":
         numba.set_num_threads(tracer.thread_count(settings.threads))
-    tracer.launch(run, first_chunk, outs, parallel=parallel)
+    tracer.launch(run, first_chunk, outs[:5], parallel=parallel, mueller=outs[5:] if len(outs) > 5 else None)
 
 
 def task_rays(settings: SimulationSettings, task: int) -> int:

@@ -1,0 +1,164 @@
+"""The polarized state of a path and the events that change it (``docs/polarization.md``).
+
+A polarized path carries ``pol``, a float64 (4, 16) array: rows 0 to 2 the accumulated Mueller
+matrices of its three channels (row-major 4 x 4 each; the incident beam's Stokes vector to the
+path's), row 3 the x axis of the path's Stokes frame (columns 0 to 2, a unit vector normal to the
+path's direction, in the stack's frame). The path's weight of channel ``c`` is ``pol[c, 0]``: the
+intensity it carries for unpolarized light.
+
+Every frame is handled in the stack's frame (z the macro-surface normal; right-handed), never in
+an interface's local frame, whose z flips for light from below: a Fresnel event turns the frame
+about the path's direction to the ``s`` of the microfacet's plane of incidence
+(:func:`to_plane`), applies the event's Mueller matrix there (:mod:`goniometer.optics`,
+polarization) and keeps ``s`` as the new frame. Lambertian bases and Henyey-Greenstein
+scattering depolarize (:func:`depolarize`); absorption and masking scale all four Stokes
+components alike.
+
+A path chooses between reflection and refraction as an unpolarized one does (probability the
+unpolarized Fresnel reflectance, or a film's ``P``) and divides the event's Mueller matrix by
+that probability: the same random choices as a scalar run, an unbiased estimate of every element.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from goniometer import optics
+from goniometer.kernel.packing import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0
+
+#: the row of ``pol`` that holds the frame's x axis
+P_FRAME = 3
+
+
+def initial_state(x: tuple[float, float, float]) -> np.ndarray:
+    """A path's ``pol`` at its start: identity Mueller matrices and the incident beam's frame ``x``
+    (:func:`goniometer.optics.normal_frame` of ``-l``, ``docs/polarization.md`` section 2)."""
+    pol = np.zeros((4, 16))
+    pol[:3, [0, 5, 10, 15]] = 1.0
+    pol[P_FRAME, :3] = x
+    return pol
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def start(pol, polar, dx, dy, dz) -> None:
+    """Reset ``pol`` to the driver's initial state ``polar`` (:func:`initial_state`); for a path
+    that drew its own light direction (a tabulation, ``polar`` has a zero frame) the frame of its
+    incident direction ``d``."""
+    for i in range(4):
+        for j in range(16):
+            pol[i, j] = polar[i, j]
+    if polar[P_FRAME, 0] == 0.0 and polar[P_FRAME, 1] == 0.0 and polar[P_FRAME, 2] == 0.0:
+        n = math.sqrt(dx * dx + dy * dy)
+        hx = dx / n if n > 0.0 else 1.0
+        hy = dy / n if n > 0.0 else 0.0
+        pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2] = optics.normal_frame(dx, dy, dz, hx, hy)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def to_frame(pol, kx, ky, kz, sx, sy, sz) -> None:
+    """Turn every channel's Stokes frame about the path's direction ``k`` to the unit ``s``."""
+    c2, s2 = optics.stokes_rotation(kx, ky, kz, pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2], sx, sy, sz)
+    for ch in range(3):
+        optics.mueller_rotate(pol, ch, c2, s2)
+    pol[P_FRAME, 0] = sx
+    pol[P_FRAME, 1] = sy
+    pol[P_FRAME, 2] = sz
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def to_plane(pol, kx, ky, kz, mx, my, mz) -> None:
+    """Turn the frames to the ``s = normalize(m x k)`` of the plane of incidence of the path (along
+    ``k``) on the microfacet of normal ``m``; at normal incidence on the microfacet, where any frame
+    is the event's, the frame stays."""
+    sx = my * kz - mz * ky
+    sy = mz * kx - mx * kz
+    sz = mx * ky - my * kx
+    n2 = sx * sx + sy * sy + sz * sz
+    if n2 < 1e-28:
+        return
+    inv = 1.0 / math.sqrt(n2)
+    to_frame(pol, kx, ky, kz, sx * inv, sy * inv, sz * inv)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def to_exit(pol, dx, dy, dz) -> None:
+    """Turn the frames to the exit beam's s/p frame (``docs/polarization.md`` section 2)."""
+    n = math.sqrt(dx * dx + dy * dy)
+    hx = dx / n if n > 0.0 else 1.0
+    hy = dy / n if n > 0.0 else 0.0
+    sx, sy, sz = optics.normal_frame(dx, dy, dz, hx, hy)
+    to_frame(pol, dx, dy, dz, sx, sy, sz)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def scale(pol, f0, f1, f2) -> None:
+    """Absorption, masking, Russian roulette: every element of channel ``c`` times ``f_c``."""
+    for j in range(16):
+        pol[0, j] *= f0
+        pol[1, j] *= f1
+        pol[2, j] *= f2
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def rescale(pol, w0, w1, w2, v0, v1, v2) -> None:
+    """Channel ``c`` from weight ``w_c`` to weight ``v_c`` (a free flight's change, computed on the
+    weights): every element times ``v_c / w_c``."""
+    scale(pol, v0 / w0 if w0 != 0.0 else 0.0, v1 / w1 if w1 != 0.0 else 0.0, v2 / w2 if w2 != 0.0 else 0.0)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def depolarize(pol, f0, f1, f2, dx, dy, dz) -> None:
+    """A depolarizing event of albedos ``f_c`` (a Lambertian base, a Henyey-Greenstein scattering),
+    the path leaving along ``d``: its light unpolarized, its frame any normal to ``d``."""
+    optics.mueller_depolarize(pol, 0, f0)
+    optics.mueller_depolarize(pol, 1, f1)
+    optics.mueller_depolarize(pol, 2, f2)
+    n = math.sqrt(dx * dx + dy * dy)
+    hx = dx / n if n > 0.0 else 1.0
+    hy = dy / n if n > 0.0 else 0.0
+    pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2] = optics.normal_frame(dx, dy, dz, hx, hy)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def weights(pol):
+    """The path's weights: each channel's intensity for unpolarized light, ``M[0, 0]``."""
+    return pol[0, 0], pol[1, 0], pol[2, 0]
+
+
+@numba.njit(cache=True, error_model='numpy')
+def dielectric(pol, cos_i, eta, reflected, p) -> None:
+    """A dielectric microfacet (relative index ``eta``) at ``cos_i``: the reflection's or the
+    refraction's Mueller matrix on every channel, divided by its probability (``p`` the reflection's)."""
+    ra, rb, rc, rs, ta, tb, tc, ts = optics.fresnel_dielectric_mueller(cos_i, eta)
+    for ch in range(3):
+        if reflected:
+            optics.mueller_event(pol, ch, ra, rb, rc, rs, 1.0 / p)
+        else:
+            optics.mueller_event(pol, ch, ta, tb, tc, ts, 1.0 / (1.0 - p))
+
+
+@numba.njit(cache=True, error_model='numpy')
+def conductor(pol, cos_i, cond) -> None:
+    """A conductor microfacet of packed relative index ``cond`` (``n`` per channel, then ``k``)."""
+    for ch in range(3):
+        a, b, c, s = optics.fresnel_conductor_mueller(cos_i, cond[ch], cond[3 + ch])
+        optics.mueller_event(pol, ch, a, b, c, s, 1.0)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def film(pol, cos_i, fr, down, reflected, p) -> None:
+    """A microfacet under a thin film (packed row ``fr``; ``down``: the light arrives from above, as
+    :func:`goniometer.kernel.steps.film_rt3`): the reflection's Mueller matrix (a filmed conductor:
+    ``p`` 1) or the refraction's, divided by its probability ``p`` (the reflection's)."""
+    n_in = fr[FL_NA] if down else fr[FL_NB0]
+    for ch in range(3):
+        ra, rb, rc, rs, ta, tb, tc, ts = optics.film_mueller(
+            cos_i, n_in, fr[FL_N0 + ch], fr[FL_K0 + ch], fr[FL_NB0 + ch] if down else fr[FL_NA],
+            fr[FL_KB0 + ch] if down else 0.0, fr[FL_DL0 + ch])
+        if reflected:
+            optics.mueller_event(pol, ch, ra, rb, rc, rs, 1.0 / p)
+        else:
+            optics.mueller_event(pol, ch, ta, tb, tc, ts, 1.0 / (1.0 - p))
