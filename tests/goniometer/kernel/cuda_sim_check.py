@@ -11,6 +11,7 @@ assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
 
 import numpy as np  # noqa: E402
 
+from goniometer.run.settings import EVENT_CAP  # noqa: E402
 from goniometer.kernel import tracer  # noqa: E402
 from goniometer.kernel.onepath import FIXED_SCALE, trace_keyed_chunk  # noqa: E402
 from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
@@ -33,7 +34,7 @@ def check(name, rays, cr, hc=False):
     nb = -(-rays // cr)
     l = light_direction(40.0, 10.0)
     tables = boundary_tables("classic", *RES)
-    run = tracer.prepare(p, l, rays, cr, 7, 0, 0, *RES, tables, K, tracer.EVENT_CAP, height_correlated=hc,
+    run = tracer.prepare(p, l, rays, cr, 7, 0, 0, *RES, tables, K, EVENT_CAP, height_correlated=hc,
                          device="cuda")
     got = outs(nb, stack.transmits)
     tracer.launch(run, 0, got)
@@ -45,7 +46,7 @@ def check(name, rays, cr, hc=False):
         trace_keyed_chunk(*(getattr(p, k) for k in ("if_alpha", "if_rot", "if_ms", "if_film", "region_tau",
                                                     "region_albedo", "region_g", "cond", "rho", "base_kind")),
                           f.tau_mode, f.eta_dn, f.eta_up, *l, min(cr, rays - b * cr), 7, 0, b, 0, *RES, *tables, K,
-                          tracer.EVENT_CAP, False, hc, *(o[b] for o in want), np.empty(0, dtype=np.int64),
+                          EVENT_CAP, False, hc, *(o[b] for o in want), np.empty(0, dtype=np.int64),
                           np.empty((0, 3)))
     # the same paths: the integer sums differ from float64 ones by the rounding of each addend
     tol = 4.0 * rays / FIXED_SCALE
@@ -71,7 +72,7 @@ def check_tabulation(name, rays, cr):
     nb = -(-rays // cr)
     tables = boundary_tables("classic", 1, 1)
     run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, 5, TAB_STREAM, tracer.P_TABULATE, 1, 1, tables, 1,
-                         tracer.EVENT_CAP, tabulate=True, device="cuda")
+                         EVENT_CAP, tabulate=True, device="cuda")
     o = (np.empty((nb, 1, 1, 3, 3)), np.empty((nb, 1, 1, 3, 3)), np.empty((nb, tracer.N_ENERGY, 3)),
          np.empty((nb, tracer.N_ENERGY_SQ, 3)), np.empty((nb, tracer.N_COUNTS), dtype=np.int64))
     cells, w = np.empty((nb, cr), dtype=np.int64), np.empty((nb, cr, 3))
@@ -84,7 +85,7 @@ def check_tabulation(name, rays, cr):
         trace_keyed_chunk(*(getattr(p, k) for k in ("if_alpha", "if_rot", "if_ms", "if_film", "region_tau",
                                                     "region_albedo", "region_g", "cond", "rho", "base_kind")),
                           f.tau_mode, f.eta_dn, f.eta_up, 0.0, 0.0, 1.0, n, 5, TAB_STREAM, b, tracer.P_TABULATE, 1, 1,
-                          *tables, 1, tracer.EVENT_CAP, False, False, *scratch, want_c, want_w)
+                          *tables, 1, EVENT_CAP, False, False, *scratch, want_c, want_w)
         assert np.array_equal(cells[b, :n], want_c), (name, b)
         assert np.allclose(w[b, :n], want_w, rtol=1e-15, atol=0.0), (name, b)
         assert np.array_equal(o[4][b], scratch[4]), (name, b)

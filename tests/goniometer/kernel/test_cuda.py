@@ -16,7 +16,7 @@ import pytest
 
 from goniometer.kernel import tracer
 from goniometer.cli import main
-from goniometer.run.settings import SettingsError, SimulationSettings
+from goniometer.run.settings import EVENT_CAP, SettingsError, SimulationSettings
 from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.kernel.packing import pack
 from goniometer.testing import Z_TOL, chi2_limit
@@ -91,7 +91,7 @@ def _twin(stack, seed, height_correlated=False):
         trace_keyed_chunk(*(getattr(p, k) for k in ("if_alpha", "if_rot", "if_ms", "if_film", "region_tau",
                                                     "region_albedo", "region_g", "cond", "rho", "base_kind")),
                           f.tau_mode, f.eta_dn, f.eta_up, *l, min(cr, two.RAYS - b * cr), seed, 0, b, 0, *two.RES,
-                          *boundary_tables("classic", *two.RES), two.K, tracer.EVENT_CAP, False, height_correlated,
+                          *boundary_tables("classic", *two.RES), two.K, EVENT_CAP, False, height_correlated,
                           *out, np.empty(0, dtype=np.int64), np.empty((0, 3)))
     return out
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from goniometer.run.settings import EVENT_CAP
 from goniometer.kernel import tracer
 from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack
@@ -72,7 +73,7 @@ def _trace(stack: Stack, kernel: int, seed: int, height_correlated: bool = False
     energy = np.empty((nb, tracer.N_ENERGY, 3))
     energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
     counts = np.empty((nb, tracer.N_COUNTS), dtype=np.int64)
-    run = tracer.prepare(p, l, RAYS, cr, seed, 0, 0, *RES, boundary_tables("classic", *RES), K, tracer.EVENT_CAP,
+    run = tracer.prepare(p, l, RAYS, cr, seed, 0, 0, *RES, boundary_tables("classic", *RES), K, EVENT_CAP,
                          height_correlated=height_correlated, kernel=kernel)
     tracer.launch(run, 0, (brdf, btdf, energy, energy_sq, counts))
     return brdf.sum(0), btdf.sum(0), energy.sum(0), energy_sq.sum(0), counts.sum(0)
@@ -144,7 +145,7 @@ def _tabulate_energy(stack: Stack, kernel: int, seed: int, rays: int = 200_000):
     energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
     exit_w = np.empty((nb, cr, 3))
     run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, seed, 9, tracer.P_TABULATE, 1, 1,
-                         boundary_tables("classic", 1, 1), 1, tracer.EVENT_CAP, tabulate=True, kernel=kernel)
+                         boundary_tables("classic", 1, 1), 1, EVENT_CAP, tabulate=True, kernel=kernel)
     tracer.launch(run, 0, (np.empty((nb, 1, 1, 3, 3)), np.empty((nb, 1, 1, 3, 3)), energy, energy_sq,
                            np.empty((nb, tracer.N_COUNTS), dtype=np.int64)),
                   (np.empty((nb, cr), dtype=np.int64), exit_w))
