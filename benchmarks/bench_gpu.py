@@ -28,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from goniometer.run.settings import EVENT_CAP  # noqa: E402
 from goniometer.kernel import tracer  # noqa: E402
 from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
 from goniometer.kernel.packing import pack  # noqa: E402
@@ -58,13 +59,13 @@ def measure(stack, grid: str, rays: int, device: str, chunk_rays: int = 1 << 17)
     if grid == "merl":
         res = (1, 1)
         run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, chunk_rays, 1, 9, tracer.P_TABULATE, 1, 1,
-                             boundary_tables("classic", 1, 1), 1, tracer.EVENT_CAP, tabulate=True, device=device)
+                             boundary_tables("classic", 1, 1), 1, EVENT_CAP, tabulate=True, device=device)
         K = 1
         exits = (np.empty((nb, chunk_rays), dtype=np.int64), np.empty((nb, chunk_rays, 3)))
     else:
         res = (90, 360)
         run = tracer.prepare(p, light_direction(45.0, 0.0), rays, chunk_rays, 1, 0, 0, *res,
-                             boundary_tables("classic", *res), K, tracer.EVENT_CAP, device=device)
+                             boundary_tables("classic", *res), K, EVENT_CAP, device=device)
         exits = None
     outs = _outs(nb, res, K, stack.transmits)
     tracer.launch(run, 0, outs, exits)           # compile, first touch

@@ -22,7 +22,7 @@ from models.lut.definition import ior_from_f0
 from models.lut.quantities import conductor_extinction, incident_elevations
 from models.lut.writers import c_float, header_text, png16
 
-from tests.conftest import Z_TOL
+from goniometer.testing import Z_TOL
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "lut"
 

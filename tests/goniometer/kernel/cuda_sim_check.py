@@ -13,6 +13,7 @@ assert os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
 import numpy as np  # noqa: E402
 
 from goniometer.kernel import tracer  # noqa: E402
+from goniometer.run.settings import EVENT_CAP  # noqa: E402
 from goniometer.kernel.cuda import FIXED_SCALE  # noqa: E402
 from goniometer.grids.slice_grid import boundary_tables, light_direction  # noqa: E402
 from goniometer.kernel.packing import pack  # noqa: E402
@@ -33,12 +34,12 @@ def check(name, rays, cr, hc=False):
     p = pack(stack)
     l = light_direction(40.0, 10.0)
     tables = boundary_tables("classic", *RES)
-    run = tracer.prepare(p, l, rays, cr, 7, 0, 0, *RES, tables, K, tracer.EVENT_CAP, height_correlated=hc,
+    run = tracer.prepare(p, l, rays, cr, 7, 0, 0, *RES, tables, K, EVENT_CAP, height_correlated=hc,
                          device="cuda")
     nb = run.n_chunks
     got = outs(nb, stack.transmits)
     tracer.launch(run, 0, got)
-    twin = tracer.prepare(p, l, rays, cr, 7, 0, 0, *RES, tables, K, tracer.EVENT_CAP, height_correlated=hc,
+    twin = tracer.prepare(p, l, rays, cr, 7, 0, 0, *RES, tables, K, EVENT_CAP, height_correlated=hc,
                           kernel=tracer.KERNEL_PATHS)
     want = outs(nb, stack.transmits)
     tracer.launch(twin, 0, want)
@@ -67,7 +68,7 @@ def check_tabulation(name, rays, cr):
 
     def traced(kernel, device):
         run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, 5, TAB_STREAM, tracer.P_TABULATE, 1, 1, tables, 1,
-                             tracer.EVENT_CAP, tabulate=True, kernel=kernel, device=device)
+                             EVENT_CAP, tabulate=True, kernel=kernel, device=device)
         nb = run.n_chunks
         o = (np.empty((nb, 1, 1, 3, 3)), np.empty((nb, 1, 1, 3, 3)), np.empty((nb, tracer.N_ENERGY, 3)),
              np.empty((nb, tracer.N_ENERGY_SQ, 3)), np.empty((nb, tracer.N_COUNTS), dtype=np.int64))

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from goniometer.run.settings import EVENT_CAP
 from goniometer.kernel import tracer
 from goniometer.cli import main
 from goniometer.run.settings import SettingsError, SimulationSettings

@@ -67,7 +67,7 @@ def _trace(stack: Stack, kernel: int, seed: int, height_correlated: bool = False
     p = pack(stack)
     l = light_direction(40.0, 10.0)
     run = tracer.prepare(p, l, RAYS, 1 << 14, seed, 0, 0, *RES, boundary_tables("classic", *RES), K,
-                         tracer.EVENT_CAP, height_correlated=height_correlated, kernel=kernel)
+                         EVENT_CAP, height_correlated=height_correlated, kernel=kernel)
     nb = run.n_chunks
     bt = RES if stack.transmits else (1, 1)
     brdf = np.empty((nb,) + RES + (K + 2, 3))
@@ -145,7 +145,7 @@ def _tabulate_energy(stack: Stack, kernel: int, seed: int, rays: int = 200_000):
     p = pack(stack)
     cr = 1 << 14
     run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, seed, 9, tracer.P_TABULATE, 1, 1,
-                         boundary_tables("classic", 1, 1), 1, tracer.EVENT_CAP, tabulate=True, kernel=kernel)
+                         boundary_tables("classic", 1, 1), 1, EVENT_CAP, tabulate=True, kernel=kernel)
     nb = run.n_chunks
     energy = np.empty((nb, tracer.N_ENERGY, 3))
     energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
