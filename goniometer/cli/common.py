@@ -58,6 +58,14 @@ def add_device(parser) -> None:
                              f"docs/gpu.md) (default: cpu)")
 
 
+def add_polarized(parser) -> None:
+    """Add ``--polarized`` (docs/polarization.md) to a command's parser."""
+    parser.add_argument("--polarized", action="store_true", default=None,
+                        help="trace polarized light: every path carries Mueller matrices and the file holds each "
+                             "cell's Mueller matrix beside its intensity (docs/polarization.md) "
+                             f"(default: {FROM_FILE}scalar light)")
+
+
 def add_spectral(parser) -> None:
     """Add ``--spectral`` and ``--wavelength-bins`` (docs/spectral.md) to a command's parser."""
     parser.add_argument("--spectral", action="store_true", default=None,

@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from goniometer.cli.common import (FROM_FILE, THREADS_HELP, ResumeAware, UsageError, add_device, add_overwrite,
-                                   add_spectral, compile_kernels, incident_list, output_path, progress_bar, resolution,
-                                   sigint_latch, thread_number, usage_errors, whole_number)
+                                   add_polarized, add_spectral, compile_kernels, incident_list, output_path,
+                                   progress_bar, resolution, sigint_latch, thread_number, usage_errors, whole_number)
 
 def settings_defaults() -> dict[str, str]:
     """The defaults of :class:`~goniometer.run.settings.SimulationSettings` as the help prints them."""
@@ -62,6 +62,7 @@ def register(sub) -> None:
                    help="every interface scatters multiply on its microsurface (Heitz et al. 2016); "
                         "the file's recorded stack shows it")
     add_spectral(p)
+    add_polarized(p)
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoints an interrupted run left (.FILE.h5.partial) and trace from the "
                         "start (default: resume them; checkpoints of other settings or another code version are "
@@ -111,7 +112,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.resolution is not None:
         over["resolution"] = resolution(args.resolution)
     for key in ("rays", "parametrization", "seed", "threads", "masking", "max_order", "first_order", "spectral",
-                "wavelength_bins", "device"):
+                "wavelength_bins", "device", "polarized"):
         value = getattr(args, key)
         if value is not None:
             over[key] = value
@@ -145,6 +146,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     total = per * len(settings.incident_deg)
     spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {per // settings.rays} launch(es) "
                 f"of {settings.rays:,} paths" if settings.spectral else "")
+    spectral += ", polarized (Mueller matrices, docs/polarization.md)" if settings.polarized else ""
     print(f"simulating {stack.name} ({stack.category}): {len(settings.incident_deg)} incident direction(s) x "
           f"{settings.rays:,} rays{spectral}, {settings.parametrization} {settings.resolution[0]}x"
           f"{settings.resolution[1]}, {thread_count(settings.threads)} thread(s)", file=sys.stderr)
@@ -239,7 +241,7 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     if args.rgl_grid is not None or grid is None:
         grid = grid_for(stack, *(parse_grid(args.rgl_grid) if args.rgl_grid is not None else (None, None, None)))
     fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
-                                            "spectral", "wavelength_bins", "device")}
+                                            "spectral", "wavelength_bins", "device", "polarized")}
     fields.update({k: v for k, v in over.items() if k != "parametrization"})
     if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):   # refused before tracing
         source = "--rgl-grid" if args.rgl_grid is not None else f"{args.config}: simulation.rgl_grid"
@@ -306,7 +308,7 @@ def info_dict(path: Path) -> dict[str, Any]:
             "incident_deg": list(s.incident_deg), "incident_phi_deg": list(s.incident_phi_deg),
             "rays": s.rays, "parametrization": s.parametrization, "resolution": list(s.resolution),
             "seed": s.seed, "masking": s.masking, "max_order": s.max_order, "chunk_rays": s.chunk_rays,
-            "first_order": s.first_order, "spectral": s.spectral,
+            "first_order": s.first_order, "spectral": s.spectral, "polarized": s.polarized,
         },
         "sides": ["brdf"] + (["btdf"] if r.btdf is not None else []),
         "energy": [],
@@ -368,6 +370,9 @@ def cmd_info(args: argparse.Namespace) -> int:
           f"slices: {', '.join(d['sides'])}")
     if s["first_order"] == "integrated":
         print("  bounce order 1 integrated over the cells, not traced (its standard error is 0)")
+    if s["polarized"]:
+        print("  polarized: each cell holds its Mueller matrix (mueller, mueller_stderr; s/p frames of each beam's "
+              "plane of incidence, docs/polarization.md); value is its [0, 0]")
     if "spectral" in d:
         sp = d["spectral"]
         print(f"  spectral: {sp['wavelength_bins']} wavelength bins, {sp['wavelength_nm'][0]:.1f}-"

@@ -246,3 +246,25 @@ def test_polarized_files_and_settings(tmp_path, slab_run):
         g.SimulationSettings(polarized=True, first_order="integrated")
     with pytest.raises(SettingsError, match="polarized: 'yes' is not a boolean"):
         g.SimulationSettings(polarized="yes")
+
+
+def test_gonio_simulate_polarized_and_info(tmp_path, capsys):
+    """--polarized, or [simulation] polarized = true, writes a polarized file that info describes;
+    --first-order integrated with it is one line, exit 2."""
+    from goniometer.cli import main
+    from tests.conftest import PLASTIC_TOML
+    cfg = tmp_path / "p.toml"
+    cfg.write_text(PLASTIC_TOML + "[simulation]\nincident_deg = [30]\nrays = 3000\nresolution = [3, 6]\n")
+    out = tmp_path / "p.h5"
+    assert main(["simulate", str(cfg), "--out", str(out), "--polarized", "--threads", "1"]) == 0
+    assert g.read(out).brdf.mueller.shape == (1, 3, 3, 6, 4, 4)
+    capsys.readouterr()
+    assert main(["info", str(out)]) == 0
+    assert "polarized: each cell holds its Mueller matrix" in capsys.readouterr().out
+    cfg.write_text(cfg.read_text() + "polarized = true\n")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "q.h5"), "--threads", "1"]) == 0
+    assert g.read(tmp_path / "q.h5").settings.polarized
+    capsys.readouterr()
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "r.h5"), "--first-order", "integrated"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "first_order: integrated is for scalar runs" in err, err
