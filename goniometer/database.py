@@ -91,6 +91,9 @@ class Database:
     description: str = ""
     spectral: bool = False
     wavelength_bins: int = DEFAULT_WAVELENGTH_BINS
+    #: every material traced with polarized light (``docs/polarization.md``; ``[simulation] polarized``
+    #: or ``gonio database simulate --polarized``)
+    polarized: bool = False
 
     def __post_init__(self) -> None:
         if self.spectral is False and self.wavelength_bins != DEFAULT_WAVELENGTH_BINS:
@@ -106,7 +109,8 @@ class Database:
         return SimulationSettings(incident_deg=self.incident_deg, rays=self.qualities[quality],
                                   parametrization=parametrization, resolution=self.resolution,
                                   seed=self.seed, masking=self.masking, threads=threads,
-                                  spectral=self.spectral, wavelength_bins=self.wavelength_bins)
+                                  spectral=self.spectral, wavelength_bins=self.wavelength_bins,
+                                  polarized=self.polarized)
 
     def fingerprint(self) -> str:
         """Hash of everything that determines the results (names, stacks, settings;
@@ -118,6 +122,8 @@ class Database:
         if self.spectral:
             doc["spectral"] = True
             doc["wavelength_bins"] = self.wavelength_bins
+        if self.polarized:   # (a scalar database keeps its fingerprint)
+            doc["polarized"] = True
         return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
     def select(self, only: str | None) -> list[Material]:
@@ -193,7 +199,8 @@ def load_database(path: str | Path) -> Database:
                   resolution=tuple(sim.get("resolution", (90, 360))), seed=sim.get("seed", 1),
                   masking=sim.get("masking", "separable"), qualities=dict(qualities),
                   materials=tuple(materials), description=description,
-                  spectral=sim.get("spectral", False), wavelength_bins=sim.get("wavelength_bins", DEFAULT_WAVELENGTH_BINS))
+                  spectral=sim.get("spectral", False), wavelength_bins=sim.get("wavelength_bins", DEFAULT_WAVELENGTH_BINS),
+                  polarized=sim.get("polarized", False))
     try:   # every parametrization the materials use (one if they expand to none): the rest is shared
         for parametrization in dict.fromkeys(m.parametrization for m in materials) or DATABASE_PARAMETRIZATIONS[:1]:
             for q in qualities:
@@ -405,6 +412,8 @@ def _manifest(db: Database, quality: str) -> dict:
     if db.spectral:
         out["spectral"] = True
         out["wavelength_bins"] = db.wavelength_bins
+    if db.polarized:
+        out["polarized"] = True
     return out
 
 

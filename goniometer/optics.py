@@ -487,11 +487,16 @@ def fresnel_dielectric_mueller(cos_i: float, eta: float):
         rs, rp, _, _ = _verdet(cos_i, complex(eta, 0.0), cos_t)
         ra, rb, rc, rs_ = mueller_terms(rs, rp, 1.0)
         return ra, rb, rc, rs_, 0.0, 0.0, 0.0, 0.0
+    # below the critical angle every amplitude is real (the same formulas as _verdet's)
     ct = math.sqrt(1.0 - sin2_t)
-    rs, rp, ts, tp = _verdet(cos_i, complex(eta, 0.0), complex(ct, 0.0))
-    ra, rb, rc, rs_ = mueller_terms(rs, rp, 1.0)
-    ta, tb, tc, tsn = mueller_terms(ts, tp, eta * ct / cos_i)
-    return ra, rb, rc, rs_, ta, tb, tc, tsn
+    ec = eta * ct
+    rs = (cos_i - ec) / (cos_i + ec)
+    rp = (eta * cos_i - ct) / (eta * cos_i + ct)
+    ts = 2.0 * cos_i / (cos_i + ec)
+    tp = 2.0 * cos_i / (eta * cos_i + ct)
+    f = ec / cos_i
+    return (0.5 * (rs * rs + rp * rp), 0.5 * (rs * rs - rp * rp), rs * rp, 0.0,
+            0.5 * f * (ts * ts + tp * tp), 0.5 * f * (ts * ts - tp * tp), f * ts * tp, 0.0)
 
 
 @numba.njit(cache=True, error_model='numpy')

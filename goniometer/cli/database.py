@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -39,6 +40,10 @@ def register(sub) -> None:
     q.add_argument("--overwrite", action="store_true",
                    help="simulate the selected finished materials again and replace their files (default: "
                         "finished materials are skipped; docs/outputs.md)")
+    q.add_argument("--polarized", action="store_true",
+                   help="trace every material with polarized light, the same rays per slice: the definition's "
+                        "polarized twin, into its own results directory (docs/polarization.md) (default: the "
+                        "definition's [simulation] polarized, else scalar light)")
     q.add_argument("--restart", action="store_true",
                    help="discard the checkpoints of the selected unfinished materials (DIR/.partial) and trace them "
                         "from the start (default: resume them; checkpoints of another run or code version are "
@@ -100,6 +105,8 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
     from goniometer.run.tasks import run_variant, warm_up_runs
     started = time.time()   # files written after it are this run's (an interrupt says how many)
     db = _load_definition(args.config)
+    if args.polarized:
+        db = dataclasses.replace(db, polarized=True)
     with usage_errors(DatabaseError):
         materials = db.select(args.only)
         if args.quality not in db.qualities:
@@ -115,6 +122,7 @@ def cmd_database_simulate(args: argparse.Namespace) -> int:
                 db, Path(args.out), m, args.quality) != "done"])
     spectral = (f", spectral: {db.wavelength_bins} wavelength bins ({db.qualities[args.quality]:,} paths per bin "
                 f"and slice)" if db.spectral else f" ({db.qualities[args.quality]:,} rays per slice)")
+    spectral += ", polarized light" if db.polarized else ""
     print(f"{db.name}: {len(materials)} material(s), quality {args.quality}{spectral}, into {args.out}",
           file=sys.stderr)
 

@@ -133,18 +133,21 @@ def dielectric(pol, cos_i, eta, reflected, p) -> None:
     """A dielectric microfacet (relative index ``eta``) at ``cos_i``: the reflection's or the
     refraction's Mueller matrix on every channel, divided by its probability (``p`` the reflection's)."""
     ra, rb, rc, rs, ta, tb, tc, ts = optics.fresnel_dielectric_mueller(cos_i, eta)
+    if not reflected:
+        ra, rb, rc, rs, p = ta, tb, tc, ts, 1.0 - p
     for ch in range(3):
-        if reflected:
-            optics.mueller_event(pol, ch, ra, rb, rc, rs, 1.0 / p)
-        else:
-            optics.mueller_event(pol, ch, ta, tb, tc, ts, 1.0 / (1.0 - p))
+        optics.mueller_event(pol, ch, ra, rb, rc, rs, 1.0 / p)
 
 
 @numba.njit(cache=True, error_model='numpy')
 def conductor(pol, cos_i, cond) -> None:
-    """A conductor microfacet of packed relative index ``cond`` (``n`` per channel, then ``k``)."""
-    for ch in range(3):
-        a, b, c, s = optics.fresnel_conductor_mueller(cos_i, cond[ch], cond[3 + ch])
+    """A conductor microfacet of packed relative index ``cond`` (``n`` per channel, then ``k``; a
+    channel with its predecessor's index shares its matrix)."""
+    a, b, c, s = optics.fresnel_conductor_mueller(cos_i, cond[0], cond[3])
+    optics.mueller_event(pol, 0, a, b, c, s, 1.0)
+    for ch in range(1, 3):
+        if cond[ch] != cond[ch - 1] or cond[3 + ch] != cond[2 + ch]:
+            a, b, c, s = optics.fresnel_conductor_mueller(cos_i, cond[ch], cond[3 + ch])
         optics.mueller_event(pol, ch, a, b, c, s, 1.0)
 
 

@@ -268,3 +268,8 @@ def test_gonio_simulate_polarized_and_info(tmp_path, capsys):
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "r.h5"), "--first-order", "integrated"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "first_order: integrated is for scalar runs" in err, err
+
+
+def test_a_polarized_run_on_cuda_is_refused_in_one_line():
+    with pytest.raises(SettingsError, match="polarized: the cuda kernel traces scalar light only"):
+        g.SimulationSettings(polarized=True, device="cuda")
