@@ -25,9 +25,10 @@ def register(sub) -> None:
     p.add_argument("--isotropize", choices=("mean",),
                    help="let isotropic models evaluate anisotropic stacks with the mean roughness "
                         "(default: isotropic models skip anisotropic stacks)")
-    p.add_argument("--compare-to", metavar="SS_RESULTS_DIR",
-                   help="results of the single-scattering twin of this multiple-scattering database: "
-                        "adds multiple-scattering.md/.json (default: no comparison)")
+    p.add_argument("--compare-to", metavar="TWIN_RESULTS_DIR",
+                   help="results of the twin of this database: the single-scattering twin of a multiple-scattering "
+                        "database (adds multiple-scattering.md/.json), or the scalar twin of a polarized one (adds "
+                        "polarization.md/.json, docs/polarization.md) (default: no comparison)")
     add_overwrite(p)
     p.set_defaults(func=cmd_report)
 

@@ -30,6 +30,7 @@ from models.report.files import safe_part, write_json, write_text
 from models.report.multiple_scattering import evaluate_twins, multiple_scattering_markdown, multiple_scattering_section
 from models.report.html import html_data, render_html
 from models.report.panels import save_figure
+from models.report.polarization import polarization_markdown, polarization_section
 from models.report.reproduction import reproduction_checks, reproduction_markdown
 from models.report.results import MaterialResult, ReportError, open_results
 from models.report.spheres import FIGURE1_FILE, figure1, is_figure1, material_spheres
@@ -62,6 +63,9 @@ class ReportSummary:
     appendix_e: dict | None = None
     #: the multiple-scattering table (:mod:`models.report.multiple_scattering`) with ``compare_to``
     multiple_scattering: dict | None = None
+    #: the polarization table (:mod:`models.report.polarization`) with ``compare_to`` naming the scalar
+    #: twin of polarized results
+    polarization: dict | None = None
     #: Bati 2019 figure 1 (:func:`models.report.spheres.figure1`) when the results hold its material
     figure1: dict | None = None
     #: figures not drawn, or drawn without their reference: ``[{"material", "figure", "reason"}]``
@@ -193,14 +197,29 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         single, twin_warnings = evaluate_twins(compare_to, out, [r.material.name for r in results], models,
                                                subcells, code, isotropize)
         summary.warnings.extend(twin_warnings)
-        sec = multiple_scattering_section(single, results)
+        if _polarized(results):
+            sec = polarization_section(single, results)
+            name, markdown = "polarization", polarization_markdown
+        else:
+            sec = multiple_scattering_section(single, results)
+            name, markdown = "multiple-scattering", multiple_scattering_markdown
         if not sec["materials"]:
             raise ReportError(f"--compare-to {compare_to}: no material name in common with {rd}")
-        write_json(out / "multiple-scattering.json", sec)
-        write_text(out / "multiple-scattering.md", multiple_scattering_markdown(sec))
-        summary.multiple_scattering = sec
+        write_json(out / f"{name}.json", sec)
+        write_text(out / f"{name}.md", markdown(sec))
+        if name == "polarization":
+            summary.polarization = sec
+        else:
+            summary.multiple_scattering = sec
     summary.elapsed_s = time.perf_counter() - t0
     return summary
+
+
+def _polarized(results: list[MaterialResult]) -> bool:
+    """True when the results are a polarized run's (their files say so, ``/simulation@polarized``)."""
+    import h5py
+    with h5py.File(results[0].material.path, "r") as f:
+        return bool(f["simulation"].attrs.get("polarized", False))
 
 
 def failure_warnings(material: str, failed: dict[str, str]) -> list[str]:
