@@ -223,3 +223,48 @@ def evaluate_material(mat: ReportMaterial, out: Path, models: Sequence[str] | No
              "elapsed_s": time.perf_counter() - t0}
     _save_cache(json_path, h5_path, entry, slices)
     return MaterialResult(mat, evaluation, key, slices, False), ref
+
+
+def warm_up_models(materials: Sequence[ReportMaterial], models: Sequence[str] | None, subcells: int,
+                   isotropize: str | None = None) -> None:
+    """Compile, or load from numba's cache, what evaluating ``materials`` calls, here, before worker
+    processes start (:mod:`models.workers`: two workers compiling one function at once would both
+    write it to the cache): for the first material of each (category, parametrization), the grid's
+    sub-cells, masks, solid angles and top-view pixels on a tiny grid of its kind, and every model
+    that applies evaluated at a few directions. Whatever fails here is left to the evaluation, which
+    reports it (a model's failure is one line of the report, never the warm-up's)."""
+    from goniometer.slices import SliceGrid, light_direction
+    from models.evaluation import isotropized
+    from models.report.geometry import pixel_map
+    seen = set()
+    for mat in materials:
+        if (mat.category, mat.parametrization) in seen:
+            continue
+        seen.add((mat.category, mat.parametrization))
+        try:
+            stack, _ = store.describe(mat.path)
+            side = comparison_side(stack)
+            grid = SliceGrid(mat.parametrization, 2, 4, "reflection" if side == "brdf" else "transmission")
+            light = light_direction(30.0, 0.0)
+            v, _ = grid.subcells(light, min(subcells, 2))
+            mask = grid.mask(light, min(subcells, 2))
+            grid.proj_solid_angle(light)
+            pixel_map(grid, light, mask, 4)
+        except Exception:  # noqa: BLE001 -- the evaluation reports what is wrong with the file
+            continue
+        names = models if models is not None else [n for n, m in registry.all_models().items() if not m.on_request]
+        try:
+            available = registry.models_for(list(names))
+        except ModelError:   # a bad adapter spec: the evaluation says so
+            continue
+        for name, model in available.items():
+            if name not in names:
+                continue
+            try:
+                model_stack = stack
+                if isotropize and not model.anisotropic:
+                    model_stack = isotropized(stack, isotropize)
+                if side in model.sides and model.reason(model_stack) is None:
+                    model.evaluate(model_stack, light, v.reshape(-1, 3)[:8], side)
+            except Exception:  # noqa: BLE001 -- a model's failure is the evaluation's to report
+                continue

@@ -65,8 +65,8 @@ def differences(got: object, want: object, where: str = "", rel: float = REL) ->
 
 @contextlib.contextmanager
 def built_in_models_only() -> Iterator[None]:
-    """Within the block the registry lists the built-in models only (no entry-point scan: worker
-    processes forked inside the block inherit it)."""
+    """Within the block the registry of this process lists the built-in models only (no entry-point
+    scan)."""
     from models import plugins
     real = plugins.entry_points
     plugins.entry_points = lambda group: []
@@ -78,19 +78,27 @@ def built_in_models_only() -> Iterator[None]:
         plugins.clear_cache()
 
 
-def build(tmp: Path, jobs: int | None = None) -> Path:
+def build(tmp: Path, jobs: int | None = None, name: str = "report") -> Path:
     """Simulate the tiny database into ``tmp / "results"`` (if not there) and build its report into
-    ``tmp / "report"``; returns the report directory."""
+    ``tmp / name``; returns the report directory."""
     from goniometer.database import load_database, simulate_database
     from models.report import build_report
     results = tmp / "results"
     if not results.exists():
         simulate_database(load_database(TINY), results, QUALITY)
-    out = tmp / "report"
+    out = tmp / name
     kwargs = {} if jobs is None else {"jobs": jobs}
-    with built_in_models_only():
-        build_report(results, out, **kwargs)
+    build_report(results, out, models=default_built_in_models(), **kwargs)
     return out
+
+
+def default_built_in_models() -> list[str]:
+    """The models a report evaluates by default, the installed plugins' left out, in registry order:
+    named explicitly, so that worker processes (which scan the installed plugins afresh) evaluate
+    the same ones."""
+    from models import registry
+    with built_in_models_only():
+        return [n for n, m in registry.all_models().items() if not m.on_request]
 
 
 def main(argv: list[str]) -> int:
