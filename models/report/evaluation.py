@@ -25,7 +25,7 @@ from models._jit import models_key
 from models.base import ModelError
 from models.compare.errors import NoCellsError, require_cells
 from models.evaluation import comparison_side, evaluate, group_name
-from models.report.files import material_dir, read_json, write_json
+from models.report.files import OnceWriter, material_dir, read_json, write_json
 from models.report.results import MaterialResult, ReportError, ReportMaterial
 
 CACHE_FORMAT = "goniometer.report-cache"
@@ -158,7 +158,8 @@ def round_mantissa(a: np.ndarray, bits: int = SLICE_CACHE_MANTISSA_BITS) -> np.n
 
 
 def _save_cache(json_path: Path, h5_path: Path, entry: dict, slices: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
-    """The integrated model slices (for figures only: float32 rounded by :func:`round_mantissa`;
+    """The integrated model slices (for figures only: float32 rounded by :func:`round_mantissa`,
+    each distinct array once, chunked per incident direction, :class:`models.report.files.OnceWriter`;
     the errors are computed at full precision and kept in the JSON) and the JSON entry."""
     h5_path.parent.mkdir(parents=True, exist_ok=True)
     with store.atomic_path(h5_path) as tmp:
@@ -166,12 +167,19 @@ def _save_cache(json_path: Path, h5_path: Path, entry: dict, slices: dict[str, t
             f.attrs["format"] = CACHE_FORMAT
             f.attrs["key"] = entry["key"]
             f.attrs["precision"] = f"float32 rounded to {SLICE_CACHE_MANTISSA_BITS} mantissa bits"
+            once = OnceWriter(f)
             for name, (top, internal) in slices.items():
                 g = f.create_group(group_name(name))
                 for part, arr in (("top", top), ("internal", internal)):
-                    g.create_dataset(part, data=round_mantissa(arr), chunks=True, compression="gzip",
-                                     compression_opts=4, shuffle=True)
+                    once.put(f"{g.name}/{part}", round_mantissa(arr))
     write_json(json_path, entry)  # written last: it vouches for the slices file by its key
+
+
+def figure_slices(slices: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The slices the figures are drawn from: as the cache keeps them (:func:`round_mantissa`, read
+    back as float64), so that figures drawn from a fresh evaluation and from the cache are the same."""
+    return {n: (round_mantissa(t).astype(np.float64), round_mantissa(i).astype(np.float64))
+            for n, (t, i) in slices.items()}
 
 
 def load_slices(h5_path: Path, key: str, names: Iterable[str]) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
@@ -222,7 +230,7 @@ def evaluate_material(mat: ReportMaterial, out: Path, models: Sequence[str] | No
              "reference_path": str(mat.path), "evaluation": evaluation, "subcells": subcells,
              "elapsed_s": time.perf_counter() - t0}
     _save_cache(json_path, h5_path, entry, slices)
-    return MaterialResult(mat, evaluation, key, slices, False), ref
+    return MaterialResult(mat, evaluation, key, figure_slices(slices), False), ref
 
 
 def warm_up_models(materials: Sequence[ReportMaterial], models: Sequence[str] | None, subcells: int,
