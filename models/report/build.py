@@ -24,9 +24,9 @@ from typing import Callable, Sequence
 from models import registry
 from models.base import ModelError
 from models.report.appendix_e import appendix_e_markdown, appendix_e_section, is_appendix_e
-from models.report.evaluation import evaluate_material, model_code_key, report_code_key, warm_up_models
+from models.report.evaluation import cache_paths, evaluate_material, model_code_key, report_code_key, warm_up_models
 from models.report.figures import material_figures, model_style
-from models.report.files import safe_part, write_json, write_text
+from models.report.files import read_json, safe_part, write_json, write_text
 from models.report.multiple_scattering import evaluate_twins, multiple_scattering_markdown, multiple_scattering_section
 from models.report.html import html_data, render_html
 from models.report.panels import save_figure
@@ -109,6 +109,8 @@ class _MaterialDone:
     drawn: bool | None
     evaluated_s: float
     figures_s: float
+    #: the time of each model that states its cost (``Model.cost_note``: the stochastic ones)
+    stochastic_s: dict[str, float] = field(default_factory=dict)
 
 
 def _material_step(job: _MaterialJob) -> _MaterialDone:
@@ -130,14 +132,26 @@ def _material_step(job: _MaterialJob) -> _MaterialDone:
     res.figures = {**res.figures, **spheres}
     t3 = time.perf_counter()
     res.slices = None   # free memory: the figures are on disk
-    return _MaterialDone(res, drawn, t2 - t1, t3 - t2)
+    return _MaterialDone(res, drawn, t2 - t1, t3 - t2, _stochastic_seconds(job, res))
+
+
+def _stochastic_seconds(job: _MaterialJob, res: MaterialResult) -> dict[str, float]:
+    """The time each model that states its cost took on this material (a fresh evaluation only)."""
+    if res.from_cache:
+        return {}
+    seconds = (read_json(cache_paths(job.out, res.material.name)[0]) or {}).get("model_elapsed_s", {})
+    analytic = registry.all_models()
+    return {n: t for n, t in seconds.items() if n in analytic and analytic[n].cost_note(1) is not None}
 
 
 def _done_message(name: str, d: _MaterialDone) -> str:
-    """The progress line of a finished material."""
+    """The progress line of a finished material (with the time of each stochastic model: the ones
+    that state their cost, ``Model.cost_note``)."""
     res = d.res
     n_models = len(res.evaluation["models"])
     ev = "from cache" if res.from_cache else f"evaluated in {d.evaluated_s:.1f} s"
+    if d.stochastic_s:
+        ev += " (" + ", ".join(f"{n} {t:.1f} s, stochastic" for n, t in d.stochastic_s.items()) + ")"
     fg = (f"drawn in {d.figures_s:.1f} s" if d.drawn else "up to date" if d.drawn is not None else "not drawn")
     if res.not_drawn:
         fg += f" ({len(res.not_drawn)} not drawn or without their reference)"

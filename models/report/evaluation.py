@@ -93,13 +93,15 @@ def judged_side(reference: SimulationResult, where: str) -> str:
 
 
 def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int,
-                   isotropize: str | None = None) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
+                   isotropize: str | None = None, seconds: dict[str, float] | None = None
+                   ) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time.
     Returns the ``gonio evaluate --json`` object (with ``failed``: model -> message for the models
     that failed, :class:`models.base.ModelFailure`, which :func:`models.evaluation.evaluate`
     records, and ``cells``, ``cells_total``: the support of every error) and model -> (top,
     internal). A reference without a valid cell on its side judges no model: each model is failed
-    with the reason (``docs/report.md``), and the other materials stand.
+    with the reason (``docs/report.md``), and the other materials stand. ``seconds``, if given,
+    receives each evaluated model's time (wall clock).
     """
     stack = reference.stack
     side = judged_side(reference, stack.name)
@@ -123,6 +125,7 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
     doc["cells"], doc["cells_total"] = cov.cells, cov.cells_total
     slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
+        t0 = time.perf_counter()
         try:
             ev = evaluate(reference, [name], s=subcells, isotropize=isotropize)
         except ModelError as e:
@@ -138,6 +141,8 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
                 doc.setdefault(key, {})[name] = getattr(ev, key)[name]
         ms = ev.slices[name]
         slices[name] = (ms.top, ms.internal)
+        if seconds is not None:
+            seconds[name] = time.perf_counter() - t0
     return doc, slices
 
 
@@ -225,10 +230,11 @@ def evaluate_material(mat: ReportMaterial, out: Path, models: Sequence[str] | No
         return MaterialResult(mat, cached["evaluation"], key, None, True), None
     ref = read_reference(mat.path)
     t0 = time.perf_counter()
-    evaluation, slices = run_evaluation(ref, models, subcells, isotropize)
+    seconds: dict[str, float] = {}
+    evaluation, slices = run_evaluation(ref, models, subcells, isotropize, seconds)
     entry = {"format": CACHE_FORMAT, "version": CACHE_VERSION, "key": key, "reference": digest,
              "reference_path": str(mat.path), "evaluation": evaluation, "subcells": subcells,
-             "elapsed_s": time.perf_counter() - t0}
+             "elapsed_s": time.perf_counter() - t0, "model_elapsed_s": seconds}
     _save_cache(json_path, h5_path, entry, slices)
     return MaterialResult(mat, evaluation, key, figure_slices(slices), False), ref
 
