@@ -319,6 +319,12 @@ def test_bad_input_raises_report_error(results_dir, tmp_path):
     with pytest.raises(ReportError) as e:
         build_report(broken, tmp_path / "out")
     assert str(bad) in str(e.value)
+    # raised in a worker process: the same error here, the other workers stopped, no temporary file left
+    with pytest.raises(ReportError) as e:
+        build_report(broken, tmp_path / "out-jobs", jobs=2)
+    assert str(bad) in str(e.value) and list((tmp_path / "out-jobs").rglob(".*.tmp-*")) == []
+    with pytest.raises(ReportError, match="jobs = 0: the number of worker processes must be a whole number >= 1"):
+        build_report(results_dir, tmp_path / "out", jobs=0)
     bad_manifest = tmp_path / "badmf"
     bad_manifest.mkdir()
     (bad_manifest / "database.json").write_text("{ not json")
