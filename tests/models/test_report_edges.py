@@ -195,13 +195,19 @@ def test_the_report_progress_keeps_its_last_words(plastics, tmp_path, capsys):
     assert last.endswith(" s]") and "figures drawn in" in last, last
 
 
+@pytest.fixture(scope="module")
+def tiny_results(tmp_path_factory) -> Path:
+    results = tmp_path_factory.mktemp("tiny") / "results"
+    simulate_database(load_database(TINY), results, "quick")
+    return results
+
+
 @pytest.mark.parametrize("who", ["group", "report"])
-def test_ctrl_c_stops_the_workers_and_a_rerun_resumes(tmp_path, who):
+def test_ctrl_c_stops_the_workers_and_a_rerun_resumes(tiny_results, tmp_path, who):
     """gonio report --jobs 2 interrupted once a material is cached: Ctrl-C at a terminal (the whole
     process group) or a SIGINT to the report alone (which passes it on to its workers): exit status
     130 and its one line, no traceback, no temporary file, no page; the rerun reuses what was cached."""
-    results, out = tmp_path / "results", tmp_path / "report"
-    simulate_database(load_database(TINY), results, "quick")
+    results, out = tiny_results, tmp_path / "report"
     proc = subprocess.Popen([sys.executable, "-m", "goniometer.cli", "report", str(results), "--out", str(out),
                              "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
