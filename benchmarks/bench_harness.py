@@ -86,7 +86,7 @@ def simulate_files(tmp: Path, rays: int) -> dict[str, Path]:
 
 def bench_evaluation(paths: dict[str, Path], repeats: int) -> list[dict]:
     """One row per (material, model, threads): ``seconds`` (best of ``repeats``) and ``first_s``."""
-    from goniometer import store
+    from goniometer.files import slices as store
     from models import registry
     from models.evaluation import comparison_side, evaluate
     rows = []
@@ -160,7 +160,7 @@ def _arrays(path: Path) -> dict[str, np.ndarray]:
 
 def bench_files(paths: dict[str, Path], tmp: Path) -> list[dict]:
     """Bytes now and as before, for each slices file and for the report cache of one metal."""
-    from goniometer import store
+    from goniometer.files import slices as store
     from models.report.evaluation import _save_cache, run_evaluation
     rows = []
     for name, path in paths.items():

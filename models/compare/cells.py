@@ -4,10 +4,10 @@ compare (:func:`grid_mask`), computed once per (grid, light direction, sub-cells
 every model and every material of a process (``docs/models.md`` §3, "Cost").
 
 A grid's sub-cells depend only on its parametrization, resolution and side, the light direction and
-``s`` (:meth:`goniometer.slices.SliceGrid.subcells`): every classic material of a database shares
+``s`` (:meth:`goniometer.grids.slice_grid.SliceGrid.subcells`): every classic material of a database shares
 one set per incident direction, every half material one set per incident direction too. The arrays
-are the very ones :meth:`~goniometer.slices.SliceGrid.subcells` and
-:meth:`~goniometer.slices.SliceGrid.mask` return (same values, same bits), made read-only, so that
+are the very ones :meth:`~goniometer.grids.slice_grid.SliceGrid.subcells` and
+:meth:`~goniometer.grids.slice_grid.SliceGrid.mask` return (same values, same bits), made read-only, so that
 a model cannot change what the next one reads. The cache holds at most :data:`CACHE_BYTES` of them,
 least recently used first out.
 """
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.slices import SliceGrid
+from goniometer.grids.slice_grid import SliceGrid
 
 #: the most the sub-cell cache keeps (bytes): the 7 incident directions of a 90 x 360 grid at
 #: 5 x 5 sub-cells take 182 MB (directions 19 MB and weights 6.5 MB per direction)
@@ -30,7 +30,7 @@ CACHE_BYTES = 400 * 2**20
 @dataclass(frozen=True)
 class CellGeometry:
     """The sub-cells of one grid for one light direction: ``v`` (N, 3) unit outgoing directions,
-    N = n_theta n_phi s s in the order of :meth:`~goniometer.slices.SliceGrid.subcells` (cell row,
+    N = n_theta n_phi s s in the order of :meth:`~goniometer.grids.slice_grid.SliceGrid.subcells` (cell row,
     cell column, sub-cell row, sub-cell column), ``w`` (n_theta, n_phi, s, s) their projected
     solid angles (sr) and ``inv`` (n_theta, n_phi) ``1 / sum(w)`` per cell (0 for a cell of no
     projected solid angle). Read-only."""

@@ -247,7 +247,7 @@ def warm_up_models(materials: Sequence[ReportMaterial], models: Sequence[str] | 
     sub-cells, masks, solid angles and top-view pixels on a tiny grid of its kind, and every model
     that applies evaluated at a few directions. Whatever fails here is left to the evaluation, which
     reports it (a model's failure is one line of the report, never the warm-up's)."""
-    from goniometer.slices import SliceGrid, light_direction
+    from goniometer.grids.slice_grid import SliceGrid, light_direction
     from models.evaluation import isotropized
     from models.report.geometry import pixel_map
     seen = set()

@@ -8,7 +8,7 @@ import numba
 import numpy as np
 import pytest
 
-from goniometer.slices import light_direction
+from goniometer.grids.slice_grid import light_direction
 from models import registry
 
 PARALLEL = ("ww09", "elek10", "ww-bati19", "multilayer-lut", "openpbr-coat", "standard-surface-coat")

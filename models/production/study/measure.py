@@ -102,7 +102,7 @@ def _measure_file(pair: tuple[Path, Path, bool]) -> Measurement:
 def _warm_up(coated: Path) -> None:
     """Compile, or load from numba's cache, belcour-fwd's evaluation and the grid's sub-cells here,
     before worker processes start (:mod:`models.workers`); what fails is the measurement's to say."""
-    from goniometer.slices import SliceGrid, light_direction
+    from goniometer.grids.slice_grid import SliceGrid, light_direction
     try:
         stack, _ = store.describe(coated)
         model = BelcourForward()
