@@ -129,8 +129,8 @@ def free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1,
 
 
 @numba.njit(cache=True, error_model='numpy')
-def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces, state,
-                      film=None, fr=None, from_above=True):
+def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces, state, film,
+                      fr, from_above):
     """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
     GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
 
@@ -152,7 +152,8 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, 
     ``from_above``: the walk began on the interface's upper side): a conductor reflects with the
     factors ``R_c``, a dielectric reflects with probability ``P = sum R_c / sum (R_c + T_c)``,
     factors ``R_c / P``, and otherwise refracts (the film-free direction), factors
-    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films).
+    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films). ``film`` None compiles the walk
+    without films (``fr``, an array all the same, is then not read).
 
     Returns ``(ox, oy, oz, f0, f1, f2, n, transmitted)``: the exit direction (``o_z > 0``
     reflected, ``< 0`` transmitted), the product of the conductor's Fresnel factors per channel
@@ -160,9 +161,6 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, 
     bounces; ``n = 0`` when the ray is still on the microsurface after ``max_bounces`` bounces
     (the caller books it as capped).
     """
-    if film is None:
-        return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
-                         max_bounces, state, None, np.empty(0), True)
     return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
                      max_bounces, state, film, fr, from_above)
 
