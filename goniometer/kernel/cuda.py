@@ -1,12 +1,24 @@
-"""The CUDA kernel (``docs/gpu.md``): one GPU thread per path, through numba-cuda.
+"""The CUDA kernel (``docs/gpu.md``): the GPU's driver of the per-path transport, one thread per path,
+through numba-cuda.
 
 Each thread traces one path with :func:`goniometer.kernel.onepath.trace_path` -- the per-path
 transport, the CPU per-path kernel's too (:mod:`goniometer.kernel.paths`): numba-cuda compiles the
 ``numba.njit`` functions a kernel calls for the device from the same Python source (the optics,
 the walks, the free flights, the cell lookup) -- seeded from the path's own key, so a path draws
-the same numbers on any device, in any thread, and on the CPU's per-path kernel. The grid is
+the same numbers on any device, in any thread, and in the CPU's per-path kernel. The grid is
 two-dimensional: ``blockIdx.y`` is the chunk slot, ``blockIdx.x * blockDim.x + threadIdx.x`` the
 path in the chunk.
+
+Registers: a thread keeps in shared memory what its path touches rarely or in bursts -- the path's
+record (its absorbed, masking and roulette weights, its state in scattering media,
+:data:`goniometer.kernel.onepath.N_RECORD` numbers), its random stream's state, a tabulation's
+light direction -- a column per thread, so that a warp reads consecutive words. The kernel has the
+per-path transport's variants, ``(height_correlated, film)`` (:func:`kernel_source`), each compiled
+on first use without the other's code, with launch bounds (:func:`kernel_options`): 128 threads and
+at least 4 blocks per multiprocessor, so ptxas keeps a thread within 128 registers (25 %
+occupancy), 3 blocks for a stack with a thin film (168 registers). ``tests/goniometer/kernel/test_cuda_compile.py``
+checks without a GPU that every variant compiles for sm_80 and sm_90 without spilling
+(:mod:`goniometer.kernel.cuda_build`).
 
 Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)`` (:func:`fixed_point`) with
 integer atomics, which commute, so a run's sums do not depend on the order in which threads
@@ -15,12 +27,6 @@ compiler. A block first sums into its shared memory (the energies always; the hi
 grid's two histograms fit, :data:`SHARED_BYTES`), then adds what it holds to global memory;
 otherwise it adds to global memory directly. The integers are turned into float64 at the end
 (``/ 2^32``).
-
-The kernel is compiled for :data:`BLOCK` threads per block and at least :data:`MIN_BLOCKS` blocks
-per multiprocessor (its launch bounds, :data:`KERNEL_OPTIONS`): ptxas then keeps a thread's
-registers within ``65536 / (BLOCK * MIN_BLOCKS)`` = 128, and
-``tests/goniometer/kernel/test_cuda_compile.py`` checks, without a GPU, that it compiles for sm_80
-and sm_90 without spilling (:mod:`goniometer.kernel.cuda_build`).
 
 This module imports ``numba.cuda``; :func:`goniometer.kernel.tracer.check_device` says why a run cannot
 use it (no numba-cuda, no GPU) before anything imports it. Under numba-cuda's simulator

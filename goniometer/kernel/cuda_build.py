@@ -4,15 +4,17 @@ and the theoretical occupancy that follows.
 
 Needs numba-cuda with its CUDA toolkit wheels (``pip install 'numba-cuda[cu12]'``: NVVM, and
 ``ptxas`` in the ``nvidia-cuda-nvcc`` wheel), not a driver or a GPU. The kernel compiled is the
-real one: each variant's :func:`goniometer.kernel.cuda.kernel_source` with
-:data:`goniometer.kernel.cuda.KERNEL_OPTIONS`, for the argument types of every launch the simulator
-makes (:func:`launch_signatures`).
+real one: each variant's :func:`goniometer.kernel.cuda.kernel_source` with its launch bounds
+(:func:`goniometer.kernel.cuda.kernel_options`), for the argument types of every launch the
+simulator makes (:func:`launch_signatures`).
 
 numba-cuda 0.30 asks the driver for the current device's compute capability when it compiles a
 device function that a kernel calls (``CUDADispatcher.compile_device``), even when the kernel
 itself is compiled for a given one (``numba.cuda.compile(..., cc=...)``); :func:`_compute_capability`
 answers that question with the target's while a compile runs. It changes no code numba-cuda
 generates: the PTX of the linked module is made for the target's architecture (``arch=sm_XX``).
+(numba-cuda compiles a device function once per process and argument types, for the first
+target asked; nothing the transport calls lowers differently for 8.0 and 9.0.)
 """
 
 from __future__ import annotations

@@ -130,7 +130,8 @@ def test_the_lane_kernel_is_picked_where_every_event_is_vectorised():
         # the per-path kernel's variants are the masking's and the films'
         paths = tracer.kernel_flags(p, True, True, tracer.KERNEL_PATHS)
         assert paths.film is (True if name.startswith("film") else None), name
-        assert paths._replace(height_correlated=None, film=None) == tracer.Variant(*(None,) * len(tracer.Variant._fields))
+        none = tracer.Variant(*(None,) * len(tracer.Variant._fields))
+        assert paths._replace(height_correlated=None, film=None) == none
 
 
 def test_a_check_between_kernels_can_fail():
