@@ -916,7 +916,7 @@ def microfacet_transmission(
 # uniform heights on [-1, 1], ``c = (h + 1) / 2``): a ray at height ``c`` travelling along ``w``
 # leaves the microsurface without a hit with probability ``G1(w, c) = c ** Lambda(w)`` (upward),
 # and seen from below the same surface has ``c' = 1 - c``. The walk loop itself is
-# :func:`goniometer.kernel.tracer.microsurface_walk` (it draws the random numbers).
+# :func:`goniometer.kernel.steps.microsurface_walk` (it draws the random numbers).
 
 
 @numba.njit(cache=True, error_model='numpy')

@@ -1,19 +1,32 @@
-"""The CUDA kernel (``docs/gpu.md``): one GPU thread per path, through numba-cuda.
+"""The CUDA kernel (``docs/gpu.md``): the GPU's driver of the per-path transport, one thread per path,
+through numba-cuda.
 
 Each thread traces one path with :func:`goniometer.kernel.onepath.trace_path` -- the per-path
-transport, compiled for the device from the same Python source as the CPU's (numba-cuda compiles
-the ``numba.njit`` functions a kernel calls: the optics, the walks, the free flights, the cell
-lookup) -- seeded from the path's own key, so a path draws the same numbers on any device, in any
-thread. The grid is two-dimensional: ``blockIdx.y`` is the chunk slot, ``blockIdx.x * blockDim.x +
-threadIdx.x`` the path in the chunk.
+transport, the CPU per-path kernel's too (:mod:`goniometer.kernel.paths`): numba-cuda compiles the
+``numba.njit`` functions a kernel calls for the device from the same Python source (the optics,
+the walks, the free flights, the cell lookup) -- seeded from the path's own key, so a path draws
+the same numbers on any device, in any thread, and in the CPU's per-path kernel. The grid is
+two-dimensional: ``blockIdx.y`` is the chunk slot, ``blockIdx.x * blockDim.x + threadIdx.x`` the
+path in the chunk.
 
-Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)``
-(:func:`goniometer.kernel.onepath.fixed_point`) with integer atomics, which commute, so a run's
-sums do not depend on the order in which threads finish, nor on the block size: they are the same
-bits on every launch on the same device and compiler. A block first sums into its shared memory
-(the energies always; the histograms when the grid's two histograms fit,
-:data:`SHARED_BYTES`), then adds what it holds to global memory; otherwise it adds to global
-memory directly. The integers are turned into float64 at the end (``/ 2^32``).
+Registers: a thread keeps in shared memory what its path touches rarely or in bursts -- the path's
+record (its absorbed, masking and roulette weights, its state in scattering media,
+:data:`goniometer.kernel.onepath.N_RECORD` numbers), its random stream's state, a tabulation's
+light direction -- a column per thread, so that a warp reads consecutive words. The kernel has the
+per-path transport's variants, ``(height_correlated, film)`` (:func:`kernel_source`), each compiled
+on first use without the other's code, with launch bounds (:func:`kernel_options`): 128 threads and
+at least 4 blocks per multiprocessor, so ptxas keeps a thread within 128 registers (25 %
+occupancy), 3 blocks for a stack with a thin film (168 registers). ``tests/goniometer/kernel/test_cuda_compile.py``
+checks without a GPU that every variant compiles for sm_80 and sm_90 without spilling
+(:mod:`goniometer.kernel.cuda_build`).
+
+Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)`` (:func:`fixed_point`) with
+integer atomics, which commute, so a run's sums do not depend on the order in which threads
+finish, nor on the block size: they are the same bits on every launch on the same device and
+compiler. A block first sums into its shared memory (the energies always; the histograms when the
+grid's two histograms fit, :data:`SHARED_BYTES`), then adds what it holds to global memory;
+otherwise it adds to global memory directly. The integers are turned into float64 at the end
+(``/ 2^32``).
 
 This module imports ``numba.cuda``; :func:`goniometer.kernel.tracer.check_device` says why a run cannot
 use it (no numba-cuda, no GPU) before anything imports it. Under numba-cuda's simulator
@@ -23,36 +36,42 @@ threads calling the CPU's compiled functions: the tests' way to run it without a
 
 from __future__ import annotations
 
-import numpy as np
-from numba import config, cuda, int64, uint64
+import math
 
-from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
-                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, N_COUNTS, N_ENERGY,
-                                      N_ENERGY_SQ, P_TABULATE)
-from goniometer.kernel.onepath import FIXED_SCALE, X_NONE, X_REFLECTED, X_TRANSMITTED, fixed_point, path_state, trace_path
+import numpy as np
+from numba import config, cuda, float64, int64, uint64
+
 from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.grids.slice_grid import cell_index_fast
+from goniometer.kernel.layout import C_CAPPED, C_EVENTS, N_COUNTS, N_ENERGY, N_ENERGY_SQ, P_TABULATE
+from goniometer.kernel.onepath import (N_RECORD, X_CAPPED, X_REFLECTED, X_TRANSMITTED, new_record, path_energy,
+                                       path_light, trace_path)
+from goniometer.kernel.rng import path_state
 
 #: threads per block
 BLOCK = 128
-#: shared memory a block's histograms may take (the energies' few hundred bytes come on top)
-SHARED_BYTES = 40_960
+#: blocks per multiprocessor a variant is compiled to fit (its launch bounds, :func:`kernel_options`):
+#: 4, so 128 registers a thread (25 % occupancy); 3 for a stack with a thin film (168 registers,
+#: 18.75 %), whose Airy sums of three channels on top of a walk do not fit 128 registers (ptxas
+#: spills 470-850 bytes a thread there; ``benchmarks/README.md``)
+MIN_BLOCKS = 4
+MIN_BLOCKS_FILM = 3
+#: shared memory a block's histograms may take: with the block's own (about 22 KB: the paths'
+#: records, streams and lights, the energy sums) four blocks fit in an A100's 164 KB
+SHARED_BYTES = 16_384
+#: the CUDA kernel's sums are integers: a weight ``w`` adds ``round(w * FIXED_SCALE)`` (2^32), so the
+#: order of the atomic additions cannot change a sum (``docs/gpu.md``, determinism)
+FIXED_SCALE = 4294967296.0
 #: a block's energy sums: N_ENERGY x 3 weights, N_ENERGY_SQ x 3 squares, N_COUNTS counters
 _N_EN = N_ENERGY * 3
 _N_ENSQ = N_ENERGY_SQ * 3
 _N_ACC = _N_EN + _N_ENSQ + N_COUNTS
 
 
-if config.ENABLE_CUDASIM:
-    def _plain(a):
-        """In the simulator a kernel's array argument is a wrapper that the CPU's compiled functions
-        cannot take: its numpy array."""
-        return a._item._ary
-else:
-    @cuda.jit(device=True, inline=True)
-    def _plain(a):
-        """On the device an array argument is what the compiled functions take."""
-        return a
+@cuda.jit(device=True, inline=True)
+def fixed_point(w):
+    """``w`` in the CUDA kernel's fixed point: the nearest integer to ``w * 2^32`` (ties upward)."""
+    return int64(math.floor(w * FIXED_SCALE + 0.5))
 
 
 @cuda.jit(device=True, inline=True)
@@ -93,124 +112,150 @@ def _book(acc, row, x0, x1, x2, squares):
         _add(acc, _N_EN + row * 3 + 2, fixed_point(x2 * x2))
 
 
-@cuda.jit
-def _trace_kernel(if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
-                  eta_dn, eta_up, lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, stream, param, n_theta, n_phi,
-                  row_cos, col_cos, col_sin, max_order, event_cap, skip_first, height_correlated, shared_hist, hist,
-                  acc_g, exit_cell, exit_w):
-    """Trace the paths of a batch of chunks (module docstring). ``hist``: (B, 2 * cells * row)
-    int64, the BRDF then the BTDF of each slot, flat; ``acc_g``: (B, _N_ACC) int64 energy sums;
-    ``exit_cell`` / ``exit_w``: per path of a tabulation ((B, 0) otherwise). ``shared_hist``: the
-    block sums its histograms in dynamic shared memory before adding them to ``hist``."""
-    b = cuda.blockIdx.y
-    tid = cuda.threadIdx.x
-    r = cuda.blockIdx.x * cuda.blockDim.x + tid
-    c = first_chunk + b
-    n = min(chunk_rays, n_rays_total - c * chunk_rays)
-    n_hist = hist.shape[1]
-    sh = cuda.shared.array(0, dtype=int64)        # shared_hist: the block's histograms
-    acc = cuda.shared.array(_N_ACC, dtype=int64)  # the block's energy sums
-    for q in range(tid, _N_ACC, cuda.blockDim.x):
-        acc[q] = int64(0)
-    if shared_hist:
-        for q in range(tid, n_hist, cuda.blockDim.x):
-            sh[q] = int64(0)
-    cuda.syncthreads()
-    if r < n:
-        if_alpha = _plain(if_alpha)
-        if_rot = _plain(if_rot)
-        if_ms = _plain(if_ms)
-        if_film = _plain(if_film)
-        region_tau = _plain(region_tau)
-        region_albedo = _plain(region_albedo)
-        region_g = _plain(region_g)
-        cond = _plain(cond)
-        rho = _plain(rho)
-        tau_mode = _plain(tau_mode)
-        eta_dn = _plain(eta_dn)
-        eta_up = _plain(eta_up)
-        row_cos = _plain(row_cos)
-        col_cos = _plain(col_cos)
-        col_sin = _plain(col_sin)
-        state = cuda.local.array(4, dtype=uint64)
-        path_state(state, seed, stream, c, r)
-        tabulate = param == P_TABULATE
-        (kind, plx, ply, plz, dx, dy, dz, w0, w1, w2, order, single, based, ab0, ab1, ab2, mk0, mk1, mk2,
-         rl0, rl1, rl2, cp0, cp1, cp2, capped, events) = trace_path(
-            if_alpha, if_rot, if_ms, if_film, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
-            eta_dn, eta_up, lx, ly, lz, tabulate, height_correlated, event_cap, state)
-        if tabulate:
-            exit_cell[b, r] = -1
-            if kind == X_REFLECTED:
-                exit_cell[b, r] = halfdiff_cell(plx, ply, plz, dx, dy, dz)
-                exit_w[b, r, 0] = w0
-                exit_w[b, r, 1] = w1
-                exit_w[b, r, 2] = w2
-        elif kind != X_NONE and not (skip_first and kind == X_REFLECTED and order == 1 and single):
+def kernel_source(height_correlated, film):
+    """The CUDA kernel's Python function for the variant ``(height_correlated, film)`` (None or True
+    each, :class:`goniometer.kernel.variants.Variant`): numba freezes the closure's values as
+    constants, so each variant compiles without the other's code (as the CPU kernels' variant
+    arguments do); :func:`kernel_for` compiles it."""
+
+    def _kernel(stack, run, tables, sizes, shared_hist, hist, acc_g, exit_cell, exit_w):
+        """Trace the paths of a batch of chunks (module docstring). ``stack``, ``run``, ``tables``,
+        ``sizes``: the CPU kernels' arguments (:func:`goniometer.kernel.tracer.launch`);
+        ``shared_hist``: bool; ``hist``: (B, 2 * cells * row) int64, the BRDF then the BTDF of each
+        slot, flat; ``acc_g``: (B, _N_ACC) int64 energy sums; ``exit_cell`` / ``exit_w``: per path
+        of a tabulation ((B, 0) otherwise). With ``shared_hist`` the block sums its histograms in
+        dynamic shared memory before adding them to ``hist``."""
+        b = cuda.blockIdx.y
+        tid = cuda.threadIdx.x
+        r = cuda.blockIdx.x * cuda.blockDim.x + tid
+        lx, ly, lz, first_chunk, seed, stream, param, n_theta, n_phi, max_order, event_cap, skip_first = run
+        n_hist = hist.shape[1]
+        sh = cuda.shared.array(0, dtype=int64)        # shared_hist: the block's histograms
+        acc = cuda.shared.array(_N_ACC, dtype=int64)  # the block's energy sums
+        # what a thread keeps of its path in shared memory rather than in registers (module
+        # docstring; a column per thread: consecutive threads read consecutive words): the path's
+        # record (onepath.N_RECORD numbers), its random stream's state, a tabulation's light
+        records = cuda.shared.array((N_RECORD, BLOCK), dtype=float64)
+        states = cuda.shared.array((4, BLOCK), dtype=uint64)
+        lights = cuda.shared.array((3, BLOCK), dtype=float64)
+        for q in range(tid, _N_ACC, cuda.blockDim.x):
+            acc[q] = int64(0)
+        if shared_hist:
+            for q in range(tid, n_hist, cuda.blockDim.x):
+                sh[q] = int64(0)
+        cuda.syncthreads()
+        if r < sizes[b]:
+            state = states[:, tid]
+            rec = records[:, tid]
+            new_record(rec)
+            path_state(state, seed, stream, first_chunk + b, r)
+            tabulate = param == P_TABULATE
+            plx, ply, plz = path_light(state, tabulate, lx, ly, lz)
+            lights[0, tid] = plx
+            lights[1, tid] = ply
+            lights[2, tid] = plz
+            kind, dx, dy, dz, w0, w1, w2, order, single, based, events = trace_path(
+                stack, -plx, -ply, -plz, height_correlated, film, event_cap, state, rec)
+            refl = kind == X_REFLECTED
             trans = kind == X_TRANSMITTED
-            i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
-            if i >= 0:
-                row = (max_order + 2) * 3
-                base = (i * n_phi + j) * row + (n_hist // 2 if trans else 0)
-                o = min(order, max_order) - 1
-                if shared_hist:
-                    _deposit(sh, base, o, max_order, w0, w1, w2)
-                else:
-                    _deposit(hist[b], base, o, max_order, w0, w1, w2)
-        refl = kind == X_REFLECTED
-        if refl:
-            _book(acc, E_REFLECTED, w0, w1, w2, True)
-            if not based:
-                _book(acc, E_REFLECTED_WITHOUT_BASE, w0, w1, w2, True)
-        if kind == X_TRANSMITTED:
-            _book(acc, E_TRANSMITTED, w0, w1, w2, True)
-        _book(acc, E_ABSORBED, ab0, ab1, ab2, True)
-        _book(acc, E_MASKING, mk0, mk1, mk2, True)
-        _book(acc, E_ROULETTE, rl0, rl1, rl2, False)
-        _book(acc, E_CAPPED, cp0, cp1, cp2, False)
-        _add(acc, _N_EN + _N_ENSQ + C_CAPPED, capped)
-        _add(acc, _N_EN + _N_ENSQ + C_EVENTS, events)
-    cuda.syncthreads()
-    # the block's sums into the slot's (integer additions: in any order the same)
-    for q in range(tid, _N_ACC, cuda.blockDim.x):
-        if acc[q] != 0:
-            cuda.atomic.add(acc_g, (b, q), acc[q])
-    if shared_hist:
-        for q in range(tid, n_hist, cuda.blockDim.x):
-            if sh[q] != 0:
-                cuda.atomic.add(hist, (b, q), sh[q])
+            if tabulate:
+                cell = -1
+                if refl:
+                    cell = halfdiff_cell(lights[0, tid], lights[1, tid], lights[2, tid], dx, dy, dz)
+                    exit_w[b, r, 0] = w0
+                    exit_w[b, r, 1] = w1
+                    exit_w[b, r, 2] = w2
+                exit_cell[b, r] = cell
+            elif (refl and not (skip_first and order == 1 and single)) or trans:
+                row_cos, col_cos, col_sin = tables
+                i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
+                if i >= 0:
+                    base = (i * n_phi + j) * (max_order + 2) * 3 + (n_hist // 2 if trans else 0)
+                    o = min(order, max_order) - 1
+                    if shared_hist:
+                        _deposit(sh, base, o, max_order, w0, w1, w2)
+                    else:
+                        _deposit(hist[b], base, o, max_order, w0, w1, w2)
+            for row in range(N_ENERGY):
+                x0, x1, x2 = path_energy(kind, based, w0, w1, w2, rec, row)
+                _book(acc, row, x0, x1, x2, row < N_ENERGY_SQ)
+            if kind == X_CAPPED:
+                _add(acc, _N_EN + _N_ENSQ + C_CAPPED, int64(1))
+            _add(acc, _N_EN + _N_ENSQ + C_EVENTS, int64(events))
+        cuda.syncthreads()
+        # the block's sums into the slot's (integer additions: in any order the same)
+        for q in range(tid, _N_ACC, cuda.blockDim.x):
+            if acc[q] != 0:
+                cuda.atomic.add(acc_g, (b, q), acc[q])
+        if shared_hist:
+            for q in range(tid, n_hist, cuda.blockDim.x):
+                if sh[q] != 0:
+                    cuda.atomic.add(hist, (b, q), sh[q])
+
+    return _kernel
 
 
-def trace_batch(run, first_chunk: int, outs: tuple, exits: tuple) -> None:
+#: the compiled kernel of each variant, compiled on first use (:func:`kernel_for`)
+_KERNELS: dict = {}
+
+
+def kernel_options(film) -> dict:
+    """The compile options of a variant: its launch bounds, the most threads per block
+    (:data:`BLOCK`) and the fewest blocks per multiprocessor (:data:`MIN_BLOCKS`, or
+    :data:`MIN_BLOCKS_FILM` for ``film`` True), which keep ptxas within ``65536 / (threads x
+    blocks)`` registers a thread. The compile check (:mod:`goniometer.kernel.cuda_build`) reads
+    them too."""
+    return {"launch_bounds": (BLOCK, MIN_BLOCKS if film is None else MIN_BLOCKS_FILM)}
+
+
+def kernel_for(height_correlated, film):
+    """The kernel of a variant, compiled with :func:`kernel_options` (the simulator runs Python
+    threads: it has no registers and takes no launch bounds)."""
+    key = (height_correlated, film)
+    if key not in _KERNELS:
+        jit = cuda.jit if config.ENABLE_CUDASIM else cuda.jit(**kernel_options(film))
+        _KERNELS[key] = jit(kernel_source(*key))
+    return _KERNELS[key]
+
+
+def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: int, exit_shape: tuple,
+                to_device=None) -> tuple:
+    """The CUDA kernel's arguments for a batch of ``B`` chunks of ``run`` (a
+    :class:`goniometer.kernel.tracer.Launch`) starting at ``first_chunk``: ``hist_cells`` numbers per
+    slot's two histograms, ``exit_shape`` the per-path records' ``(B, n)`` (``n`` 0 but for a
+    tabulation). ``to_device`` (None: the arrays stay on the host, as the compile check types them)
+    moves an array to the GPU. Returns ``(args, shared_hist, dynamic_shared_bytes)``."""
+    dev = to_device if to_device is not None else (lambda a: a)
+    keep = dev if not config.ENABLE_CUDASIM else (lambda a: a)   # the simulator's CPU functions read host arrays
+    stack = type(run.stack_args)(*(keep(np.ascontiguousarray(x)) if isinstance(x, np.ndarray) else x
+                                   for x in run.stack_args))
+    tables = tuple(keep(np.ascontiguousarray(t, dtype=np.float64)) for t in run.tables)
+    shared_hist = hist_cells * 8 <= SHARED_BYTES
+    tabulate = run.param == P_TABULATE
+    args = (stack, run.scalars(first_chunk), tables, dev(np.ascontiguousarray(sizes, dtype=np.int64)), shared_hist,
+            dev(np.zeros((B, hist_cells), dtype=np.int64)),
+            dev(np.zeros((B, _N_ACC), dtype=np.int64)),
+            dev(np.full(exit_shape, -1, dtype=np.int64) if tabulate else np.zeros((B, 0), dtype=np.int64)),
+            dev(np.zeros(exit_shape + (3,)) if tabulate else np.zeros((B, 0, 3))))
+    return args, shared_hist, hist_cells * 8 if shared_hist else 0
+
+
+def trace_batch(run, first_chunk: int, sizes: np.ndarray, outs: tuple, exits: tuple) -> None:
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` of ``run`` (a
-    :class:`goniometer.kernel.tracer.Launch`) on the GPU into the CPU arrays ``outs`` / ``exits``, as
-    :func:`goniometer.kernel.tracer.launch` documents (each slot's sums are the integers' values)."""
+    :class:`goniometer.kernel.tracer.Launch`; ``sizes`` their rays, :meth:`Launch.chunk_sizes`) on the
+    GPU into the CPU arrays ``outs`` / ``exits``, as :func:`goniometer.kernel.tracer.launch`
+    documents (each slot's sums are the integers' values)."""
     brdf, btdf, energy, energy_sq, counts = outs
     exit_cell, exit_w = exits
     B = brdf.shape[0]
     if B == 0:
         return
-    f = run.facts
-    p = f.packed
     nb = brdf[0].size
     transmits = btdf.shape[1:] == brdf.shape[1:]
-    n_hist = 2 * nb
-    shared_hist = n_hist * 8 <= SHARED_BYTES
-    d = cuda.to_device
-    hist = cuda.to_device(np.zeros((B, n_hist), dtype=np.int64))
-    acc = cuda.to_device(np.zeros((B, _N_ACC), dtype=np.int64))
-    tabulate = run.param == P_TABULATE
-    ec = d(np.full(exit_cell.shape, -1, dtype=np.int64) if tabulate else np.zeros((B, 0), dtype=np.int64))
-    ew = d(np.zeros(exit_w.shape) if tabulate else np.zeros((B, 0, 3)))
-    row_cos, col_cos, col_sin = (np.ascontiguousarray(t, dtype=np.float64) for t in run.tables)
+    args, _, dyn = kernel_args(run, first_chunk, sizes, B, 2 * nb, exit_cell.shape, cuda.to_device)
     blocks = (max(1, -(-run.chunk_rays // BLOCK)), B)
-    dyn = n_hist * 8 if shared_hist else 0
-    _trace_kernel[blocks, BLOCK, 0, dyn](
-        d(p.if_alpha), d(p.if_rot), d(p.if_ms), d(p.if_film), d(p.region_tau), d(p.region_albedo), d(p.region_g),
-        d(p.cond), d(p.rho), int(p.base_kind), d(f.tau_mode), d(f.eta_dn), d(f.eta_up), *run.light, run.n_rays,
-        run.chunk_rays, first_chunk, run.seed, run.stream, run.param, run.n_theta, run.n_phi, d(row_cos), d(col_cos),
-        d(col_sin), run.max_order, run.event_cap, run.skip_first, run.flags[1] is not None, shared_hist, hist, acc,
-        ec, ew)
+    kernel_for(run.variant.height_correlated, run.variant.film)[blocks, BLOCK, 0, dyn](*args)
+    hist, acc, ec, ew = args[5:]
     h = hist.copy_to_host().astype(np.float64) / FIXED_SCALE
     a = acc.copy_to_host()
     brdf[...] = h[:, :nb].reshape(brdf.shape)
@@ -221,6 +266,6 @@ def trace_batch(run, first_chunk: int, outs: tuple, exits: tuple) -> None:
     energy[...] = (a[:, :_N_EN].astype(np.float64) / FIXED_SCALE).reshape(energy.shape)
     energy_sq[...] = (a[:, _N_EN:_N_EN + _N_ENSQ].astype(np.float64) / FIXED_SCALE).reshape(energy_sq.shape)
     counts[...] = a[:, _N_EN + _N_ENSQ:]
-    if tabulate:
+    if run.param == P_TABULATE:
         exit_cell[...] = ec.copy_to_host()
         exit_w[...] = ew.copy_to_host()

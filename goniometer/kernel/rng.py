@@ -8,9 +8,11 @@ lane of the kernel traces the path:
   ``n``-th 64-bit number of the path whose key is ``key`` (:func:`path_key`); the kernel's
   vectorised event takes two to four per event (:func:`uniform_pair`: two 32-bit uniforms each;
   ``docs/kernel.md``, random numbers);
-* a xoshiro256** stream (state ``uint64[4]``), for the continuation of a microsurface walk
-  (variable length), seeded from the path key by :func:`seed_state`, and for the per-path kernel
-  and code outside the kernel (:func:`stream_state`).
+* a xoshiro256** stream (state ``uint64[4]``) seeded from the path key by :func:`seed_state`:
+  for the continuation of a microsurface walk in the lane kernel (variable length) and for whole
+  paths in the per-path drivers (:func:`path_state`: the per-path kernel, the CUDA kernel); a
+  stream keyed by (seed, incident index, chunk index) for code outside the kernels
+  (:func:`stream_state`).
 """
 
 from __future__ import annotations
@@ -102,6 +104,15 @@ def path_key(chunk: np.uint64, path: np.uint64) -> np.uint64:
 def chunk_key(seed: np.uint64, incident: np.uint64, chunk: np.uint64) -> np.uint64:
     """The key of chunk ``chunk`` of incident direction ``incident`` of a run seeded ``seed``."""
     return path_key(path_key(path_key(_CHUNK_SALT, seed), incident), chunk)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def path_state(s: np.ndarray, seed, stream, chunk, path) -> None:
+    """Seed ``s`` (``uint64[4]``) from the key of path ``path`` of chunk ``chunk`` of incident
+    ``stream`` of a run seeded ``seed`` (:func:`seed_state` of :func:`path_key` of
+    :func:`chunk_key`): the stream a per-path driver traces the path with (the CUDA kernel, the
+    per-path kernel)."""
+    seed_state(s, path_key(chunk_key(np.uint64(seed), np.uint64(stream), np.uint64(chunk)), np.uint64(path)))
 
 
 @numba.njit(cache=True, error_model='numpy')

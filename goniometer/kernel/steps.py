@@ -1,6 +1,7 @@
 """Steps whose number of random numbers varies from path to path (``docs/kernel.md``): free
 flights in scattering media and random walks on multiple-scattering interfaces, as the per-path
-kernel (:mod:`goniometer.kernel.paths`) takes them, and the lane kernel's per-lane step: the
+transport (:func:`goniometer.kernel.onepath.trace_path`) takes them, the film events both take
+(:func:`film_rt3`, :func:`film_choice`), and the lane kernel's per-lane step: the
 continuation of a walk whose first bounce the vectorised event (:mod:`goniometer.kernel.event`)
 made. A lane's random numbers there come from the path's own xoshiro256** stream, seeded from its
 key the first time (:func:`goniometer.kernel.rng.seed_state`).
@@ -32,6 +33,41 @@ def _attenuate(w0, w1, w2, ab0, ab1, ab2, a0, a1, a2):
     """The path weight times ``(a0, a1, a2)`` per channel, what it loses booked as absorbed:
     ``(w0 a0, w1 a1, w2 a2, ab0 + w0 (1 - a0), ...)``."""
     return w0 * a0, w1 * a1, w2 * a2, ab0 + w0 * (1.0 - a0), ab1 + w1 * (1.0 - a1), ab2 + w2 * (1.0 - a2)
+
+
+@numba.njit(cache=True, error_model='numpy', inline="always")
+def film_rt3(cos_i, fr, down):
+    """A thin film's reflectance and transmittance per channel, ``(R_0, R_1, R_2, T_0, T_1, T_2)``,
+    at a microfacet of cosine ``cos_i`` with the light (:func:`goniometer.optics.film_rt`): ``fr``
+    the interface's packed film row (:data:`goniometer.kernel.packing.FILM_COLS`), ``down`` True
+    when the light arrives from above (region above / film / medium below), False from below
+    (the medium below, a dielectric's, / film / region above; ``docs/material-format.md``, thin
+    films). Every per-path film event calls it: a single-scattering interface's
+    (:func:`goniometer.kernel.onepath.trace_path`) and each bounce of a walk (:func:`walk_from`)."""
+    n_in = fr[FL_NA] if down else fr[FL_NB0]
+    r0, t0 = optics.film_rt(cos_i, n_in, fr[FL_N0], fr[FL_K0], fr[FL_NB0] if down else fr[FL_NA],
+                            fr[FL_KB0] if down else 0.0, fr[FL_DL0])
+    r1, t1 = optics.film_rt(cos_i, n_in, fr[FL_N0 + 1], fr[FL_K0 + 1], fr[FL_NB0 + 1] if down else fr[FL_NA],
+                            fr[FL_KB0 + 1] if down else 0.0, fr[FL_DL0 + 1])
+    r2, t2 = optics.film_rt(cos_i, n_in, fr[FL_N0 + 2], fr[FL_K0 + 2], fr[FL_NB0 + 2] if down else fr[FL_NA],
+                            fr[FL_KB0 + 2] if down else 0.0, fr[FL_DL0 + 2])
+    return r0, r1, r2, t0, t1, t2
+
+
+@numba.njit(cache=True, error_model='numpy', inline="always")
+def film_choice(u, r0, r1, r2, t0, t1, t2):
+    """A filmed dielectric microfacet's choice (``docs/material-format.md``, thin films): with the
+    uniform ``u``, reflect with probability ``P = sum R_c / sum (R_c + T_c)``, weight factors
+    ``R_c / P``, else refract, factors ``T_c / (1 - P)``. Returns ``(reflected, a_0, a_1, a_2)``.
+    (A filmed conductor always reflects, factors ``R_c``; the lane kernel's vectorised event makes
+    the same choice as selects, :func:`goniometer.kernel.event.step`.)"""
+    s_r = r0 + r1 + r2
+    s_rt = s_r + t0 + t1 + t2
+    if u * s_rt < s_r:
+        q = s_rt / s_r
+        return True, r0 * q, r1 * q, r2 * q
+    q = s_rt / max(s_rt - s_r, 1e-300)
+    return False, t0 * q, t1 * q, t2 * q
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -93,8 +129,8 @@ def free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1,
 
 
 @numba.njit(cache=True, error_model='numpy')
-def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g,
-                      eta, inv_eta, max_bounces, state, film=None, fr=None, from_above=True):
+def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces, state, film,
+                      fr, from_above):
     """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
     GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
 
@@ -103,7 +139,8 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     (height CDF 1); each step draws the next hit height (:func:`goniometer.optics.ms_sample_height`),
     a visible normal of the reversed ray direction (:func:`goniometer.optics.sample_vndf_disk`, valid
     for directions below the horizon too) and reflects there -- a conductor with its Fresnel
-    weight per channel (complex index ``ce + i ck`` relative to the arrival side), a dielectric
+    weight per channel (complex index ``cond[c] + i cond[3 + c]`` relative to the arrival side: the
+    packed :attr:`goniometer.kernel.packing.PackedStack.cond`), a dielectric
     reflecting with probability F and otherwise refracting (relative index ``eta``; on the far
     side the microsurface is seen from below: heights ``1 - c``, directions negated, index
     ``inv_eta``), until the ray leaves the microsurface. ``g_is_r`` / ``b_is_g``: channels that
@@ -115,7 +152,8 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     ``from_above``: the walk began on the interface's upper side): a conductor reflects with the
     factors ``R_c``, a dielectric reflects with probability ``P = sum R_c / sum (R_c + T_c)``,
     factors ``R_c / P``, and otherwise refracts (the film-free direction), factors
-    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films).
+    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films). ``film`` None compiles the walk
+    without films (``fr``, an array all the same, is then not read).
 
     Returns ``(ox, oy, oz, f0, f1, f2, n, transmitted)``: the exit direction (``o_z > 0``
     reflected, ``< 0`` transmitted), the product of the conductor's Fresnel factors per channel
@@ -123,16 +161,13 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck
     bounces; ``n = 0`` when the ray is still on the microsurface after ``max_bounces`` bounces
     (the caller books it as capped).
     """
-    if film is None:
-        return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r,
-                         b_is_g, eta, inv_eta, max_bounces, state, None, np.empty(0), True)
-    return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r,
-                     b_is_g, eta, inv_eta, max_bounces, state, film, fr, from_above)
+    return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
+                     max_bounces, state, film, fr, from_above)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, ck0, ck1, ck2, g_is_r, b_is_g, eta,
-              inv_eta, max_bounces, state, film, fr, from_above):
+def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces,
+              state, film, fr, from_above):
     """:func:`microsurface_walk` from a given point of the walk: the ray travels along ``v`` at
     height CDF ``c`` after ``n`` bounces, on the far side of the microsurface if ``inside`` (there
     ``v`` and ``c`` are in the flipped frame); with ``hit`` its next hit is already drawn, at ``c``.
@@ -161,36 +196,23 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, c
         im = ix * mx + iy * my + iz * mz
         if fon:
             # the film, seen from the side this bounce's light arrives from
-            down = from_above != inside
-            n_in = fr[FL_NA] if down else fr[FL_NB0]
-            r0, t0 = optics.film_rt(im, n_in, fr[FL_N0], fr[FL_K0], fr[FL_NB0] if down else fr[FL_NA],
-                                    fr[FL_KB0] if down else 0.0, fr[FL_DL0])
-            r1, t1 = optics.film_rt(im, n_in, fr[FL_N0 + 1], fr[FL_K0 + 1], fr[FL_NB0 + 1] if down else fr[FL_NA],
-                                    fr[FL_KB0 + 1] if down else 0.0, fr[FL_DL0 + 1])
-            r2, t2 = optics.film_rt(im, n_in, fr[FL_N0 + 2], fr[FL_K0 + 2], fr[FL_NB0 + 2] if down else fr[FL_NA],
-                                    fr[FL_KB0 + 2] if down else 0.0, fr[FL_DL0 + 2])
+            r0, r1, r2, t0, t1, t2 = film_rt3(im, fr, from_above != inside)
             if conductor:
                 f0 *= r0
                 f1 *= r1
                 f2 *= r2
                 vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
             else:
-                s_r = r0 + r1 + r2
-                s_rt = s_r + t0 + t1 + t2
                 e = inv_eta if inside else eta
                 ie = eta if inside else inv_eta
                 _, cos_t = optics.fresnel_dielectric_cos_t_inv(im, e, ie)
-                if next_float(state) * s_rt < s_r:
-                    q = s_rt / s_r
-                    f0 *= r0 * q
-                    f1 *= r1 * q
-                    f2 *= r2 * q
+                refl, a0, a1, a2 = film_choice(next_float(state), r0, r1, r2, t0, t1, t2)
+                f0 *= a0
+                f1 *= a1
+                f2 *= a2
+                if refl:
                     vx, vy, vz = optics.reflect(ix, iy, iz, mx, my, mz)
                 else:
-                    q = s_rt / max(s_rt - s_r, 1e-300)
-                    f0 *= t0 * q
-                    f1 *= t1 * q
-                    f2 *= t2 * q
                     tx, ty, tz = optics.refract_known(ix, iy, iz, mx, my, mz, ie, im, cos_t)
                     vx = -tx
                     vy = -ty
@@ -198,7 +220,10 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, ce0, ce1, ce2, c
                     inside = not inside
                     c = 1.0 - c
         elif conductor:
-            r0, r1, r2 = optics.fresnel_conductor_channels(im, ce0, ck0, ce1, ck1, ce2, ck2, g_is_r, b_is_g)
+            # (the complex index read where it is used: on a GPU it then takes no registers through
+            # the walk's other branches)
+            r0, r1, r2 = optics.fresnel_conductor_channels(im, cond[0], cond[3], cond[1], cond[4], cond[2], cond[5],
+                                                           g_is_r, b_is_g)
             f0 *= r0
             f1 *= r1
             f2 *= r2
@@ -254,8 +279,8 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
     inv_eta = eta_up[k] if from_above else eta_dn[k]
     ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from(
         S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1, True,
-        if_alpha[k, 0], if_alpha[k, 1], is_cond, cond[0], cond[1], cond[2], cond[3], cond[4], cond[5], g_is_r, b_is_g,
-        eta, inv_eta, max(1, event_cap - events + 1), xs, film, if_film[k], from_above)
+        if_alpha[k, 0], if_alpha[k, 1], is_cond, cond, g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs,
+        film, if_film[k], from_above)
     st = ST_ALIVE
     if is_cond or (False if film is None else if_film[k, FL_ON] != 0.0):
         w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)

@@ -1,37 +1,23 @@
-"""The numba-parallel path-tracing kernel of the virtual goniometer.
+"""The launch face of the tracing kernels (``docs/kernel.md``, ``docs/gpu.md``): a run's kernel
+call prepared once (:func:`prepare`, a :class:`Launch`: the stack's facts, the variant, the chunk
+arithmetic) and launched per batch of chunks (:func:`launch`) on the kernel it picks -- the lane
+kernel (the default on the CPU), the per-path kernel (``KERNEL_PATHS``, the tests' second
+implementation) or the CUDA kernel (``device="cuda"``). Nothing else calls a kernel.
 
-Transport (``docs/material-format.md``, transport): a path starts above the top interface travelling along ``-l``
-with weight (1, 1, 1). At an interface a microfacet normal is sampled from the visible
-normals of the side the path comes from; a dielectric reflects with probability F (exact
-Fresnel) and refracts otherwise, a conductor always reflects with weight *= F (RGB).
-The weight is then multiplied by the masking term (separable: ``G1(o)``; height-correlated:
-``G2 / G1(i)``) and an outgoing direction on the wrong side of the macro-surface ends the path
-(``masking_loss``). On a multiple-scattering interface the event is instead a random walk on the
-microsurface (:func:`goniometer.kernel.steps.microsurface_walk`, Heitz et al. 2016) that always leaves it: no masking loss. Absorbing media attenuate deterministically (Beer-Lambert); in a scattering
-medium the path makes free flights between collisions (the lane kernel's event,
-:mod:`goniometer.kernel.event`; the per-path kernel's :func:`goniometer.kernel.steps.free_flight`: spectral-MIS
-distance sampling, Henyey-Greenstein directions). Lambertian bases reflect with cosine sampling
-and weight *= rho. A path leaving the top upward is recorded in the BRDF
-slice of its bounce order (number of events at the top layer); one leaving the bottom of a
-transmitting stack downward in the BTDF slice.
+The transport every kernel traces is :mod:`goniometer.kernel.onepath`'s (its module docstring
+states the rules; ``docs/material-format.md``, transport). The kernels' outputs per chunk:
+histograms (n_theta, n_phi, K + 2, 3) of the exits by bounce order with their squares, the energy
+terms (``E_*``, ``N_ENERGY``; per-path second moments for the first ``N_ENERGY_SQ``) and counters
+(``C_*``, ``N_COUNTS``); a tabulation's exits per path (``P_TABULATE``).
 
-Energy bookkeeping per channel and per path is exact: the weight a path loses is booked as
-absorbed or masking loss, the weight it leaves with as reflected or transmitted; Russian
-roulette books the weight it kills and the weight it adds (negative) in ``roulette``, and paths
-stopped by the event cap book their weight in ``capped``. Hence, per chunk,
-reflected + transmitted + absorbed + masking + roulette + capped = number of rays (to rounding).
-A reflected path that never had an event at the base (the bottom layer) also books its weight in
-``E_REFLECTED_WITHOUT_BASE`` (a part of reflected; ``docs/slices-format.md``, ``/energy``).
-
-Kernel (``docs/kernel.md``): a chunk's paths run in :data:`~goniometer.kernel.layout.LANES`
-lanes advanced in lock-step; each step is one vectorised event for every lane
-(:mod:`goniometer.kernel.event`; on a multiple-scattering interface the first bounce of the
-walk; in a scattering medium a free flight and what it meets), then a pass over the lanes that
-continues the walks that go on (:mod:`goniometer.kernel.steps`), books the paths that ended and
-gives their lanes the next path of the chunk. Every path draws its own random numbers, keyed by
-(seed, incident index, chunk, path) (:mod:`goniometer.kernel.rng`), so neither the lane a path runs in
-nor the number of threads changes a result. Kernel inputs are flat arrays (see
-:class:`goniometer.kernel.packing.PackedStack`); outputs are per-chunk histograms.
+The lane kernel (:func:`_trace_chunk`): a chunk's paths run in
+:data:`~goniometer.kernel.layout.LANES` lanes advanced in lock-step; each step is one vectorised
+event for every lane (:mod:`goniometer.kernel.event`; on a multiple-scattering interface the first
+bounce of the walk; in a scattering medium a free flight and what it meets), then a pass over the
+lanes that continues the walks that go on (:mod:`goniometer.kernel.steps`), books the paths that
+ended and gives their lanes the next path of the chunk. Every path draws its own random numbers,
+keyed by (seed, incident index, chunk, path) (:mod:`goniometer.kernel.rng`), so neither the lane a
+path runs in nor the number of threads changes a result.
 """
 
 from __future__ import annotations
@@ -50,19 +36,20 @@ from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_R
                                       E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_MULTI, F_ORDER,
                                       F_PATH, F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ,
                                       N_FIELDS, P_TABULATE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
-                                      TAU_SCATTER, stack_table)
-from goniometer.kernel.paths import trace_paths
-from goniometer.kernel.steps import continue_walk, free_flight, microsurface_walk
-from goniometer.kernel.variants import KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS, StackFacts, stack_facts, variant_flags
-from goniometer.kernel.rng import chunk_key, stream_state
+                                      stack_table)
 from goniometer.kernel.packing import PackedStack
+from goniometer.kernel.paths import trace_paths
+from goniometer.kernel.rng import chunk_key
+from goniometer.kernel.steps import continue_walk
+from goniometer.kernel.variants import (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS, Derived, KernelStack, StackFacts,
+                                        Variant, derive, stack_facts, variant_flags)
 
-__all__ = ["trace_batch", "trace_batch_serial", "trace_chunk", "microsurface_walk", "free_flight",
+__all__ = ["DeviceError", "check_device", "thread_count", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
+           "Variant", "kernel_flags", "Launch", "prepare", "launch", "chunk_count", "rays_in_chunks",
            "E_REFLECTED", "E_TRANSMITTED", "E_ABSORBED", "E_MASKING", "E_REFLECTED_WITHOUT_BASE", "E_ROULETTE",
-           "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "RR_START", "RR_THRESHOLD",
-           "P_TABULATE", "TAU_SCATTER", "KERNEL_AUTO", "KERNEL_LANES", "KERNEL_PATHS",
-           "kernel_flags", "DeviceError", "check_device", "thread_count", "Launch", "prepare", "launch",
-           "no_exit_records"]
+           "E_CAPPED", "N_ENERGY", "N_ENERGY_SQ", "C_CAPPED", "C_EVENTS", "N_COUNTS", "P_TABULATE", "RR_START",
+           "RR_THRESHOLD"]
+
 
 class DeviceError(ValueError):
     """What this machine cannot trace with (the message is one line, ``docs/gpu.md``): a device it
@@ -92,15 +79,28 @@ def check_device(device: str, threads: int | None = None) -> None:
         raise DeviceError("device: cuda: no CUDA GPU is visible (numba.cuda.is_available() is False)")
 
 
-def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> tuple:
-    """The variant arguments of :func:`trace_batch` for a packed stack, each None or True:
-    ``(lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film)``
+def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> Variant:
+    """The kernel's :class:`~goniometer.kernel.variants.Variant` for a packed stack
     (:func:`goniometer.kernel.variants.variant_flags` of the stack's facts). ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or ``KERNEL_PATHS`` (the per-path kernel,
-    :func:`goniometer.kernel.paths.trace_paths`: the second implementation the tests check the lane
-    kernel against, docs/kernel.md). numba dispatches on None versus bool, so each variant is
-    compiled (and cached) only when some stack needs it."""
+    :mod:`goniometer.kernel.paths`: the second implementation the tests check the lane kernel
+    against, ``docs/kernel.md``). Two runs with equal variants run the same compiled kernel."""
     return variant_flags(stack_facts(packed), height_correlated, tabulate, kernel)
+
+
+# ---------------------------------------------------------------------- chunk arithmetic
+
+def chunk_count(n_rays: int, chunk_rays: int) -> int:
+    """Chunks of ``n_rays`` rays: chunk ``c`` holds rays ``c * chunk_rays`` up to
+    ``min((c + 1) * chunk_rays, n_rays)`` (``docs/architecture.md``, determinism)."""
+    return -(-int(n_rays) // int(chunk_rays))
+
+
+def rays_in_chunks(n_rays: int, chunk_rays: int, first_chunk: int, count: int) -> int:
+    """Rays of chunks ``first_chunk .. first_chunk + count - 1`` of ``n_rays`` rays (0 past the
+    last chunk)."""
+    lo = min(int(first_chunk) * chunk_rays, n_rays)
+    return max(0, min((int(first_chunk) + int(count)) * chunk_rays, n_rays) - lo)
 
 
 # ---------------------------------------------------------------------- the launch seam
@@ -108,16 +108,18 @@ def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, k
 @dataclass(frozen=True, eq=False)
 class Launch:
     """A run's kernel call, prepared once (:func:`prepare`) and launched per batch of chunks
-    (:func:`launch`; ``docs/gpu.md``, the seam): the stack's facts and its packed arrays (in
-    :data:`goniometer.kernel.packing.PackedStack.KERNEL_FIELDS` order), the variant, the light direction,
-    the chunk arithmetic's numbers, the grid and its boundary tables, and the device.
+    (:func:`launch`; ``docs/gpu.md``, the seam): the stack's facts, the variant, the light
+    direction, the chunk arithmetic's numbers, the grid and its boundary tables, the device, and
+    what the run derived from the stack for the kernels.
 
-    ``stream`` is the incident index of the random keys (a tabulation's own stream); ``flags``
-    the variant (:func:`kernel_flags`); ``tables`` the grid's boundary tables
-    (:func:`goniometer.grids.slice_grid.boundary_tables`, or an RGL grid's kernel tables)."""
+    ``stream`` is the incident index of the random keys (a tabulation's own stream); ``variant``
+    the lane kernel's variant (:func:`kernel_flags`); ``tables`` the grid's boundary tables
+    (:func:`goniometer.grids.slice_grid.boundary_tables`, or an RGL grid's kernel tables);
+    ``derived`` the stack's facts as the kernels take them
+    (:class:`~goniometer.kernel.variants.Derived`)."""
 
     facts: StackFacts
-    flags: tuple
+    variant: Variant
     light: tuple
     n_rays: int
     chunk_rays: int
@@ -130,89 +132,85 @@ class Launch:
     max_order: int
     event_cap: int
     skip_first: bool
-    device: str = "cpu"
-
-    #: what the run derives from the stack once for the CPU kernels (:func:`prepare`): the regions'
-    #: modes, the relative indices, the lane kernel's stack table and the offset of its region part
-    derived: tuple = ()
+    device: str
+    derived: Derived
 
     @property
-    def stack_args(self) -> tuple:
-        """The kernels' ``stack`` argument: the packed stack's arrays in
-        :data:`goniometer.kernel.packing.PackedStack.KERNEL_FIELDS` order, then :attr:`derived`
-        (``tau_mode, eta_dn, eta_up, table, off``)."""
-        return self.facts.packed.as_tuple() + self.derived
+    def stack_args(self) -> KernelStack:
+        """The kernels' ``stack`` argument (:data:`~goniometer.kernel.variants.KernelStack`): the
+        packed arrays, then :attr:`derived`."""
+        return KernelStack(*self.facts.packed.as_tuple(), *self.derived)
 
     def scalars(self, first_chunk: int) -> tuple:
-        """The numbers of a batch starting at ``first_chunk``, as :func:`trace_slot` unpacks them:
-        ``(lx, ly, lz, n_rays, chunk_rays, first_chunk, seed, stream, param, n_theta, n_phi,
-        max_order, event_cap, skip_first)``."""
-        return (*self.light, self.n_rays, self.chunk_rays, int(first_chunk), self.seed, self.stream, self.param,
-                self.n_theta, self.n_phi, self.max_order, self.event_cap, self.skip_first)
+        """The numbers of a batch starting at ``first_chunk``, as the kernels unpack them:
+        ``(lx, ly, lz, first_chunk, seed, stream, param, n_theta, n_phi, max_order, event_cap,
+        skip_first)``."""
+        return (*self.light, int(first_chunk), self.seed, self.stream, self.param, self.n_theta, self.n_phi,
+                self.max_order, self.event_cap, self.skip_first)
 
     @property
     def n_chunks(self) -> int:
-        """Chunks of the run's ``n_rays`` (chunk ``c``: rays ``c * chunk_rays`` up to
-        ``min((c + 1) * chunk_rays, n_rays)``, as :func:`trace_slot` reads them)."""
-        return -(-self.n_rays // self.chunk_rays)
+        """Chunks of the run's ``n_rays`` (:func:`chunk_count`)."""
+        return chunk_count(self.n_rays, self.chunk_rays)
 
     def chunk_sizes(self, first_chunk: int, count: int) -> np.ndarray:
-        """Rays of chunks ``first_chunk .. first_chunk + count - 1`` (0 past the last)."""
+        """Rays of each of chunks ``first_chunk .. first_chunk + count - 1`` (0 past the last): the
+        kernels' ``sizes`` argument."""
         c = np.arange(first_chunk, first_chunk + count, dtype=np.int64)
         return np.clip(self.n_rays - c * self.chunk_rays, 0, self.chunk_rays)
+
+    def rays_in(self, first_chunk: int, count: int) -> int:
+        """Rays of chunks ``first_chunk .. first_chunk + count - 1`` (:func:`rays_in_chunks`)."""
+        return rays_in_chunks(self.n_rays, self.chunk_rays, first_chunk, count)
 
 
 def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int, stream: int, param: int,
             n_theta: int, n_phi: int, tables: tuple, max_order: int, event_cap: int, skip_first: bool = False,
             height_correlated: bool = False, tabulate: bool = False, kernel: int = KERNEL_AUTO,
             device: str = "cpu") -> Launch:
-    """The :class:`Launch` of a run: the stack's facts and the variant worked out once.
-    ``device``: ``"cpu"`` or ``"cuda"`` (:mod:`goniometer.kernel.cuda`, one kernel for every stack;
-    ``kernel`` then must be ``KERNEL_AUTO``)."""
+    """The :class:`Launch` of a run: the stack's facts, the variant and the kernels' derived
+    arguments worked out once. ``device``: ``"cpu"`` or ``"cuda"`` (:mod:`goniometer.kernel.cuda`,
+    one kernel for every stack; ``kernel`` then must be ``KERNEL_AUTO``)."""
     if device not in ("cpu", "cuda"):
         raise ValueError(f"device: {device!r}: the kernels trace on cpu or cuda")
     if device != "cpu" and kernel != KERNEL_AUTO:
         raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
     facts = stack_facts(packed)
-    flags = variant_flags(facts, height_correlated, tabulate, kernel)
+    variant = variant_flags(facts, height_correlated, tabulate, kernel)
     p = packed
     table, off = stack_table(p.if_alpha, p.if_rot, p.if_ms, facts.eta_dn, facts.eta_up, p.region_tau, p.region_albedo,
-                             p.region_g, facts.tau_mode, facts.n_if, facts.conductor, p.if_film, flags[10] is not None)
-    if device == "cpu" and flags[0] is not None and table.shape[0] > STACK_BLOCK:   # the lane kernel's event
+                             p.region_g, facts.tau_mode, facts.n_if, facts.conductor, p.if_film,
+                             variant.film is not None)
+    if device == "cpu" and variant.lanes is not None and table.shape[0] > STACK_BLOCK:   # the lane kernel's event
         raise ValueError(f"the stack's table ({table.shape[0]} numbers) does not fit the event's block "
                          f"({STACK_BLOCK}): too many layers")
-    return Launch(facts, flags, (float(light[0]), float(light[1]), float(light[2])), int(n_rays), int(chunk_rays),
+    return Launch(facts, variant, (float(light[0]), float(light[1]), float(light[2])), int(n_rays), int(chunk_rays),
                   int(seed), int(stream), int(param), int(n_theta), int(n_phi), tuple(tables), int(max_order),
-                  int(event_cap), bool(skip_first), device, (facts.tau_mode, facts.eta_dn, facts.eta_up, table, off))
-
-
-def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Empty per-path exit records for ``n`` chunks of slices (:func:`trace_chunk` writes them only
-    for a tabulation)."""
-    return np.empty((n, 0), dtype=np.int64), np.empty((n, 0, 3))
+                  int(event_cap), bool(skip_first), device, derive(facts, table, off))
 
 
 def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = None, parallel: bool = True) -> None:
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` of ``run`` into ``outs`` = (brdf, btdf,
     energy, energy_sq, counts), each with a leading dimension B (one slot per chunk, zeroed here;
-    the layouts of :func:`trace_chunk`); ``exits`` = (exit_cell, exit_w) per path for a
-    tabulation (None: none). On the CPU ``parallel`` runs the chunks on numba's threads
-    (:func:`trace_batch`; the caller sets their number), otherwise one after the other
-    (:func:`trace_batch_serial`): the same bits. A ``"cuda"`` run traces on the GPU
-    (:func:`goniometer.kernel.cuda.trace_batch`)."""
+    the layouts of :func:`_trace_chunk`); ``exits`` = (exit_cell, exit_w) per path for a
+    tabulation (None: none). On the CPU ``parallel`` runs the chunks on numba's threads (the
+    caller sets their number), otherwise one after the other: the same bits. A ``"cuda"`` run
+    traces on the GPU (:func:`goniometer.kernel.cuda.trace_batch`)."""
+    B = outs[0].shape[0]
     if exits is None:
-        exits = no_exit_records(outs[0].shape[0])
+        exits = np.empty((B, 0), dtype=np.int64), np.empty((B, 0, 3))
+    sizes = run.chunk_sizes(first_chunk, B)
     if run.device == "cuda":
         check_device(run.device)
         from goniometer.kernel import cuda
-        cuda.trace_batch(run, first_chunk, outs, exits)
+        cuda.trace_batch(run, first_chunk, sizes, outs, exits)
         return
-    kernel = trace_batch if parallel else trace_batch_serial
-    kernel(run.stack_args, run.scalars(first_chunk), run.tables, *run.flags, tuple(outs) + tuple(exits))
+    kernel = _trace_batch if parallel else _trace_batch_serial
+    kernel(run.stack_args, run.scalars(first_chunk), run.tables, sizes, *run.variant, tuple(outs) + tuple(exits))
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
+def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
                 height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, outs):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.kernel.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
@@ -224,7 +222,7 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     booked in ``energy`` only. Otherwise ``exit_cell``/``exit_w`` are not touched (they may be empty).
 
     ``stack``: the packed stack's arrays and what the run derived from them once
-    (:attr:`Launch.stack_args`: the regions' modes, relative indices, the stack table of
+    (:attr:`Launch.stack_args`, read by field name: the base, the stack table of
     :func:`goniometer.kernel.layout.stack_table` made for this variant's ``film``, and its offset);
     ``tables``: the grid's ``(row_cos, col_cos, col_sin)``; ``outs``: ``(brdf, btdf, energy,
     energy_sq, counts, exit_cell, exit_w)``.
@@ -240,18 +238,12 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     order at the end, exits are deposited in the order they happen: the same bits for any
     number of threads.
     """
-    (if_alpha, if_rot, if_ms, if_film, region_eta, region_tau, region_albedo, region_g, cond, rho, base_kind, tau_mode,
-     eta_dn, eta_up, table, off) = stack
+    if_alpha, if_rot, if_film, cond, rho, eta_dn, eta_up = (stack.if_alpha, stack.if_rot, stack.if_film, stack.cond,
+                                                             stack.rho, stack.eta_dn, stack.eta_up)
+    table, off, n_if, base_k = stack.table, stack.off, stack.n_if, stack.base_k
+    transmit_base, conductor_base = stack.transmit_base, stack.conductor_base
     row_cos, col_cos, col_sin = tables
     brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
-    n_if = region_eta.shape[0] - 1
-    transmit_base = base_kind == 0
-    conductor_base = base_kind == 1
-    # conductor channels that share their complex index share their Fresnel value (walks)
-    walk_g_is_r = cond[1] == cond[0] and cond[4] == cond[3]
-    walk_b_is_g = cond[2] == cond[1] and cond[5] == cond[4]
-    # the interface that is the base (the bottom layer), -1 when the base is Lambertian
-    base_k = -1 if base_kind == 2 else n_if - 1
     # every lane starts as if it had just ended a path of nothing (index i - LANES): the first step
     # books zeros and gives it path i
     S = np.zeros(N_FIELDS * LANES)
@@ -277,7 +269,7 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
             for i in range(LANES):
                 if S[F_STATUS * LANES + i] == ST_SCALAR:
                     S[F_STATUS * LANES + i] = continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond,
-                                                            walk_g_is_r, walk_b_is_g, n_if, transmit_base,
+                                                            stack.g_is_r, stack.b_is_g, n_if, transmit_base,
                                                             conductor_base, event_cap, film, if_film)
         live = 0
         n_x = 0
@@ -338,27 +330,26 @@ def trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
-               aniso, ms, film, outs):
-    """Zero histogram slot ``b`` of ``outs`` and trace chunk ``first_chunk + b`` into it.
+def _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
+                b_is_g, aniso, ms, film, outs):
+    """Zero histogram slot ``b`` of ``outs`` and trace chunk ``first_chunk + b`` (``sizes[b]``
+    rays) into it.
 
     ``stack``: the packed stack's arrays and what the run derived from them (:attr:`Launch.stack_args`); ``run``:
     the batch's numbers (:meth:`Launch.scalars`); ``tables``: the grid's ``(row_cos, col_cos,
-    col_sin)``; ``outs``: ``(brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)``, each with
-    a leading dimension B (:func:`trace_chunk` gives the layouts). ``lanes`` .. ``film``: the
-    variant (:func:`kernel_flags`), None or True each; they are arguments, not a tuple, because
-    numba prunes the branch of a None *argument* and so compiles each variant without the others.
+    col_sin)``; ``sizes``: the rays of each chunk of the batch (:meth:`Launch.chunk_sizes`); ``outs``:
+    ``(brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w)``, each with a leading dimension B
+    (:func:`_trace_chunk` gives the layouts). ``lanes`` .. ``film``: the variant (:func:`kernel_flags`),
+    None or True each; they are arguments, not a tuple, because numba prunes the branch of a None
+    *argument* and so compiles each variant without the others.
 
-    Chunk ``c`` covers rays ``[c * chunk_rays, min((c + 1) * chunk_rays, n_rays_total))`` and
-    is keyed by ``(seed, incident_index, c)``: its paths' keys (:func:`goniometer.kernel.rng.chunk_key`)
-    for the lane kernel (``lanes`` True), its random stream (:func:`goniometer.kernel.rng.stream_state`)
-    for the per-path kernel (``lanes`` None).
+    Chunk ``c`` is keyed by ``(seed, incident_index, c)``: its paths' keys
+    (:func:`goniometer.kernel.rng.chunk_key`, then ``path_key``) in every kernel: the lane kernel
+    (``lanes`` True), the per-path kernel (``lanes`` None, :func:`goniometer.kernel.paths.trace_paths`).
     """
-    (lx, ly, lz, n_rays_total, chunk_rays, first_chunk, seed, incident_index, param, n_theta, n_phi, max_order,
-     event_cap, skip_first) = run
+    lx, ly, lz, first_chunk, seed, incident_index, param, n_theta, n_phi, max_order, event_cap, skip_first = run
     slot = (outs[0][b], outs[1][b], outs[2][b], outs[3][b], outs[4][b], outs[5][b], outs[6][b])
-    c = first_chunk + b
-    n = min(chunk_rays, n_rays_total - c * chunk_rays)
+    n = sizes[b]
     slot[0].fill(0.0)
     slot[1].fill(0.0)
     slot[2].fill(0.0)
@@ -367,35 +358,34 @@ def trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media,
     slot[5].fill(-1)
     if n <= 0:
         return
+    ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(first_chunk + b))
     if lanes is None:
-        state = stream_state(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_paths(stack, lx, ly, lz, n, state, param, n_theta, n_phi, tables, max_order,
-                    height_correlated is not None, event_cap, skip_first, slot)
+        trace_paths(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, height_correlated, film,
+                    event_cap, skip_first, slot)
     else:
-        ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(c))
-        trace_chunk(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
-                    height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, slot)
+        _trace_chunk(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
+                     height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, slot)
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
-def trace_batch(stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
-                aniso, ms, film, outs):
+def _trace_batch(stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
+                 b_is_g, aniso, ms, film, outs):
     """Trace chunks ``first_chunk .. first_chunk + B - 1`` in parallel, one histogram slot each
-    (:func:`trace_slot`, which gives the arguments; :func:`launch` makes them from a
+    (:func:`_trace_slot`, which gives the arguments; :func:`launch` makes them from a
     :class:`Launch`). Output arrays carry a leading dimension B (the batch)."""
     for b in numba.prange(outs[0].shape[0]):
-        trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
-                   b_is_g, aniso, ms, film, outs)
+        _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor,
+                    g_is_r, b_is_g, aniso, ms, film, outs)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_batch_serial(stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
-                       b_is_g, aniso, ms, film, outs):
-    """:func:`trace_batch` without threads (same per-chunk results, bit for bit).
+def _trace_batch_serial(stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor,
+                        g_is_r, b_is_g, aniso, ms, film, outs):
+    """:func:`_trace_batch` without threads (same per-chunk results, bit for bit).
 
     For callers that are themselves run concurrently, e.g. the threads of a Dask worker: numba's
     default threading layer must not be entered by several threads at once.
     """
     for b in range(outs[0].shape[0]):
-        trace_slot(b, stack, run, tables, lanes, height_correlated, tabulate, media, lambertian, conductor, g_is_r,
-                   b_is_g, aniso, ms, film, outs)
+        _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate, media, lambertian, conductor,
+                    g_is_r, b_is_g, aniso, ms, film, outs)

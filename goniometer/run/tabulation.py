@@ -267,7 +267,7 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     if state is None:
         state = _State(settings.n_channels)
     cr = settings.chunk_rays
-    per_launch = -(-settings.rays // cr)
+    per_launch = tracer.chunk_count(settings.rays, cr)
     n_chunks = per_launch * len(runs)
     done_rays = _rays_in(state.next_chunk, per_launch, settings.rays, cr)
     if done_rays:
@@ -330,4 +330,4 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
 def _rays_in(chunks: int, per_launch: int, rays: int, chunk_rays: int) -> int:
     """Paths traced by the first ``chunks`` chunks of a run of launches of ``rays`` paths each."""
     g, c = divmod(chunks, per_launch)
-    return g * rays + min(c * chunk_rays, rays)
+    return g * rays + tracer.rays_in_chunks(rays, chunk_rays, 0, c)

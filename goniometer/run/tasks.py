@@ -26,7 +26,7 @@ from goniometer.kernel.packing import pack
 
 def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
     """What decides which compiled code a local run of ``stack`` under ``settings`` needs: the
-    kernel's variant arguments (:func:`goniometer.kernel.tracer.kernel_flags`), the grid, the first
+    kernel's variant (:func:`goniometer.kernel.tracer.kernel_flags`), the grid, the first
     order and the device (a spectral run: those of its launches). Two runs with the same key run
     the same compiled functions."""
     if settings.spectral:
@@ -84,8 +84,9 @@ def warm_up_runs(runs) -> float:
 
 
 def n_tasks(settings: SimulationSettings) -> int:
-    """Number of tasks of one incident direction (task t covers chunks t*c .. t*c + c - 1)."""
-    return -(-settings.rays // (settings.chunk_rays * settings.chunks_per_task))
+    """Number of tasks of one incident direction (task t covers chunks t*c .. t*c + c - 1, the last
+    task what is left of the chunks, :func:`goniometer.kernel.tracer.chunk_count`)."""
+    return -(-tracer.chunk_count(settings.rays, settings.chunk_rays) // settings.chunks_per_task)
 
 
 def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[np.ndarray, ...]:
@@ -95,11 +96,6 @@ def chunk_buffers(stack: Stack, settings: SimulationSettings, n: int) -> tuple[n
     bt = (nt, nph) if stack.transmits else (1, 1)
     return (np.empty((n, nt, nph, k2, 3)), np.empty((n,) + bt + (k2, 3)), np.empty((n, tracer.N_ENERGY, 3)),
             np.empty((n, tracer.N_ENERGY_SQ, 3)), np.empty((n, tracer.N_COUNTS), dtype=np.int64))
-
-
-def no_exit_records(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Empty per-path exit records for ``n`` chunks of slices (:func:`goniometer.kernel.tracer.no_exit_records`)."""
-    return tracer.no_exit_records(n)
 
 
 def trace_tasks(stack: Stack, settings: SimulationSettings, m: int, first_task: int, count: int,
@@ -157,21 +153,21 @@ def _trace_chunks(stack: Stack, settings: SimulationSettings, m: int, first_task
                   parallel: bool, buffers: tuple[np.ndarray, ...] | None) -> tuple[np.ndarray, ...]:
     """Run the kernel on the chunks of tasks ``first_task .. first_task + count - 1`` of incident
     direction ``m``; returns the per-chunk outputs (views of ``buffers`` when given)."""
-    first_chunk, nb = _chunk_range(settings, first_task, count)
+    run = _kernel_inputs(stack, settings, m)
+    first_chunk, nb = _chunk_range(run, settings.chunks_per_task, first_task, count)
     if buffers is None or buffers[0].shape[0] < nb:
         buffers = chunk_buffers(stack, settings, nb)
     outs = tuple(b[:nb] for b in buffers)
     if nb > 0:
-        _run_kernel(_kernel_inputs(stack, settings, m), settings, first_chunk, outs, parallel)
+        _run_kernel(run, settings, first_chunk, outs, parallel)
     return outs
 
 
-def _chunk_range(settings: SimulationSettings, first_task: int, count: int) -> tuple[int, int]:
-    """(first chunk, number of chunks) of tasks ``first_task .. first_task + count - 1``."""
-    cpt = settings.chunks_per_task
-    n_chunks_total = -(-settings.rays // settings.chunk_rays)
+def _chunk_range(run: tracer.Launch, cpt: int, first_task: int, count: int) -> tuple[int, int]:
+    """(first chunk, number of chunks) of tasks ``first_task .. first_task + count - 1`` of
+    ``cpt`` chunks each."""
     first_chunk = first_task * cpt
-    return first_chunk, max(0, min(count * cpt, n_chunks_total - first_chunk))
+    return first_chunk, max(0, min(count * cpt, run.n_chunks - first_chunk))
 
 
 def _kernel_inputs(stack: Stack, settings: SimulationSettings, m: int) -> tracer.Launch:
@@ -197,8 +193,8 @@ def _run_kernel(run: tracer.Launch, settings: SimulationSettings, first_chunk: i
 
 def task_rays(settings: SimulationSettings, task: int) -> int:
     """Number of rays of task ``task``."""
-    per = settings.chunk_rays * settings.chunks_per_task
-    return max(0, min(per, settings.rays - task * per))
+    cpt = settings.chunks_per_task
+    return tracer.rays_in_chunks(settings.rays, settings.chunk_rays, task * cpt, cpt)
 
 
 def _tasks_per_call(settings: SimulationSettings) -> int:
@@ -235,14 +231,13 @@ def trace_incident(stack: Stack, settings: SimulationSettings, m: int,
     step = max(1, tracer.thread_count(settings.threads))
     for first in range(0, T, per_call):
         count = min(per_call, T - first)
-        first_chunk, nb = _chunk_range(settings, first, count)
+        first_chunk, nb = _chunk_range(inputs, cpt, first, count)
         outs = tuple(b[:nb] for b in buffers)
         for lo in range(0, nb, step):
             hi = min(lo + step, nb)
             _run_kernel(inputs, settings, first_chunk + lo, tuple(o[lo:hi] for o in outs), True)
             if progress is not None:
-                progress(min(hi * settings.chunk_rays, settings.rays - first_chunk * settings.chunk_rays)
-                         - lo * settings.chunk_rays)
+                progress(inputs.rays_in(first_chunk + lo, hi - lo))
         for t in range(count):
             lo, hi = t * cpt, min((t + 1) * cpt, nb)
             if lo < hi:

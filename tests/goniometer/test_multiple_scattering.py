@@ -4,7 +4,7 @@
   albedo 1 at every roughness and angle, and a non-absorbing dielectric keeps R + T = 1, path by
   path (so exactly, to rounding), from above and from below.
 * The walk's first bounce (exits after one microfacet bounce, histogrammed here from
-  :func:`goniometer.kernel.tracer.microsurface_walk`) equals, cell by cell, what the simulator gives for
+  :func:`goniometer.kernel.steps.microsurface_walk`) equals, cell by cell, what the simulator gives for
   the single-scattering interface with height-correlated masking (reflection and transmission).
 * Energy: the single-scattering masking loss (height-correlated) equals what the walk's
   higher orders (two or more microfacet bounces) add back, for a Fresnel = 1 conductor.
@@ -32,7 +32,7 @@ from goniometer.run.loop import simulate
 from goniometer.run.settings import SimulationSettings
 from goniometer.grids.slice_grid import boundary_tables, cell_index_fast, light_direction
 from goniometer.stack import Interface, Lambertian, Medium, Stack, StackError, stack_from_dict
-from goniometer.kernel.tracer import microsurface_walk
+from goniometer.kernel.steps import microsurface_walk
 from goniometer.testing import Z_TOL, assert_samples_match, assert_z_close
 
 #: a conductor whose Fresnel reflectance is exactly 1.0 in double precision at every angle
@@ -47,6 +47,12 @@ def mirror(alpha, ms=True, rotation=0.0) -> Stack:
 # ----------------------------------------------------------------------------- the walk, histogrammed
 
 
+#: MIRROR's complex index as the walk takes it (n per channel, then k per channel)
+_FRESNEL_ONE = np.array(MIRROR["ior"] + MIRROR["extinction"])
+#: the film row of an interface without a film (the walk compiled without films does not read it)
+_NO_FILM = np.zeros(0)
+
+
 @numba.njit(cache=True)
 def _walk_cells(lx, ly, lz, ax, ay, eta, conductor, n_rays, seed, param, nt, nph, row_cos, col_cos, col_sin):
     """Walk ``n_rays`` times from ``l`` (Fresnel-1 conductor, or a dielectric of relative index
@@ -57,8 +63,8 @@ def _walk_cells(lx, ly, lz, ax, ay, eta, conductor, n_rays, seed, param, nt, nph
     per_order = np.zeros(2)
     for _ in range(n_rays):
         ox, oy, oz, f0, f1, f2, n, transmitted = microsurface_walk(
-            lx, ly, lz, ax, ay, conductor, 1.0, 1.0, 1.0, 1e10, 1e10, 1e10, True, True, eta, 1.0 / eta, 10_000,
-            state)
+            lx, ly, lz, ax, ay, conductor, _FRESNEL_ONE, True, True, eta, 1.0 / eta, 10_000, state, None, _NO_FILM,
+            True)
         o = 0 if n == 1 else 1
         side = 1 if transmitted else 0
         i, j = cell_index_fast(param, transmitted, lx, ly, lz, ox, oy, oz, nt, nph, row_cos, col_cos, col_sin)

@@ -1,6 +1,8 @@
-"""The lane kernel (``goniometer.kernel.tracer.trace_chunk``) and the per-path kernel
-(``goniometer.kernel.paths.trace_paths``) are two implementations of the same transport
-(``docs/kernel.md``): forced onto the same stacks, with independent random numbers, they agree
+"""The lane kernel (``goniometer.kernel.tracer._trace_chunk``) and the per-path kernel
+(``goniometer.kernel.paths.trace_paths``, the driver of the per-path transport
+``goniometer.kernel.onepath.trace_path`` that the CUDA kernel runs too) are two implementations of
+the same transport (``docs/kernel.md``): forced onto the same stacks, with independent random
+numbers, they agree
 cell by cell and in every energy term within their standard errors. Stacks cover every kind of
 event: rough dielectric and conductor interfaces, anisotropy, absorbing and scattering media
 (chromatic: spectral MIS; achromatic; with walks, a Lambertian base, a transmitting base),
@@ -12,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from goniometer.run.settings import EVENT_CAP
 from goniometer.kernel import tracer
 from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack
@@ -65,16 +66,15 @@ STACKS = {
 def _trace(stack: Stack, kernel: int, seed: int, height_correlated: bool = False):
     p = pack(stack)
     l = light_direction(40.0, 10.0)
-    cr = 1 << 14
-    nb = -(-RAYS // cr)
+    run = tracer.prepare(p, l, RAYS, 1 << 14, seed, 0, 0, *RES, boundary_tables("classic", *RES), K,
+                         EVENT_CAP, height_correlated=height_correlated, kernel=kernel)
+    nb = run.n_chunks
     bt = RES if stack.transmits else (1, 1)
     brdf = np.empty((nb,) + RES + (K + 2, 3))
     btdf = np.empty((nb,) + bt + (K + 2, 3))
     energy = np.empty((nb, tracer.N_ENERGY, 3))
     energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
     counts = np.empty((nb, tracer.N_COUNTS), dtype=np.int64)
-    run = tracer.prepare(p, l, RAYS, cr, seed, 0, 0, *RES, boundary_tables("classic", *RES), K, EVENT_CAP,
-                         height_correlated=height_correlated, kernel=kernel)
     tracer.launch(run, 0, (brdf, btdf, energy, energy_sq, counts))
     return brdf.sum(0), btdf.sum(0), energy.sum(0), energy_sq.sum(0), counts.sum(0)
 
@@ -107,9 +107,10 @@ def test_lane_and_path_kernels_agree(name):
         d = e_a[row] - e_b[row]
         ok = np.abs(d) <= Z_TOL * np.sqrt(var) + 1e-12 * RAYS
         assert ok.all(), f"{name} energy row {row}: {e_a[row] / RAYS} vs {e_b[row] / RAYS}"
-    # the lane kernel's books close per channel: every ray's unit weight is accounted for
-    total = e_a[:tracer.N_ENERGY].sum(0) - e_a[tracer.E_REFLECTED_WITHOUT_BASE]
-    np.testing.assert_allclose(total, RAYS, rtol=1e-12)
+    # each kernel's books close per channel: every ray's unit weight is accounted for
+    for e in (e_a, e_b):
+        total = e[:tracer.N_ENERGY].sum(0) - e[tracer.E_REFLECTED_WITHOUT_BASE]
+        np.testing.assert_allclose(total, RAYS, rtol=1e-12)
     # same events per ray within noise (a path's event count has a standard deviation of a few)
     assert abs(lanes[4][1] - paths[4][1]) / RAYS < 0.05 * max(1.0, paths[4][1] / RAYS)
 
@@ -120,12 +121,17 @@ def test_the_lane_kernel_is_picked_where_every_event_is_vectorised():
     ignores the setting)."""
     for name, stack in STACKS.items():
         p = pack(stack)
-        assert tracer.kernel_flags(p, False, False)[0] is True, name
+        assert tracer.kernel_flags(p, False, False).lanes is True, name
         only_walks = all(layer.multiple_scattering for layer in stack.layers if isinstance(layer, Interface))
-        flags = tracer.kernel_flags(p, True, False)
-        assert flags[0] is True and flags[1] is (None if only_walks else True), name
+        variant = tracer.kernel_flags(p, True, False)
+        assert variant.lanes is True and variant.height_correlated is (None if only_walks else True), name
         # a scattering medium is the media variant's, whose event makes the free flights
-        assert (tracer.kernel_flags(p, False, False)[3] is True) == name.startswith("scattering"), name
+        assert (tracer.kernel_flags(p, False, False).media is True) == name.startswith("scattering"), name
+        # the per-path kernel's variants are the masking's and the films'
+        paths = tracer.kernel_flags(p, True, True, tracer.KERNEL_PATHS)
+        assert paths.film is (True if name.startswith("film") else None), name
+        none = tracer.Variant(*(None,) * len(tracer.Variant._fields))
+        assert paths._replace(height_correlated=None, film=None) == none
 
 
 def test_a_check_between_kernels_can_fail():
@@ -140,12 +146,12 @@ def _tabulate_energy(stack: Stack, kernel: int, seed: int, rays: int = 200_000):
     """Energy sums of a tabulation's paths (each draws its own light direction, cosine-weighted)."""
     p = pack(stack)
     cr = 1 << 14
-    nb = -(-rays // cr)
+    run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, seed, 9, tracer.P_TABULATE, 1, 1,
+                         boundary_tables("classic", 1, 1), 1, EVENT_CAP, tabulate=True, kernel=kernel)
+    nb = run.n_chunks
     energy = np.empty((nb, tracer.N_ENERGY, 3))
     energy_sq = np.empty((nb, tracer.N_ENERGY_SQ, 3))
     exit_w = np.empty((nb, cr, 3))
-    run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, cr, seed, 9, tracer.P_TABULATE, 1, 1,
-                         boundary_tables("classic", 1, 1), 1, EVENT_CAP, tabulate=True, kernel=kernel)
     tracer.launch(run, 0, (np.empty((nb, 1, 1, 3, 3)), np.empty((nb, 1, 1, 3, 3)), energy, energy_sq,
                            np.empty((nb, tracer.N_COUNTS), dtype=np.int64)),
                   (np.empty((nb, cr), dtype=np.int64), exit_w))
