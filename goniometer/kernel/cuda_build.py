@@ -39,6 +39,8 @@ WARP = 32
 SHARED_PER_SM = {(8, 0): 164 * 1024, (9, 0): 228 * 1024}
 #: shared memory the CUDA runtime reserves per block (compute capability 8.0 and later)
 SHARED_RESERVED = 1024
+#: an event cap for the launches compiled here (a value of the argument's type: any will do)
+_CAP = 10_000
 
 
 class BuildError(RuntimeError):
@@ -102,13 +104,13 @@ def launch_signatures() -> list[tuple[tuple, tuple]]:
         for hc in (False, True):
             launches = [tracer.prepare(p, (0.3, 0.0, 0.95), 100, 64, 1, 0, param, 4, 8,
                                        boundary_tables("classic" if param == CLASSIC else "half", 4, 8), 3,
-                                       tracer.EVENT_CAP, skip_first=skip, height_correlated=hc, device="cuda")
+                                       _CAP, skip_first=skip, height_correlated=hc, device="cuda")
                         for param, skip in ((CLASSIC, False), (HALF, False), (CLASSIC, True))]
             launches.append(tracer.prepare(p, (0.3, 0.0, 0.95), 100, 64, 1, 0, RGL, rgl.n, rgl.n,
-                                           rgl.kernel_tables(0), 3, tracer.EVENT_CAP, height_correlated=hc,
+                                           rgl.kernel_tables(0), 3, _CAP, height_correlated=hc,
                                            device="cuda"))
             launches.append(tracer.prepare(p, (0.0, 0.0, 1.0), 100, 64, 1, 9, tracer.P_TABULATE, 1, 1,
-                                           boundary_tables("classic", 1, 1), 1, tracer.EVENT_CAP, tabulate=True,
+                                           boundary_tables("classic", 1, 1), 1, _CAP, tabulate=True,
                                            height_correlated=hc, device="cuda"))
             for run in launches:
                 B = 2
