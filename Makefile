@@ -91,6 +91,7 @@ validate-inverse: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py
+	$(PY) benchmarks/bench_harness.py
 	$(PY) benchmarks/bench_inverse.py
 	$(PY) benchmarks/bench_accuracy.py
 

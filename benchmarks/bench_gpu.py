@@ -3,9 +3,17 @@ for the bench's materials (``bench.py``'s MATERIALS) on the classic 90 x 360 gri
 grid (a tabulation: per-path light directions, exits as MERL cells).
 
     python benchmarks/bench_gpu.py [--rays N] [--json OUT]
+    python benchmarks/bench_gpu.py --compile-only
 
 Without numba-cuda or without a visible CUDA GPU it says so in one line and exits 2: it never
 prints a number it did not measure (the simulator is not a GPU, so it is refused too).
+
+``--compile-only`` needs no GPU: it compiles every variant of the kernel for sm_80 and sm_90
+(NVVM, then ``ptxas -v``; ``goniometer.kernel.cuda_build``) and prints one JSON object keyed
+``"sm_80"``, ``"sm_90"``, each ``{"registers", "spill_bytes", "shared_bytes", "occupancy"}`` (the
+most registers, spilled bytes and static shared memory over the variants, the least occupancy:
+resident threads per multiprocessor / 2048 at the variant's block size) and ``"variants"``, the same
+per variant. Without numba-cuda or ptxas it says so in one line and exits 2.
 
 Per material and grid: the CUDA kernel's wall time of one launch of ``--rays`` paths (after a
 warm-up launch that compiles), the CPU lane kernel's on all numba threads for the same paths,
@@ -55,7 +63,7 @@ def _outs(nb, res, K, transmits):
 def measure(stack, grid: str, rays: int, device: str, chunk_rays: int = 1 << 17) -> dict:
     K = 5
     p = pack(stack)
-    nb = -(-rays // chunk_rays)
+    nb = tracer.chunk_count(rays, chunk_rays)
     if grid == "merl":
         res = (1, 1)
         run = tracer.prepare(p, (0.0, 0.0, 1.0), rays, chunk_rays, 1, 9, tracer.P_TABULATE, 1, 1,
@@ -85,11 +93,36 @@ def measure(stack, grid: str, rays: int, device: str, chunk_rays: int = 1 << 17)
     return row
 
 
+def compile_only() -> int:
+    """Print the kernel's resources for sm_80 and sm_90 as one JSON object (module docstring)."""
+    import importlib.util
+    if importlib.util.find_spec("numba_cuda") is None:
+        print("bench_gpu: error: --compile-only needs numba-cuda (pip install 'goniometer[cuda]')", file=sys.stderr)
+        return 2
+    from goniometer.kernel import cuda_build
+    ptxas = cuda_build.ptxas_path()
+    if ptxas is None:
+        print("bench_gpu: error: --compile-only needs ptxas (pip install 'numba-cuda[cu12]')", file=sys.stderr)
+        return 2
+    try:
+        report = cuda_build.build_report(ptxas=ptxas)
+    except cuda_build.BuildError as e:
+        print(f"bench_gpu: error: {e}", file=sys.stderr)
+        return 1
+    print(json.dumps(report, indent=1))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=1 << 22)
     ap.add_argument("--json")
+    ap.add_argument("--compile-only", action="store_true",
+                    help="compile the kernel for sm_80 and sm_90 and print its registers, spills, shared memory "
+                         "and occupancy as JSON (no GPU needed)")
     args = ap.parse_args(argv)
+    if args.compile_only:
+        return compile_only()
     refuse_without_gpu()
     from bench import MATERIALS
     rows = []

@@ -7,7 +7,7 @@ private histogram per chunk holding only the exit weights per cell and channel (
 no second moments, no per-path energy records beyond the reflected and transmitted sums), the
 random numbers of :mod:`goniometer.kernel.rng` drawn from the same per-chunk streams.
 
-Physics (the same as :func:`goniometer.kernel.tracer.trace_chunk` for single-scattering stacks without
+Physics (the same as :func:`goniometer.kernel.tracer._trace_chunk` for single-scattering stacks without
 scattering media; ``docs/material-format.md``, transport): a path starts along ``-l`` with weight
 (1, 1, 1); at an interface a GGX visible normal is drawn (spherical-cap construction) and the
 path reflects with probability F (dielectric) or always with weight *= F (conductor base); the

@@ -2,7 +2,8 @@
 
 Every function here is a scalar ``numba.njit`` function (usable from the tracer's
 kernel and from other njit code) unless its name starts with ``np_``, in which
-case it is a vectorised NumPy ufunc built from the scalar function below it.
+case it is a vectorised NumPy ufunc of the scalar function it calls, compiled (or
+loaded from numba's cache) on its first call, not at import (:class:`LazyUfunc`).
 
 Conventions (shared by the whole project)
 -----------------------------------------
@@ -920,7 +921,7 @@ def microfacet_transmission(
 # uniform heights on [-1, 1], ``c = (h + 1) / 2``): a ray at height ``c`` travelling along ``w``
 # leaves the microsurface without a hit with probability ``G1(w, c) = c ** Lambda(w)`` (upward),
 # and seen from below the same surface has ``c' = 1 - c``. The walk loop itself is
-# :func:`goniometer.kernel.tracer.microsurface_walk` (it draws the random numbers).
+# :func:`goniometer.kernel.steps.microsurface_walk` (it draws the random numbers).
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -1032,49 +1033,101 @@ def spectral_mis_update(p0: float, p1: float, p2: float, q0: float, q1: float, q
 
 
 # --------------------------------------------------------------------------- vectorised forms
+#
+# Built on first use, not at import: ``numba.vectorize`` with signatures compiles (or loads from its
+# cache) when it decorates, which cost every process that imports this module -- ``gonio --help``
+# included -- about half a second. :class:`LazyUfunc` builds the very same ufunc (same signatures,
+# same on-disk cache, same bits) the first time it is called.
 
-@numba.vectorize(["float64(float64, float64)"], cache=True)
+
+class LazyUfunc:
+    """A ``numba.vectorize(signatures, cache=True)`` ufunc of ``py_func``, built on its first call
+    (or first attribute access, e.g. ``.types``) in the numba cache directory that was current when
+    it was declared (``goniometer.cache``); then it is that ufunc: calls, broadcasting, casting and
+    results are the ufunc's."""
+
+    def __init__(self, signatures: list[str], py_func) -> None:
+        self._signatures = list(signatures)
+        self._py_func = py_func
+        self._cache_dir = numba.config.CACHE_DIR
+        self._ufunc = None
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__doc__ = py_func.__doc__
+        self.__module__ = py_func.__module__
+        self.__wrapped__ = py_func
+
+    def ufunc(self) -> np.ufunc:
+        """The compiled ufunc (compiled, or loaded from numba's cache, on the first call)."""
+        if self._ufunc is None:
+            previous = numba.config.CACHE_DIR
+            numba.config.CACHE_DIR = self._cache_dir
+            try:
+                self._ufunc = numba.vectorize(self._signatures, cache=True)(self._py_func)
+            finally:
+                numba.config.CACHE_DIR = previous
+        return self._ufunc
+
+    def __call__(self, *args, **kwargs):
+        return self.ufunc()(*args, **kwargs)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.ufunc(), name)
+
+    def __repr__(self) -> str:
+        state = "built" if self._ufunc is not None else "built on first use"
+        return f"<LazyUfunc {self.__module__}.{self.__name__} ({state})>"
+
+
+def lazy_vectorize(signatures: list[str]):
+    """``numba.vectorize(signatures, cache=True)``, built on first use (:class:`LazyUfunc`)."""
+    def decorate(py_func) -> LazyUfunc:
+        return LazyUfunc(signatures, py_func)
+    return decorate
+
+
+@lazy_vectorize(["float64(float64, float64)"])
 def np_hg_phase(cos_theta, g):
     """Vectorised :func:`hg_phase`."""
     return hg_phase(cos_theta, g)
 
 
-@numba.vectorize(["float64(float64, float64)"], cache=True)
+@lazy_vectorize(["float64(float64, float64)"])
 def np_fresnel_dielectric(cos_i, eta):
     """Vectorised :func:`fresnel_dielectric`."""
     return fresnel_dielectric(cos_i, eta)
 
 
-@numba.vectorize(["float64(float64, float64, float64)"], cache=True)
+@lazy_vectorize(["float64(float64, float64, float64)"])
 def np_fresnel_conductor(cos_i, eta, kappa):
     """Vectorised :func:`fresnel_conductor`."""
     return fresnel_conductor(cos_i, eta, kappa)
 
 
-@numba.vectorize(["float64(float64, float64, float64, float64, float64)"], cache=True)
+@lazy_vectorize(["float64(float64, float64, float64, float64, float64)"])
 def np_ggx_d(mx, my, mz, ax, ay):
     """Vectorised :func:`ggx_d`."""
     return ggx_d(mx, my, mz, ax, ay)
 
 
-@numba.vectorize(["float64(float64, float64, float64, float64, float64)"], cache=True)
+@lazy_vectorize(["float64(float64, float64, float64, float64, float64)"])
 def np_ggx_lambda(vx, vy, vz, ax, ay):
     """Vectorised :func:`ggx_lambda`."""
     return ggx_lambda(vx, vy, vz, ax, ay)
 
 
-@numba.vectorize(
+@lazy_vectorize(
     ["float64(float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, boolean)"],
-    cache=True,
 )
 def np_microfacet_reflection(lx, ly, lz, vx, vy, vz, ax, ay, eta, kappa, height_correlated):
     """Vectorised :func:`microfacet_reflection`."""
     return microfacet_reflection(lx, ly, lz, vx, vy, vz, ax, ay, eta, kappa, height_correlated)
 
 
-@numba.vectorize(
+@lazy_vectorize(
     ["float64(float64, float64, float64, float64, float64, float64, float64, float64, float64, boolean)"],
-    cache=True,
 )
 def np_microfacet_transmission(lx, ly, lz, vx, vy, vz, ax, ay, eta, height_correlated):
     """Vectorised :func:`microfacet_transmission`."""

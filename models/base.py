@@ -158,6 +158,12 @@ class Model(ABC):
         """The ``skipped`` entry of an evaluation of "every model" that leaves an ``on_request`` model out."""
         return f"evaluated on request only (--model {self.name}): {self.on_request_reason()}"
 
+    def cost_note(self, directions: int) -> str | None:
+        """What evaluating ``directions`` direction pairs costs, in words, for a model whose cost
+        stands out (a stochastic estimator: ``gonio evaluate`` says it before integrating, a report
+        beside the material's time); None for the others (``docs/models.md`` §3, "Cost")."""
+        return None
+
     def supports(self, stack: Stack) -> bool:
         return self.reason(stack) is None
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import os
 
+import numba
 import numpy as np
 
 from goniometer.optics import ggx_lambda, microfacet_reflection, smith_g2
@@ -76,7 +77,7 @@ def _absorb(q: float, tau: float, a_l: float, z: float) -> float:
     return q
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _kernel(l: np.ndarray, v: np.ndarray, up: np.ndarray, down: np.ndarray, split: float,
             d_alpha: np.ndarray, d_eta: np.ndarray, region_tau: np.ndarray, base_kind: int,
             rho: np.ndarray, c_alpha: float, c_eta: np.ndarray, c_kappa: np.ndarray, jacobian: bool,
@@ -124,7 +125,7 @@ def _kernel(l: np.ndarray, v: np.ndarray, up: np.ndarray, down: np.ndarray, spli
         grey[r] = not colour
     same12 = c_eta[1] == c_eta[0] and c_kappa[1] == c_kappa[0]
     same23 = c_eta[2] == c_eta[1] and c_kappa[2] == c_kappa[1]
-    for n in range(v.shape[0]):
+    for n in numba.prange(v.shape[0]):   # a view's values depend on it alone: any thread count, same bits
         vx, vy, vz = v[n, 0], v[n, 1], v[n, 2]
         if not (vz > 0.0) or not math.isfinite(vx + vy + vz):
             continue

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from goniometer.optics import fresnel_dielectric, ggx_lambda, half_vector, microfacet_reflection, refract
@@ -102,7 +103,7 @@ def _smith_g(ax: float, ay: float, az: float, bx: float, by: float, bz: float, a
     return 1.0 / ((1.0 + la) * (1.0 + lb))
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _ww_kernel(l: np.ndarray, v: np.ndarray, transmit_normal: int, refract_normal: int,
                base_at_refracted: bool, tir: int, jacobian: bool,
                alpha0: float, eta0: float, tau: np.ndarray, base_kind: int, rho: np.ndarray,
@@ -112,9 +113,16 @@ def _ww_kernel(l: np.ndarray, v: np.ndarray, transmit_normal: int, refract_norma
 
     ``eta0`` is the coat index relative to air; ``eta1``/``kappa1`` (RGB) the conductor's index
     relative to the coat; ``alpha1`` the base roughness already modified by any roughness rule.
+    Directions run in parallel (each one's values depend on it alone, so any thread count gives the
+    same bits); a channel whose inputs equal the previous channel's takes its value.
     """
     lx, ly, lz = l[0], l[1], l[2]
-    for k in range(v.shape[0]):
+    same_base = np.zeros(3, dtype=np.bool_)
+    same_tau = np.zeros(3, dtype=np.bool_)
+    for c in range(1, 3):
+        same_base[c] = (rho[c] == rho[c - 1] and eta1[c] == eta1[c - 1] and kappa1[c] == kappa1[c - 1])
+        same_tau[c] = tau[c] == tau[c - 1]
+    for k in numba.prange(v.shape[0]):
         vx, vy, vz = v[k, 0], v[k, 1], v[k, 2]
         top[k] = 0.0
         internal[k, 0] = 0.0
@@ -157,19 +165,24 @@ def _ww_kernel(l: np.ndarray, v: np.ndarray, transmit_normal: int, refract_norma
         if jacobian:
             x /= eta0 * eta0
         path = 1.0 / l1z + 1.0 / v1z
+        fr1 = 0.0
+        att = 0.0
         for c in range(3):
-            if base_kind == BASE_LAMBERTIAN:
-                fr1 = rho[c] * _INV_PI
-            elif alpha1 > 0.0:
-                if base_at_refracted:
-                    fr1 = microfacet_reflection(l1x, l1y, l1z, v1x, v1y, v1z, alpha1, alpha1,
-                                                eta1[c], kappa1[c], False)
+            if c == 0 or not same_base[c]:
+                if base_kind == BASE_LAMBERTIAN:
+                    fr1 = rho[c] * _INV_PI
+                elif alpha1 > 0.0:
+                    if base_at_refracted:
+                        fr1 = microfacet_reflection(l1x, l1y, l1z, v1x, v1y, v1z, alpha1, alpha1,
+                                                    eta1[c], kappa1[c], False)
+                    else:
+                        fr1 = microfacet_reflection(lx, ly, lz, vx, vy, vz, alpha1, alpha1,
+                                                    eta1[c], kappa1[c], False)
                 else:
-                    fr1 = microfacet_reflection(lx, ly, lz, vx, vy, vz, alpha1, alpha1,
-                                                eta1[c], kappa1[c], False)
-            else:
-                fr1 = 0.0  # a perfectly smooth base: Dirac lobe, not evaluable pointwise
-            internal[k, c] = t01 * fr1 * math.exp(-tau[c] * path) * x
+                    fr1 = 0.0  # a perfectly smooth base: Dirac lobe, not evaluable pointwise
+            if c == 0 or not same_tau[c]:
+                att = math.exp(-tau[c] * path)
+            internal[k, c] = t01 * fr1 * att * x
 
 
 # ---------------------------------------------------------------------- models

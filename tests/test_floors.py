@@ -224,3 +224,32 @@ def test_gonio_help_imports_no_model():
             "with contextlib.redirect_stdout(io.StringIO()): p.format_help()\n"
             "print(sorted(m for m in sys.modules if m.startswith('models.') and not m.startswith('models.commands')))")
     assert _fresh(code) == "[]"
+
+
+def test_start_up_compiles_nothing():
+    # gonio --help and gonio models (which builds every model) neither compile nor load a numba
+    # function: each is compiled (or loaded from its cache) on first use, the np_* ufuncs of
+    # goniometer.optics included (goniometer.optics.LazyUfunc; issue 34: 1.5 s per process start)
+    code = ("import sys, contextlib, io\n"
+            "from numba.core.dispatcher import Dispatcher\n"
+            "from goniometer.cli import main\n"
+            "from goniometer.optics import LazyUfunc\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    for argv in (['--help'], ['models']):\n"
+            "        try:\n"
+            "            main(argv)\n"
+            "        except SystemExit:\n"
+            "            pass\n"
+            "built, lazy = [], 0\n"
+            "for name, mod in list(sys.modules.items()):\n"
+            "    if name.split('.')[0] not in ('goniometer', 'models'):\n"
+            "        continue\n"
+            "    for attr, obj in list(vars(mod).items()):\n"
+            "        if isinstance(obj, Dispatcher) and obj.overloads:\n"
+            "            built.append(f'{name}.{attr}')\n"
+            "        if isinstance(obj, LazyUfunc):\n"
+            "            lazy += 1\n"
+            "            if obj._ufunc is not None:\n"
+            "                built.append(f'{name}.{attr}')\n"
+            "print(sorted(set(built)), lazy > 0, 'models.weidlich_wilkie' in sys.modules)")
+    assert _fresh(code) == "[] True True"

@@ -1,12 +1,24 @@
-"""The CUDA kernel (``docs/gpu.md``): one GPU thread per path, through numba-cuda.
+"""The CUDA kernel (``docs/gpu.md``): the GPU's driver of the per-path transport, one thread per path,
+through numba-cuda.
 
 Each thread traces one path with :func:`goniometer.kernel.onepath.trace_path` -- the per-path
 transport, the CPU per-path kernel's too (:mod:`goniometer.kernel.paths`): numba-cuda compiles the
 ``numba.njit`` functions a kernel calls for the device from the same Python source (the optics,
 the walks, the free flights, the cell lookup) -- seeded from the path's own key, so a path draws
-the same numbers on any device, in any thread, and on the CPU's per-path kernel. The grid is
+the same numbers on any device, in any thread, and in the CPU's per-path kernel. The grid is
 two-dimensional: ``blockIdx.y`` is the chunk slot, ``blockIdx.x * blockDim.x + threadIdx.x`` the
 path in the chunk.
+
+Registers: a thread keeps in shared memory what its path touches rarely or in bursts -- the path's
+record (its absorbed, masking and roulette weights, its state in scattering media,
+:data:`goniometer.kernel.onepath.N_RECORD` numbers), its random stream's state, a tabulation's
+light direction -- a column per thread, so that a warp reads consecutive words. The kernel has the
+per-path transport's variants, ``(height_correlated, film)`` (:func:`kernel_source`), each compiled
+on first use without the other's code, with launch bounds (:func:`kernel_options`): 128 threads and
+at least 4 blocks per multiprocessor, so ptxas keeps a thread within 128 registers (25 %
+occupancy), 3 blocks for a stack with a thin film (168 registers). ``tests/goniometer/kernel/test_cuda_compile.py``
+checks without a GPU that every variant compiles for sm_80 and sm_90 without spilling
+(:mod:`goniometer.kernel.cuda_build`).
 
 Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)`` (:func:`fixed_point`) with
 integer atomics, which commute, so a run's sums do not depend on the order in which threads
@@ -15,12 +27,6 @@ compiler. A block first sums into its shared memory (the energies always; the hi
 grid's two histograms fit, :data:`SHARED_BYTES`), then adds what it holds to global memory;
 otherwise it adds to global memory directly. The integers are turned into float64 at the end
 (``/ 2^32``).
-
-The kernel is compiled for :data:`BLOCK` threads per block and at least :data:`MIN_BLOCKS` blocks
-per multiprocessor (its launch bounds, :data:`KERNEL_OPTIONS`): ptxas then keeps a thread's
-registers within ``65536 / (BLOCK * MIN_BLOCKS)`` = 128, and
-``tests/goniometer/kernel/test_cuda_compile.py`` checks, without a GPU, that it compiles for sm_80
-and sm_90 without spilling (:mod:`goniometer.kernel.cuda_build`).
 
 This module imports ``numba.cuda``; :func:`goniometer.kernel.tracer.check_device` says why a run cannot
 use it (no numba-cuda, no GPU) before anything imports it. Under numba-cuda's simulator
@@ -37,22 +43,22 @@ from numba import config, cuda, float64, int64, uint64
 
 from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.grids.slice_grid import cell_index_fast
-from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
-                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, N_COUNTS, N_ENERGY,
-                                      N_ENERGY_SQ, P_TABULATE)
-from goniometer.kernel.onepath import (B_ABSORBED, B_MASKING, B_ROULETTE, N_BOOKS, X_CAPPED, X_REFLECTED,
-                                       X_TRANSMITTED, path_light, trace_path)
+from goniometer.kernel.layout import C_CAPPED, C_EVENTS, N_COUNTS, N_ENERGY, N_ENERGY_SQ, P_TABULATE
+from goniometer.kernel.onepath import (N_RECORD, X_CAPPED, X_REFLECTED, X_TRANSMITTED, new_record, path_energy,
+                                       path_light, trace_path)
 from goniometer.kernel.rng import path_state
 
 #: threads per block
 BLOCK = 128
-#: blocks per multiprocessor the kernel is compiled to fit (launch bounds; module docstring)
+#: blocks per multiprocessor a variant is compiled to fit (its launch bounds, :func:`kernel_options`):
+#: 4, so 128 registers a thread (25 % occupancy); 3 for a stack with a thin film (168 registers,
+#: 18.75 %), whose Airy sums of three channels on top of a walk do not fit 128 registers (ptxas
+#: spills 470-850 bytes a thread there; ``benchmarks/README.md``)
 MIN_BLOCKS = 4
-#: the kernel's compile options: its launch bounds (the most threads per block, the fewest blocks
-#: per multiprocessor), which the compile check reads too
-KERNEL_OPTIONS = {"launch_bounds": (BLOCK, MIN_BLOCKS)}
-#: shared memory a block's histograms may take (the energies' few hundred bytes come on top)
-SHARED_BYTES = 40_960
+MIN_BLOCKS_FILM = 3
+#: shared memory a block's histograms may take: with the block's own (about 22 KB: the paths'
+#: records, streams and lights, the energy sums) four blocks fit in an A100's 164 KB
+SHARED_BYTES = 16_384
 #: the CUDA kernel's sums are integers: a weight ``w`` adds ``round(w * FIXED_SCALE)`` (2^32), so the
 #: order of the atomic additions cannot change a sum (``docs/gpu.md``, determinism)
 FIXED_SCALE = 4294967296.0
@@ -106,87 +112,110 @@ def _book(acc, row, x0, x1, x2, squares):
         _add(acc, _N_EN + row * 3 + 2, fixed_point(x2 * x2))
 
 
-def _kernel(stack, run, tables, sizes, height_correlated, shared_hist, hist, acc_g, exit_cell, exit_w):
-    """Trace the paths of a batch of chunks (module docstring). ``stack``, ``run``, ``tables``,
-    ``sizes``: the CPU kernels' arguments (:func:`goniometer.kernel.tracer.launch`);
-    ``height_correlated``, ``shared_hist``: bools; ``hist``: (B, 2 * cells * row) int64, the BRDF
-    then the BTDF of each slot, flat; ``acc_g``: (B, _N_ACC) int64 energy sums; ``exit_cell`` /
-    ``exit_w``: per path of a tabulation ((B, 0) otherwise). With ``shared_hist`` the block sums
-    its histograms in dynamic shared memory before adding them to ``hist``."""
-    b = cuda.blockIdx.y
-    tid = cuda.threadIdx.x
-    r = cuda.blockIdx.x * cuda.blockDim.x + tid
-    lx, ly, lz, first_chunk, seed, stream, param, n_theta, n_phi, max_order, event_cap, skip_first = run
-    n_hist = hist.shape[1]
-    sh = cuda.shared.array(0, dtype=int64)        # shared_hist: the block's histograms
-    acc = cuda.shared.array(_N_ACC, dtype=int64)  # the block's energy sums
-    for q in range(tid, _N_ACC, cuda.blockDim.x):
-        acc[q] = int64(0)
-    if shared_hist:
-        for q in range(tid, n_hist, cuda.blockDim.x):
-            sh[q] = int64(0)
-    cuda.syncthreads()
-    if r < sizes[b]:
-        state = cuda.local.array(4, dtype=uint64)
-        books = cuda.local.array(N_BOOKS, dtype=float64)
-        for q in range(N_BOOKS):
-            books[q] = 0.0
-        path_state(state, seed, stream, first_chunk + b, r)
-        tabulate = param == P_TABULATE
-        plx, ply, plz = path_light(state, tabulate, lx, ly, lz)
-        kind, dx, dy, dz, w0, w1, w2, order, single, based, events = trace_path(
-            stack, -plx, -ply, -plz, height_correlated, event_cap, state, books)
-        refl = kind == X_REFLECTED
-        trans = kind == X_TRANSMITTED
-        if tabulate:
-            cell = -1
-            if refl:
-                # the path's light again, from its key (not kept through the path: registers)
-                path_state(state, seed, stream, first_chunk + b, r)
-                plx, ply, plz = path_light(state, True, lx, ly, lz)
-                cell = halfdiff_cell(plx, ply, plz, dx, dy, dz)
-                exit_w[b, r, 0] = w0
-                exit_w[b, r, 1] = w1
-                exit_w[b, r, 2] = w2
-            exit_cell[b, r] = cell
-        elif (refl and not (skip_first and order == 1 and single)) or trans:
-            row_cos, col_cos, col_sin = tables
-            i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
-            if i >= 0:
-                base = (i * n_phi + j) * (max_order + 2) * 3 + (n_hist // 2 if trans else 0)
-                o = min(order, max_order) - 1
-                if shared_hist:
-                    _deposit(sh, base, o, max_order, w0, w1, w2)
-                else:
-                    _deposit(hist[b], base, o, max_order, w0, w1, w2)
-        if refl:
-            _book(acc, E_REFLECTED, w0, w1, w2, True)
-            if not based:
-                _book(acc, E_REFLECTED_WITHOUT_BASE, w0, w1, w2, True)
-        elif trans:
-            _book(acc, E_TRANSMITTED, w0, w1, w2, True)
-        elif kind == X_CAPPED:
-            _book(acc, E_CAPPED, w0, w1, w2, False)
-            _add(acc, _N_EN + _N_ENSQ + C_CAPPED, int64(1))
-        _book(acc, E_ABSORBED, books[B_ABSORBED], books[B_ABSORBED + 1], books[B_ABSORBED + 2], True)
-        _book(acc, E_MASKING, books[B_MASKING], books[B_MASKING + 1], books[B_MASKING + 2], True)
-        _book(acc, E_ROULETTE, books[B_ROULETTE], books[B_ROULETTE + 1], books[B_ROULETTE + 2], False)
-        _add(acc, _N_EN + _N_ENSQ + C_EVENTS, int64(events))
-    cuda.syncthreads()
-    # the block's sums into the slot's (integer additions: in any order the same)
-    for q in range(tid, _N_ACC, cuda.blockDim.x):
-        if acc[q] != 0:
-            cuda.atomic.add(acc_g, (b, q), acc[q])
-    if shared_hist:
-        for q in range(tid, n_hist, cuda.blockDim.x):
-            if sh[q] != 0:
-                cuda.atomic.add(hist, (b, q), sh[q])
+def kernel_source(height_correlated, film):
+    """The CUDA kernel's Python function for the variant ``(height_correlated, film)`` (None or True
+    each, :class:`goniometer.kernel.variants.Variant`): numba freezes the closure's values as
+    constants, so each variant compiles without the other's code (as the CPU kernels' variant
+    arguments do); :func:`kernel_for` compiles it."""
+
+    def _kernel(stack, run, tables, sizes, shared_hist, hist, acc_g, exit_cell, exit_w):
+        """Trace the paths of a batch of chunks (module docstring). ``stack``, ``run``, ``tables``,
+        ``sizes``: the CPU kernels' arguments (:func:`goniometer.kernel.tracer.launch`);
+        ``shared_hist``: bool; ``hist``: (B, 2 * cells * row) int64, the BRDF then the BTDF of each
+        slot, flat; ``acc_g``: (B, _N_ACC) int64 energy sums; ``exit_cell`` / ``exit_w``: per path
+        of a tabulation ((B, 0) otherwise). With ``shared_hist`` the block sums its histograms in
+        dynamic shared memory before adding them to ``hist``."""
+        b = cuda.blockIdx.y
+        tid = cuda.threadIdx.x
+        r = cuda.blockIdx.x * cuda.blockDim.x + tid
+        lx, ly, lz, first_chunk, seed, stream, param, n_theta, n_phi, max_order, event_cap, skip_first = run
+        n_hist = hist.shape[1]
+        sh = cuda.shared.array(0, dtype=int64)        # shared_hist: the block's histograms
+        acc = cuda.shared.array(_N_ACC, dtype=int64)  # the block's energy sums
+        # what a thread keeps of its path in shared memory rather than in registers (module
+        # docstring; a column per thread: consecutive threads read consecutive words): the path's
+        # record (onepath.N_RECORD numbers), its random stream's state, a tabulation's light
+        records = cuda.shared.array((N_RECORD, BLOCK), dtype=float64)
+        states = cuda.shared.array((4, BLOCK), dtype=uint64)
+        lights = cuda.shared.array((3, BLOCK), dtype=float64)
+        for q in range(tid, _N_ACC, cuda.blockDim.x):
+            acc[q] = int64(0)
+        if shared_hist:
+            for q in range(tid, n_hist, cuda.blockDim.x):
+                sh[q] = int64(0)
+        cuda.syncthreads()
+        if r < sizes[b]:
+            state = states[:, tid]
+            rec = records[:, tid]
+            new_record(rec)
+            path_state(state, seed, stream, first_chunk + b, r)
+            tabulate = param == P_TABULATE
+            plx, ply, plz = path_light(state, tabulate, lx, ly, lz)
+            lights[0, tid] = plx
+            lights[1, tid] = ply
+            lights[2, tid] = plz
+            kind, dx, dy, dz, w0, w1, w2, order, single, based, events = trace_path(
+                stack, -plx, -ply, -plz, height_correlated, film, event_cap, state, rec, None)
+            refl = kind == X_REFLECTED
+            trans = kind == X_TRANSMITTED
+            if tabulate:
+                cell = -1
+                if refl:
+                    cell = halfdiff_cell(lights[0, tid], lights[1, tid], lights[2, tid], dx, dy, dz)
+                    exit_w[b, r, 0] = w0
+                    exit_w[b, r, 1] = w1
+                    exit_w[b, r, 2] = w2
+                exit_cell[b, r] = cell
+            elif (refl and not (skip_first and order == 1 and single)) or trans:
+                row_cos, col_cos, col_sin = tables
+                i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
+                if i >= 0:
+                    base = (i * n_phi + j) * (max_order + 2) * 3 + (n_hist // 2 if trans else 0)
+                    o = min(order, max_order) - 1
+                    if shared_hist:
+                        _deposit(sh, base, o, max_order, w0, w1, w2)
+                    else:
+                        _deposit(hist[b], base, o, max_order, w0, w1, w2)
+            for row in range(N_ENERGY):
+                x0, x1, x2 = path_energy(kind, based, w0, w1, w2, rec, row)
+                _book(acc, row, x0, x1, x2, row < N_ENERGY_SQ)
+            if kind == X_CAPPED:
+                _add(acc, _N_EN + _N_ENSQ + C_CAPPED, int64(1))
+            _add(acc, _N_EN + _N_ENSQ + C_EVENTS, int64(events))
+        cuda.syncthreads()
+        # the block's sums into the slot's (integer additions: in any order the same)
+        for q in range(tid, _N_ACC, cuda.blockDim.x):
+            if acc[q] != 0:
+                cuda.atomic.add(acc_g, (b, q), acc[q])
+        if shared_hist:
+            for q in range(tid, n_hist, cuda.blockDim.x):
+                if sh[q] != 0:
+                    cuda.atomic.add(hist, (b, q), sh[q])
+
+    return _kernel
 
 
-#: the kernel as launched (its Python function is :func:`_kernel`, which the compile check compiles
-#: with the same :data:`KERNEL_OPTIONS`)
-_trace_kernel = cuda.jit(_kernel) if config.ENABLE_CUDASIM else cuda.jit(**KERNEL_OPTIONS)(_kernel)
-# (the simulator runs Python threads: it has no registers, and takes no launch bounds)
+#: the compiled kernel of each variant, compiled on first use (:func:`kernel_for`)
+_KERNELS: dict = {}
+
+
+def kernel_options(film) -> dict:
+    """The compile options of a variant: its launch bounds, the most threads per block
+    (:data:`BLOCK`) and the fewest blocks per multiprocessor (:data:`MIN_BLOCKS`, or
+    :data:`MIN_BLOCKS_FILM` for ``film`` True), which keep ptxas within ``65536 / (threads x
+    blocks)`` registers a thread. The compile check (:mod:`goniometer.kernel.cuda_build`) reads
+    them too."""
+    return {"launch_bounds": (BLOCK, MIN_BLOCKS if film is None else MIN_BLOCKS_FILM)}
+
+
+def kernel_for(height_correlated, film):
+    """The kernel of a variant, compiled with :func:`kernel_options` (the simulator runs Python
+    threads: it has no registers and takes no launch bounds)."""
+    key = (height_correlated, film)
+    if key not in _KERNELS:
+        jit = cuda.jit if config.ENABLE_CUDASIM else cuda.jit(**kernel_options(film))
+        _KERNELS[key] = jit(kernel_source(*key))
+    return _KERNELS[key]
 
 
 def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: int, exit_shape: tuple,
@@ -203,8 +232,8 @@ def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: in
     tables = tuple(keep(np.ascontiguousarray(t, dtype=np.float64)) for t in run.tables)
     shared_hist = hist_cells * 8 <= SHARED_BYTES
     tabulate = run.param == P_TABULATE
-    args = (stack, run.scalars(first_chunk), tables, dev(np.ascontiguousarray(sizes, dtype=np.int64)),
-            run.variant.height_correlated is not None, shared_hist, dev(np.zeros((B, hist_cells), dtype=np.int64)),
+    args = (stack, run.scalars(first_chunk), tables, dev(np.ascontiguousarray(sizes, dtype=np.int64)), shared_hist,
+            dev(np.zeros((B, hist_cells), dtype=np.int64)),
             dev(np.zeros((B, _N_ACC), dtype=np.int64)),
             dev(np.full(exit_shape, -1, dtype=np.int64) if tabulate else np.zeros((B, 0), dtype=np.int64)),
             dev(np.zeros(exit_shape + (3,)) if tabulate else np.zeros((B, 0, 3))))
@@ -225,8 +254,8 @@ def trace_batch(run, first_chunk: int, sizes: np.ndarray, outs: tuple, exits: tu
     transmits = btdf.shape[1:] == brdf.shape[1:]
     args, _, dyn = kernel_args(run, first_chunk, sizes, B, 2 * nb, exit_cell.shape, cuda.to_device)
     blocks = (max(1, -(-run.chunk_rays // BLOCK)), B)
-    _trace_kernel[blocks, BLOCK, 0, dyn](*args)
-    hist, acc, ec, ew = args[6:]
+    kernel_for(run.variant.height_correlated, run.variant.film)[blocks, BLOCK, 0, dyn](*args)
+    hist, acc, ec, ew = args[5:]
     h = hist.copy_to_host().astype(np.float64) / FIXED_SCALE
     a = acc.copy_to_host()
     brdf[...] = h[:, :nb].reshape(brdf.shape)

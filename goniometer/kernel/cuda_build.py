@@ -4,14 +4,17 @@ and the theoretical occupancy that follows.
 
 Needs numba-cuda with its CUDA toolkit wheels (``pip install 'numba-cuda[cu12]'``: NVVM, and
 ``ptxas`` in the ``nvidia-cuda-nvcc`` wheel), not a driver or a GPU. The kernel compiled is the
-real one: :func:`goniometer.kernel.cuda._kernel` with :data:`goniometer.kernel.cuda.KERNEL_OPTIONS`,
-for the argument types of every launch the simulator makes (:func:`launch_signatures`).
+real one: each variant's :func:`goniometer.kernel.cuda.kernel_source` with its launch bounds
+(:func:`goniometer.kernel.cuda.kernel_options`), for the argument types of every launch the
+simulator makes (:func:`launch_signatures`).
 
 numba-cuda 0.30 asks the driver for the current device's compute capability when it compiles a
 device function that a kernel calls (``CUDADispatcher.compile_device``), even when the kernel
 itself is compiled for a given one (``numba.cuda.compile(..., cc=...)``); :func:`_compute_capability`
 answers that question with the target's while a compile runs. It changes no code numba-cuda
 generates: the PTX of the linked module is made for the target's architecture (``arch=sm_XX``).
+(numba-cuda compiles a device function once per process and argument types, for the first
+target asked; nothing the transport calls lowers differently for 8.0 and 9.0.)
 """
 
 from __future__ import annotations
@@ -71,11 +74,13 @@ def _compute_capability(cc: tuple[int, int]):
         dispatcher.get_current_device = real
 
 
-def launch_signatures() -> list[tuple]:
-    """The argument types of every kind of launch the simulator makes (:func:`goniometer.kernel.cuda.trace_batch`):
-    slices on the classic, half and RGL grids, with separable and height-correlated masking, a
-    transmitting and a reflecting stack, order 1 integrated, and a tabulation -- as
-    :func:`numba.typeof` types them; the distinct ones, in a fixed order."""
+def launch_signatures() -> list[tuple[tuple, tuple]]:
+    """``(variant, argument types)`` of every kind of launch the simulator makes
+    (:func:`goniometer.kernel.cuda.trace_batch`): slices on the classic, half and RGL grids, with
+    separable and height-correlated masking, stacks with and without films, transmitting and
+    reflecting, order 1 integrated, and a tabulation; ``variant`` the kernel's
+    ``(height_correlated, film)``, the types as :func:`numba.typeof` gives them; the distinct
+    pairs, in a fixed order."""
     from numba import typeof
 
     from goniometer.grids.rgl import RGLGrid
@@ -113,21 +118,23 @@ def launch_signatures() -> list[tuple]:
                 cells = 2 * run.n_theta * run.n_phi * (run.max_order + 2) * 3
                 args, _, _ = cuda.kernel_args(run, 0, run.chunk_sizes(0, B), B, cells,
                                               (B, run.chunk_rays) if tab else (B, 0))
+                key = (run.variant.height_correlated, run.variant.film)
                 sig = tuple(typeof(a) for a in args)
-                seen.setdefault(str(sig), sig)
+                seen.setdefault(str((key, sig)), (key, sig))
     return list(seen.values())
 
 
-def compile_ptx(cc: tuple[int, int], signature: tuple) -> str:
-    """The PTX of the CUDA kernel for argument types ``signature`` and compute capability ``cc``
-    (NVVM through numba-cuda; no GPU needed). Raises :class:`BuildError` if it does not compile."""
+def compile_ptx(cc: tuple[int, int], variant: tuple, signature: tuple) -> str:
+    """The PTX of the CUDA kernel's ``variant`` (``(height_correlated, film)``) for argument types
+    ``signature`` and compute capability ``cc`` (NVVM through numba-cuda; no GPU needed). Raises
+    :class:`BuildError` if it does not compile."""
     from numba import cuda
 
     from goniometer.kernel import cuda as kernel
     try:
         with _compute_capability(cc):
-            ptx, _ = cuda.compile(kernel._kernel, signature, device=False, abi="numba", cc=cc, output="ptx",
-                                  **kernel.KERNEL_OPTIONS)
+            ptx, _ = cuda.compile(kernel.kernel_source(*variant), signature, device=False, abi="numba", cc=cc,
+                                  output="ptx", **kernel.kernel_options(variant[1]))
     except Exception as e:   # numba's typing and lowering errors, NVVM's
         raise BuildError(f"the CUDA kernel does not compile for sm_{cc[0]}{cc[1]}: {type(e).__name__}: {e}") from e
     return ptx
@@ -185,20 +192,43 @@ def occupancy(registers: int, shared_bytes: int, cc: tuple[int, int], block: int
     return min(limits) * block / THREADS_PER_SM
 
 
+#: the kernel's variants by name (``(height_correlated, film)``, :func:`goniometer.kernel.cuda.kernel_source`)
+VARIANT_NAMES = {(None, None): "separable", (True, None): "height-correlated", (None, True): "film",
+                 (True, True): "height-correlated film"}
+
+
+def variant_report(cc: tuple[int, int], variant: tuple, signature: tuple, ptxas: str | None = None) -> dict:
+    """:func:`ptxas_report` of a variant for ``cc`` with its ``occupancy`` (:func:`occupancy` at the
+    variant's launch bounds, :func:`goniometer.kernel.cuda.kernel_options`) and ``max_registers``
+    (the registers the launch bounds allow a thread)."""
+    from goniometer.kernel.cuda import kernel_options
+    threads, blocks = kernel_options(variant[1])["launch_bounds"]
+    r = ptxas_report(compile_ptx(cc, variant, signature), cc, ptxas)
+    r["max_registers"] = REGISTERS_PER_SM // (threads * blocks)
+    r["occupancy"] = occupancy(r["registers"], r["shared_bytes"], cc, threads)
+    return r
+
+
 def build_report(architectures=ARCHITECTURES, ptxas: str | None = None) -> dict:
-    """Per architecture (``"sm_80"``, ``"sm_90"``) the kernel's resources over every launch
-    signature (the largest of each figure): ``{"registers", "spill_bytes", "shared_bytes",
-    "stack_bytes", "occupancy", "signatures"}``, occupancy at :data:`goniometer.kernel.cuda.BLOCK`
-    threads per block (:func:`occupancy`, with the static shared memory; a launch whose histograms
-    sit in shared memory adds up to :data:`goniometer.kernel.cuda.SHARED_BYTES` dynamic)."""
-    from goniometer.kernel.cuda import BLOCK
+    """Per architecture (``"sm_80"``, ``"sm_90"``): ``{"registers", "spill_bytes", "shared_bytes",
+    "occupancy"}`` of the kernel over every launch signature (:func:`launch_signatures`): the most
+    registers, spilled bytes and static shared memory, the least occupancy; and ``"variants"``,
+    each variant's :func:`variant_report` by name (:data:`VARIANT_NAMES`). Occupancy counts the
+    static shared memory; a launch whose histograms sit in shared memory adds up to
+    :data:`goniometer.kernel.cuda.SHARED_BYTES` of dynamic shared memory, within which the
+    launch bounds' blocks still fit."""
     sigs = launch_signatures()
     report = {}
     for cc in architectures:
-        figures = [ptxas_report(compile_ptx(cc, sig), cc, ptxas) for sig in sigs]
-        worst = {k: int(np.max([f[k] for f in figures])) for k in ("registers", "spill_bytes", "shared_bytes",
-                                                                      "stack_bytes")}
-        worst["occupancy"] = occupancy(worst["registers"], worst["shared_bytes"], cc, BLOCK)
-        worst["signatures"] = len(sigs)
-        report[f"sm_{cc[0]}{cc[1]}"] = worst
+        variants = {}
+        for key, sig in sigs:
+            name = VARIANT_NAMES[key]
+            while name in variants:   # (several argument types of one variant)
+                name += "'"
+            variants[name] = variant_report(cc, key, sig, ptxas)
+        v = list(variants.values())
+        report[f"sm_{cc[0]}{cc[1]}"] = {
+            "registers": max(x["registers"] for x in v), "spill_bytes": max(x["spill_bytes"] for x in v),
+            "shared_bytes": max(x["shared_bytes"] for x in v), "occupancy": min(x["occupancy"] for x in v),
+            "variants": variants}
     return report

@@ -33,9 +33,10 @@ C_CAPPED = 0
 C_EVENTS = 1
 N_COUNTS = 2
 
-#: ``param`` of :func:`trace_chunk` for a tabulation (``docs/tabulated-format.md``): every path
-#: draws its own incident direction (cosine-weighted), and a reflected exit is recorded per path as
-#: its MERL cell (:func:`goniometer.grids.halfdiff.cell_of`) and weight instead of in a slice histogram
+#: ``param`` of the kernels (:func:`goniometer.kernel.tracer.prepare`) for a tabulation
+#: (``docs/tabulated-format.md``): every path draws its own incident direction (cosine-weighted), and a
+#: reflected exit is recorded per path as its MERL cell (:func:`goniometer.grids.halfdiff.cell_of`) and
+#: weight instead of in a slice histogram
 P_TABULATE = 2
 
 

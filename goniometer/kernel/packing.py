@@ -65,7 +65,8 @@ class PackedStack:
         return bool(np.any(self.if_film[:, FL_ON] != 0.0))
 
     def as_tuple(self) -> tuple:
-        """The stack arguments of the kernels (:func:`goniometer.kernel.tracer.trace_batch`), in
+        """The packed arrays as the kernels take them (the first fields of
+        :data:`goniometer.kernel.variants.KernelStack`), in
         :data:`KERNEL_FIELDS` order."""
         return tuple(getattr(self, f) for f in self.KERNEL_FIELDS)
 

@@ -21,10 +21,9 @@ from goniometer.grids.halfdiff import cell_of as halfdiff_cell
 from goniometer.grids.slice_grid import cell_index_fast
 from goniometer.kernel import polarized
 from goniometer.kernel.codegen import prefetch
-from goniometer.kernel.layout import (C_CAPPED, C_EVENTS, E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED,
-                                      E_REFLECTED_WITHOUT_BASE, E_ROULETTE, E_TRANSMITTED, P_TABULATE)
-from goniometer.kernel.onepath import (B_ABSORBED, B_MASKING, B_ROULETTE, N_BOOKS, X_CAPPED, X_REFLECTED,
-                                       X_TRANSMITTED, path_light, trace_path)
+from goniometer.kernel.layout import C_CAPPED, C_EVENTS, N_ENERGY, N_ENERGY_SQ, P_TABULATE
+from goniometer.kernel.onepath import (N_RECORD, X_CAPPED, X_REFLECTED, X_TRANSMITTED, new_record, path_energy,
+                                       path_light, trace_path)
 from goniometer.kernel.rng import path_key, seed_state
 
 
@@ -59,17 +58,6 @@ def _deposit(h, base, o, max_order, w0, w1, w2):
         h[s + 5] += q2
 
 
-@numba.njit(cache=True, error_model='numpy', inline="always")
-def _book(energy, energy_sq, row, x0, x1, x2):
-    """Add a path's per-channel amount to energy row ``row`` and its square to the second moments."""
-    energy[row, 0] += x0
-    energy[row, 1] += x1
-    energy[row, 2] += x2
-    energy_sq[row, 0] += x0 * x0
-    energy_sq[row, 1] += x1 * x1
-    energy_sq[row, 2] += x2 * x2
-
-
 @numba.njit(cache=True, error_model='numpy', _nrt=False)
 def _deposit_mueller(mh, i, j, pol):
     """Add a polarized exit's Mueller matrices to cell ``(i, j)`` of ``mh`` (n_theta, n_phi, 32, 3):
@@ -82,12 +70,13 @@ def _deposit_mueller(mh, i, j, pol):
 
 
 @numba.njit(cache=True, error_model='numpy')
-def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, height_correlated,
+def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, height_correlated, film,
                 event_cap, skip_first, outs, polar=None):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.kernel.rng.chunk_key`)
     one after the other for light direction ``l`` and accumulate into the given arrays (arguments
     as :func:`goniometer.kernel.tracer._trace_chunk`'s: ``stack``, ``tables`` and ``outs`` tuples;
-    ``height_correlated`` a bool).
+    ``height_correlated``, ``film``: the per-path kernel's variant, None or True each,
+    :class:`goniometer.kernel.variants.Variant`).
 
     ``param`` is the slice parametrization (:data:`goniometer.grids.slice_grid.CLASSIC`, ``HALF``,
     ``RGL``) or :data:`P_TABULATE`: then path ``r`` first draws its own light direction
@@ -113,9 +102,9 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w, mbrdf, mbtdf = outs
     hr = brdf.reshape(-1)
     ht = btdf.reshape(-1)
-    row = (max_order + 2) * 3
+    cell_size = (max_order + 2) * 3
     state = np.empty(4, dtype=np.uint64)
-    books = np.empty(N_BOOKS)
+    rec = np.empty(N_RECORD)
     pol = np.empty((4, 16)) if polar is not None else None
     tabulate = param == P_TABULATE
     n_events = 0
@@ -130,11 +119,11 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     for r in range(n_rays):
         seed_state(state, path_key(ckey, np.uint64(r)))
         plx, ply, plz = path_light(state, tabulate, lx, ly, lz)
-        books[:] = 0.0
+        new_record(rec)
         if polar is not None:
             polarized.start(pol, polar, -plx, -ply, -plz)
         kind, dx, dy, dz, w0, w1, w2, order, single, based, events = trace_path(
-            stack, -plx, -ply, -plz, height_correlated, event_cap, state, books, pol)
+            stack, -plx, -ply, -plz, height_correlated, film, event_cap, state, rec, pol)
         n_events += events
         refl = kind == X_REFLECTED
         trans = kind == X_TRANSMITTED
@@ -147,7 +136,7 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
         elif (refl and not (skip_first and order == 1 and single)) or trans:
             i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
             if i >= 0:
-                base = (i * n_phi + j) * row
+                base = (i * n_phi + j) * cell_size
                 o = min(order, max_order) - 1
                 _prefetch_exit(ht if trans else hr, base, o, max_order)
                 if pend == 1:
@@ -157,22 +146,16 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
                 pend, pbase, po, pw0, pw1, pw2 = 2 if trans else 1, base, o, w0, w1, w2
                 if polar is not None:
                     _deposit_mueller(mbtdf if trans else mbrdf, i, j, pol)
-        if refl:
-            _book(energy, energy_sq, E_REFLECTED, w0, w1, w2)
-            if not based:
-                _book(energy, energy_sq, E_REFLECTED_WITHOUT_BASE, w0, w1, w2)
-        elif trans:
-            _book(energy, energy_sq, E_TRANSMITTED, w0, w1, w2)
-        elif kind == X_CAPPED:
-            energy[E_CAPPED, 0] += w0
-            energy[E_CAPPED, 1] += w1
-            energy[E_CAPPED, 2] += w2
-            n_capped += 1
-        _book(energy, energy_sq, E_ABSORBED, books[B_ABSORBED], books[B_ABSORBED + 1], books[B_ABSORBED + 2])
-        _book(energy, energy_sq, E_MASKING, books[B_MASKING], books[B_MASKING + 1], books[B_MASKING + 2])
-        energy[E_ROULETTE, 0] += books[B_ROULETTE]
-        energy[E_ROULETTE, 1] += books[B_ROULETTE + 1]
-        energy[E_ROULETTE, 2] += books[B_ROULETTE + 2]
+        for e in range(N_ENERGY):
+            x0, x1, x2 = path_energy(kind, based, w0, w1, w2, rec, e)
+            energy[e, 0] += x0
+            energy[e, 1] += x1
+            energy[e, 2] += x2
+            if e < N_ENERGY_SQ:
+                energy_sq[e, 0] += x0 * x0
+                energy_sq[e, 1] += x1 * x1
+                energy_sq[e, 2] += x2 * x2
+        n_capped += kind == X_CAPPED
     if pend == 1:
         _deposit(hr, pbase, po, max_order, pw0, pw1, pw2)
     elif pend == 2:

@@ -88,7 +88,8 @@ def _walk_frame(pol, vx, vy, vz, mx, my, mz, inside, up, rc, rs):
     zs = 1.0 if up else -1.0
     kx, ky, kz = sg * vx, sg * vy, sg * vz
     nx, ny, nz = sg * mx, sg * my, sg * mz
-    polarized.to_plane(pol, rc * kx - rs * ky, rs * kx + rc * ky, zs * kz, rc * nx - rs * ny, rs * nx + rc * ny, zs * nz)
+    polarized.to_plane(pol, rc * kx - rs * ky, rs * kx + rc * ky, zs * kz,
+                       rc * nx - rs * ny, rs * nx + rc * ny, zs * nz)
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -150,8 +151,8 @@ def free_flight(achromatic, t0, t1, t2, a0, a1, a2, g, hpos, dx, dy, dz, w0, w1,
 
 
 @numba.njit(cache=True, error_model='numpy')
-def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces, state,
-                      film=None, fr=None, from_above=True, pol=None, rc=1.0, rs=0.0):
+def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta, max_bounces, state, film,
+                      fr, from_above, pol=None, rc=1.0, rs=0.0):
     """One event on a multiple-scattering interface: the random walk of Heitz et al. 2016 on the
     GGX microsurface with Smith's height-correlated statistics (``docs/material-format.md`` 2.1).
 
@@ -173,7 +174,8 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, 
     ``from_above``: the walk began on the interface's upper side): a conductor reflects with the
     factors ``R_c``, a dielectric reflects with probability ``P = sum R_c / sum (R_c + T_c)``,
     factors ``R_c / P``, and otherwise refracts (the film-free direction), factors
-    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films).
+    ``T_c / (1 - P)`` (``docs/material-format.md``, thin films). ``film`` None compiles the walk
+    without films (``fr``, an array all the same, is then not read).
 
     With ``pol`` a polarized path's state (:mod:`goniometer.kernel.polarized`), every bounce also
     applies its Fresnel event's Mueller matrix to it (divided by the probability of the choice it
@@ -187,9 +189,6 @@ def microsurface_walk(wx, wy, wz, ax, ay, conductor, cond, g_is_r, b_is_g, eta, 
     bounces; ``n = 0`` when the ray is still on the microsurface after ``max_bounces`` bounces
     (the caller books it as capped).
     """
-    if film is None:
-        return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
-                         max_bounces, state, None, np.empty(0), from_above, pol, rc, rs)
     return walk_from(-wx, -wy, -wz, 1.0, False, 0, False, ax, ay, conductor, cond, g_is_r, b_is_g, eta, inv_eta,
                      max_bounces, state, film, fr, from_above, pol, rc, rs)
 

@@ -385,8 +385,8 @@ def _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate
         return
     ckey = chunk_key(np.uint64(seed), np.uint64(incident_index), np.uint64(first_chunk + b))
     if lanes is None:
-        trace_paths(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order,
-                    height_correlated is not None, event_cap, skip_first, slot + (outs[7][b], outs[8][b]), polar)
+        trace_paths(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, height_correlated, film,
+                    event_cap, skip_first, slot + (outs[7][b], outs[8][b]), polar)
     else:
         _trace_chunk(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
                      height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, slot)

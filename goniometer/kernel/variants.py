@@ -87,7 +87,9 @@ class Variant(NamedTuple):
     """The lane kernel's variant (:func:`variant_flags`): each field None or True. numba
     dispatches on None versus True and prunes the branch of a None *argument*, so the kernels take
     the fields unpacked, as separate arguments (``*variant``), and each variant is compiled (and
-    cached) only when some stack needs it; the per-path kernel uses ``height_correlated`` only."""
+    cached) only when some stack needs it. The per-path transport's variant
+    (:func:`goniometer.kernel.onepath.trace_path`: the per-path kernel, the CUDA kernel) is its
+    ``height_correlated`` and ``film``."""
 
     lanes: bool | None
     height_correlated: bool | None
@@ -104,8 +106,8 @@ class Variant(NamedTuple):
 
 def variant_flags(facts: StackFacts, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> Variant:
     """The :class:`Variant` of a stack. ``kernel``: ``KERNEL_AUTO`` (the lane kernel),
-    ``KERNEL_LANES`` or ``KERNEL_PATHS`` (``lanes`` None: the per-path kernel, whose only variant
-    is the masking's)."""
+    ``KERNEL_LANES`` or ``KERNEL_PATHS`` (``lanes`` None: the per-path kernel, whose variants are
+    the masking's and the films')."""
     if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
         raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
     f = facts
@@ -117,7 +119,7 @@ def variant_flags(facts: StackFacts, height_correlated: bool, tabulate: bool, ke
         return True if x else None
 
     if kernel == KERNEL_PATHS:
-        return Variant(None, flag(height_correlated), None, None, None, None, None, None, None, None, None)
+        return Variant(None, flag(height_correlated), None, None, None, None, None, None, None, None, flag(f.film))
     aniso, g_is_r, b_is_g = f.anisotropic, f.g_is_r, f.b_is_g
     if height_correlated:
         # the rarer masking gets fewer, more general variants (each is a compile of its own): the

@@ -147,7 +147,7 @@ class SimulationResult:
 class Sums:
     """Raw kernel sums in the kernel's layout: what a task returns and an incident accumulates.
 
-    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.kernel.tracer.trace_chunk`;
+    ``brdf``/``btdf``: (n_theta, n_phi, K + 2, 3) (see :func:`goniometer.kernel.tracer._trace_chunk`;
     ``btdf`` is (1, 1, K + 2, 3) for opaque stacks); ``energy`` (N_ENERGY, 3); ``energy_sq``
     (N_ENERGY_SQ, 3); ``counts`` (N_COUNTS,) int64. A polarized run's ``mbrdf``/``mbtdf``:
     (n_theta, n_phi, 2 * N_MUELLER, 3), the sums of the 16 Mueller elements of the exits (row-major)

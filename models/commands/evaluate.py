@@ -154,9 +154,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.save_slices:
         output_path(args.save_slices, inputs=[args.file], overwrite=args.overwrite, option="--save-slices")
     reference = load_reference(args, subcells=args.subcells)
+
+    def progress(name: str) -> None:
+        note = cost_note(name, reference, args.subcells)
+        print(f"integrating {name}" + (f" ({note})" if note else "") + " ...", file=sys.stderr)
     try:
         ev = evaluate(reference, args.model or None, s=args.subcells, isotropize=args.isotropize,
-                      progress=None if args.json else (lambda n: print(f"integrating {n} ...", file=sys.stderr)))
+                      progress=None if args.json else progress)
     except (store.StoreError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
     if not ev.errors and not ev.failed:
@@ -194,6 +198,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.save_slices:
         print(f"wrote {args.save_slices}")
     return report_failures(ev.failed)
+
+
+def cost_note(name: str, reference, subcells: int) -> str | None:
+    """The cost a model states for integrating onto ``reference``'s cells (``Model.cost_note``: the
+    stochastic ones), or None."""
+    from models import registry
+    from models.evaluation import comparison_side
+    model = registry.models_for([name]).get(name)
+    sd = reference.brdf if comparison_side(reference.stack) == "brdf" else reference.btdf
+    if model is None or sd is None:
+        return None
+    return model.cost_note(len(reference.theta_deg) * sd.grid.n_theta * sd.grid.n_phi * subcells * subcells)
 
 
 def no_model_applies(file: str, ev) -> str:

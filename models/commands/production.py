@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from goniometer.cli.common import UsageError, add_overwrite, output_path, whole_number
+from goniometer.cli.common import UsageError, add_overwrite, at_least_one, output_path, whole_number
+from models.commands.report import add_jobs
 
 
 def register(sub) -> None:
@@ -21,6 +22,7 @@ def register(sub) -> None:
     p.add_argument("--no-belcour", dest="belcour", action="store_false",
                    help="skip belcour-fwd (its columns are then empty)")
     p.add_argument("--json", action="store_true", help="print summary.json")
+    add_jobs(p, "measure the materials side by side; the summary is the same whatever N")
     add_overwrite(p)
     p.set_defaults(func=cmd_production)
 
@@ -31,6 +33,7 @@ def cmd_production(args: argparse.Namespace) -> int:
     from models.production.study.effective import ProductionError
     from models.production.study.fitting_formulas import SPLIT_SEED
     from models.report.production import write_production_report
+    at_least_one(args.jobs, "--jobs", "the number of worker processes")
     results = Path(args.results)
     if not (results / "database.json").is_file():
         raise UsageError(f"RESULTS_DIR: {results} is not a database results directory (no database.json)")
@@ -50,7 +53,7 @@ def cmd_production(args: argparse.Namespace) -> int:
     try:
         with bar:
             summary = write_production_report(results, args.out, with_belcour=args.belcour, seed=seed,
-                                              progress=progress)
+                                              progress=progress, jobs=args.jobs)
     except (ProductionError, ValueError) as e:
         raise UsageError(str(e)) from None
     if args.json:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -29,13 +30,30 @@ def register(sub) -> None:
                    help="results of the twin of this database: the single-scattering twin of a multiple-scattering "
                         "database (adds multiple-scattering.md/.json), or the scalar twin of a polarized one (adds "
                         "polarization.md/.json, docs/polarization.md) (default: no comparison)")
+    add_jobs(p, "evaluate the materials and draw their figures side by side; the report's files are the same "
+                "whatever N")
     add_overwrite(p)
     p.set_defaults(func=cmd_report)
+
+
+def add_jobs(p, what: str) -> None:
+    """``--jobs N``: worker processes (``models.workers``), default :func:`default_jobs`."""
+    p.add_argument("--jobs", type=whole_number, default=default_jobs(), metavar="N",
+                   help=f"worker processes that {what} (default: the cores, %(default)s)")
+
+
+def default_jobs() -> int:
+    """The cores this process may run on (``os.sched_getaffinity``), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:   # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
+    at_least_one(args.jobs, "--jobs", "the number of worker processes")
     # a finished report holds index.html (written last); an unfinished one is resumed from its cache
     inputs = [args.results] + [x for x in (args.definition, args.compare_to) if x]
     output_path(args.out, inputs=inputs, overwrite=args.overwrite, directory=True, marker="index.html")
@@ -60,7 +78,7 @@ def cmd_report(args: argparse.Namespace) -> int:
             summary = build_report(args.results, args.out, models=args.model or None, subcells=args.subcells,
                                    progress=progress, incidents_for_figures=incidents, definition=args.definition,
                                    fits=args.fits, isotropize=args.isotropize,
-                                   compare_to=args.compare_to)
+                                   compare_to=args.compare_to, jobs=args.jobs)
     except ReportError as e:
         raise UsageError(str(e)) from None
     except KeyboardInterrupt:

@@ -33,6 +33,7 @@ import numpy as np
 from goniometer.run.results import SimulationResult, SliceData
 from goniometer.grids.slice_grid import light_direction
 from models.base import ModelError
+from models.compare.cells import grid_mask
 from models.compare.integrate import ModelSlices
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -102,8 +103,7 @@ def coverage(reference: SimulationResult, side: str) -> Coverage:
     valid = sd.mask & (sd.proj_solid_angle > 0)
     total = 0
     for m, (t, p) in enumerate(zip(reference.theta_deg, reference.phi_deg)):
-        light = light_direction(float(t), float(p))
-        grid = sd.grid.mask(light) if s is None else sd.grid.mask(light, s)
+        grid = grid_mask(sd.grid, light_direction(float(t), float(p)), s)   # shared (models.compare.cells)
         total += int(np.count_nonzero((grid | sd.mask[m]) & (sd.proj_solid_angle[m] > 0)))
     return Coverage(int(np.count_nonzero(valid)), total)
 

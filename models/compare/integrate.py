@@ -5,7 +5,8 @@ evaluated at the sub-cell centres and weighted by each sub-cell's projected soli
 (:meth:`goniometer.grids.slice_grid.SliceGrid.subcells`), so a model cell value is
 ``sum_k f(l, v_k) w_k / sum_k w_k`` -- the same average the simulator estimates. Geometry (grid,
 incident directions) comes from the reference; masks and projected solid angles for the errors
-are the reference file's.
+are the reference file's. The sub-cells of a (grid, light) are computed once and shared by every
+model and material (:mod:`models.compare.cells`); a model reads them read-only.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from goniometer.run.results import SimulationResult, SliceData
 from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Stack
 from models.base import Model, ModelError, ModelFailure
+from models.compare.cells import cell_geometry
 
 SIDE_OF_GRID = {"reflection": "brdf", "transmission": "btdf"}
 
@@ -69,10 +71,9 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
     (3, n_theta, n_phi) or None (an exact part). The standard error of a cell mean of independent
     sub-cell estimates is ``sqrt(sum_k se_k^2 w_k^2) / sum_k w_k``."""
     side = SIDE_OF_GRID[grid.side]
-    v, w = grid.subcells(light, s)
-    value = model.evaluate(stack, light, v.reshape(-1, 3), side)
-    den = w.sum(axis=(2, 3))
-    inv = np.divide(1.0, den, out=np.zeros_like(den), where=den > 0)
+    geo = cell_geometry(grid, light, s)   # shared by every model and material (models.compare.cells)
+    w, inv = geo.w, geo.inv
+    value = model.evaluate(stack, light, geo.v, side)
     out = []
     for part in (value.top, value.internal):
         f = part.reshape(w.shape + (3,))

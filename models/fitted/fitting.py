@@ -13,7 +13,6 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import least_squares, lsq_linear
 
 from goniometer.run.results import SimulationResult, SliceData
 from models._jit import njit
@@ -228,6 +227,7 @@ class _Problem:
         R, t = _square_root(Gl, gl)
         if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
             return z
+        from scipy.optimize import lsq_linear   # here: scipy.optimize takes 0.4 s to import (gonio models)
         try:
             sol = lsq_linear(R, t, bounds=(lo[lin], hi[lin]), method="bvls")
         except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - degenerate data
@@ -270,6 +270,7 @@ def _stderr_dict(family: Family, se: np.ndarray) -> dict:
 def _run_starts(problem: _Problem, starts: list[np.ndarray], max_nfev: int,
                 progress: Callable[[int, float], None] | None):
     """Run ``least_squares`` from every start (natural coordinates); return all results."""
+    from scipy.optimize import least_squares   # here: scipy.optimize takes 0.4 s to import (gonio models)
     fam = problem.family
     lo, hi = fam.internal_bounds()
     results = []

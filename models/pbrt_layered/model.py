@@ -246,6 +246,16 @@ class PBRTLayered(Model):
     def support_reason(self, stack: Stack) -> str | None:
         return support_reason(stack)
 
+    def cost_note(self, directions: int) -> str:
+        """Its walks: ``max(n_samples, 2)`` per direction pair (with one sample, a second walk only
+        estimates the noise), each of up to ``max_depth`` events, on the numba threads
+        (``docs/pbrt-layered.md`` §6)."""
+        import numba
+        per = max(self.n_samples, 2)
+        threads = numba.get_num_threads()
+        return (f"stochastic: {per * directions:,} random walks ({per} per sub-cell direction, up to "
+                f"{self.max_depth} events each) on {threads} thread{'s' if threads > 1 else ''}")
+
     def packed(self, stack: Stack) -> Packed:
         return pack(pbrt_parameters(stack), self.max_depth, self.n_samples, self.fixed_mis,
                     self.exact_transmission_masking, self.seed)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from goniometer.optics import ggx_d, ggx_lambda, half_vector, microfacet_reflection, fresnel_conductor, smith_g2
@@ -74,11 +75,12 @@ class CoatLayering:
     height_correlated: bool
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _coat_kernel(L, V, e_coat, c_w, a_c, eta_c, coat_color, absorption, base_scale, base_kind, rho,
                  a_b, f0, tint, spec_w, eta, kappa, hc, top, internal):
-    """Fill ``top`` (N,) and ``internal`` (N, 3) for the direction pairs ``L[k]``, ``V[k]``."""
-    for k in range(L.shape[0]):
+    """Fill ``top`` (N,) and ``internal`` (N, 3) for the direction pairs ``L[k]``, ``V[k]``, in
+    parallel (a pair's values depend on it alone: any thread count gives the same bits)."""
+    for k in numba.prange(L.shape[0]):
         lx, ly, lz = L[k, 0], L[k, 1], L[k, 2]
         vx, vy, vz = V[k, 0], V[k, 1], V[k, 2]
         top[k] = 0.0

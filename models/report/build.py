@@ -24,17 +24,18 @@ from typing import Callable, Sequence
 from models import registry
 from models.base import ModelError
 from models.report.appendix_e import appendix_e_markdown, appendix_e_section, is_appendix_e
-from models.report.evaluation import evaluate_material, model_code_key, report_code_key
+from models.report.evaluation import cache_paths, evaluate_material, model_code_key, report_code_key, warm_up_models
 from models.report.figures import material_figures, model_style
-from models.report.files import safe_part, write_json, write_text
+from models.report.files import read_json, safe_part, write_json, write_text
 from models.report.multiple_scattering import evaluate_twins, multiple_scattering_markdown, multiple_scattering_section
 from models.report.html import html_data, render_html
 from models.report.panels import save_figure
 from models.report.polarization import polarization_markdown, polarization_section
 from models.report.reproduction import reproduction_checks, reproduction_markdown
-from models.report.results import MaterialResult, ReportError, open_results
+from models.report.results import MaterialResult, ReportError, ReportMaterial, open_results
 from models.report.spheres import FIGURE1_FILE, figure1, is_figure1, material_spheres
 from models.report.tables import category_csv, category_markdown, error_records, errors_figure
+from models.workers import check_jobs, run_in_workers
 
 #: ``progress(done, total, message)``: once the inputs are read (``0``, ``"loading the models ..."``),
 #: before each material (``done`` = materials finished so far, ``"<material>: evaluating ..."``) and
@@ -74,7 +75,7 @@ class ReportSummary:
     elapsed_s: float = 0.0
 
 
-def _figure_step(res: MaterialResult | None, figure: str, summary: ReportSummary, draw: Callable[[], object],
+def _figure_step(res: MaterialResult | None, figure: str, summary: ReportSummary | None, draw: Callable[[], object],
                  default: object) -> object:
     """``draw()``, or ``default`` when it raises: the failure is recorded as a figure not drawn (for
     the material ``res``, or for the report when None) and never stops the report."""
@@ -89,11 +90,85 @@ def _figure_step(res: MaterialResult | None, figure: str, summary: ReportSummary
         return default
 
 
+@dataclass(frozen=True)
+class _MaterialJob:
+    """What one material's evaluation and figures need (sent to a worker process)."""
+
+    material: ReportMaterial
+    out: Path
+    models: tuple[str, ...] | None
+    subcells: int
+    code: str
+    isotropize: str | None
+    styles: dict
+    incidents: tuple[float, ...] | None
+    report_key: str
+
+
+@dataclass
+class _MaterialDone:
+    """One material's result (its slices dropped: the figures are on disk) and what it cost."""
+
+    res: MaterialResult
+    drawn: bool | None
+    evaluated_s: float
+    figures_s: float
+    #: the time of each model that states its cost (``Model.cost_note``: the stochastic ones)
+    stochastic_s: dict[str, float] = field(default_factory=dict)
+
+
+def _material_step(job: _MaterialJob) -> _MaterialDone:
+    """Evaluate one material (or read its cached evaluation) and draw its figures and spheres: the
+    work of one material, the same here or in a worker process (:mod:`models.workers`)."""
+    models = list(job.models) if job.models is not None else None
+    incidents = list(job.incidents) if job.incidents is not None else None
+    t1 = time.perf_counter()
+    res, ref = evaluate_material(job.material, job.out, models, job.subcells, job.code, job.isotropize)
+    t2 = time.perf_counter()
+    drawn = _figure_step(res, "figures", None,
+                         lambda: material_figures(res, ref, job.out, job.styles, incidents, job.report_key), None)
+    if drawn is None:
+        res.figures = {}
+    spheres = _figure_step(res, "spheres", None, lambda: material_spheres(res, ref, job.out, job.report_key),
+                           {"spheres": [], "spheres_note": "no spheres: they could not be drawn"})
+    for x in spheres.pop("not_drawn", []):
+        res.missing_figure(x["figure"], x["reason"])
+    res.figures = {**res.figures, **spheres}
+    t3 = time.perf_counter()
+    res.slices = None   # free memory: the figures are on disk
+    return _MaterialDone(res, drawn, t2 - t1, t3 - t2, _stochastic_seconds(job, res))
+
+
+def _stochastic_seconds(job: _MaterialJob, res: MaterialResult) -> dict[str, float]:
+    """The time each model that states its cost took on this material (a fresh evaluation only)."""
+    if res.from_cache:
+        return {}
+    seconds = (read_json(cache_paths(job.out, res.material.name)[0]) or {}).get("model_elapsed_s", {})
+    analytic = registry.all_models()
+    return {n: t for n, t in seconds.items() if n in analytic and analytic[n].cost_note(1) is not None}
+
+
+def _done_message(name: str, d: _MaterialDone) -> str:
+    """The progress line of a finished material (with the time of each stochastic model: the ones
+    that state their cost, ``Model.cost_note``)."""
+    res = d.res
+    n_models = len(res.evaluation["models"])
+    ev = "from cache" if res.from_cache else f"evaluated in {d.evaluated_s:.1f} s"
+    if d.stochastic_s:
+        ev += " (" + ", ".join(f"{n} {t:.1f} s, stochastic" for n, t in d.stochastic_s.items()) + ")"
+    fg = (f"drawn in {d.figures_s:.1f} s" if d.drawn else "up to date" if d.drawn is not None else "not drawn")
+    if res.not_drawn:
+        fg += f" ({len(res.not_drawn)} not drawn or without their reference)"
+    failed = len(res.evaluation.get("failed", {}))
+    return f"{name}: {n_models} model(s) {ev}" + (f", {failed} failed" if failed else "") + f"; figures {fg}"
+
+
 def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequence[str] | None = None,
                  subcells: int = 5, progress: Progress | None = None,
                  incidents_for_figures: Sequence[float] | None = None,
                  definition: str | Path | None = None, fits: bool = False,
-                 isotropize: str | None = None, compare_to: str | Path | None = None) -> ReportSummary:
+                 isotropize: str | None = None, compare_to: str | Path | None = None,
+                 jobs: int = 1) -> ReportSummary:
     """Evaluate every finished material of ``results_dir`` and write the report into ``out_dir``.
 
     ``models``: model names (default: every model of the registry that applies to each
@@ -110,7 +185,9 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     :class:`ReportError` on bad input, and when no (material, model) pair could be judged because
     the references have no valid cell. A model that fails on a material (or a material whose
     reference has no valid cell) is recorded under ``failed`` and in ``warnings`` (one line per
-    material and reason), and the report goes on.
+    material and reason), and the report goes on. ``jobs``: worker processes that evaluate the
+    materials and draw their figures side by side (:mod:`models.workers`; 1: one after the other
+    here); the report's files are the same whatever ``jobs`` (``docs/report.md``, "Workers").
     """
     if fits:
         models = list(dict.fromkeys([*(models or registry.all_models()), *registry.FITTED]))
@@ -122,6 +199,10 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         raise ReportError(f"{out}: exists and is not a directory")
     if subcells < 1:
         raise ReportError(f"subcells = {subcells}: must be >= 1")
+    try:
+        jobs = check_jobs(jobs)
+    except ValueError as e:
+        raise ReportError(str(e)) from None
     if models is not None:
         try:
             registry.check_names(models)
@@ -135,41 +216,33 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
     summary = ReportSummary(out, out / "index.html", out / "errors.json", missing=missing, warnings=list(warnings))
     code, report_key = model_code_key(), report_code_key()
     styles = model_style([*registry.all_models(), *(models or ())])
-    results: list[MaterialResult] = []
-    for k, mat in enumerate(materials):
+    steps = [_MaterialJob(mat, out, None if models is None else tuple(models), subcells, code, isotropize, styles,
+                          None if incidents_for_figures is None else tuple(incidents_for_figures), report_key)
+             for mat in materials]
+    finished = [0]
+
+    def start(k: int) -> None:
         if progress is not None:
-            progress(k, len(materials), f"{mat.name}: evaluating ...")
-        t1 = time.perf_counter()
-        res, ref = evaluate_material(mat, out, models, subcells, code, isotropize)
-        t2 = time.perf_counter()
-        drawn = _figure_step(res, "figures", summary,
-                             lambda: material_figures(res, ref, out, styles, incidents_for_figures, report_key), None)
-        if drawn is None:
-            res.figures = {}
-        spheres = _figure_step(res, "spheres", summary, lambda: material_spheres(res, ref, out, report_key),
-                               {"spheres": [], "spheres_note": "no spheres: they could not be drawn"})
-        for x in spheres.pop("not_drawn", []):
-            res.missing_figure(x["figure"], x["reason"])
-        res.figures = {**res.figures, **spheres}
-        t3 = time.perf_counter()
-        res.slices = None   # free memory: the figures are on disk
+            progress(finished[0], len(materials), f"{materials[k].name}: evaluating ...")
+
+    def done(k: int, d: _MaterialDone) -> None:
+        finished[0] += 1
+        if progress is not None:
+            progress(finished[0], len(materials), _done_message(materials[k].name, d))
+
+    finished_steps = run_in_workers(_material_step, steps, jobs, done=done, start=start, writes_under=out,
+                                    warm_up=lambda: warm_up_models(materials, models, subcells, isotropize))
+    results: list[MaterialResult] = []
+    for mat, d in zip(materials, finished_steps):
+        res = d.res
         results.append(res)
         summary.materials.append(mat.name)
         (summary.reused if res.from_cache else summary.evaluated).append(mat.name)
-        if drawn is not None:
-            (summary.figures_drawn if drawn else summary.figures_reused).append(mat.name)
+        if d.drawn is not None:
+            (summary.figures_drawn if d.drawn else summary.figures_reused).append(mat.name)
         if res.evaluation.get("failed"):
             summary.failed[mat.name] = dict(res.evaluation["failed"])
             summary.warnings.extend(failure_warnings(mat.name, res.evaluation["failed"]))
-        if progress is not None:
-            n_models = len(res.evaluation["models"])
-            ev = "from cache" if res.from_cache else f"evaluated in {t2 - t1:.1f} s"
-            fg = (f"drawn in {t3 - t2:.1f} s" if drawn else "up to date" if drawn is not None else "not drawn")
-            if res.not_drawn:
-                fg += f" ({len(res.not_drawn)} not drawn or without their reference)"
-            failed = len(res.evaluation.get("failed", {}))
-            progress(k + 1, len(materials), f"{mat.name}: {n_models} model(s) {ev}"
-                     + (f", {failed} failed" if failed else "") + f"; figures {fg}")
     no_cells = [r.material.name for r in results if r.evaluation.get("cells") == 0]
     if no_cells and not any(r.evaluation["models"] for r in results):
         raise ReportError(f"{rd}: nothing to report: no (material, model) pair was judged, as the reference of "
@@ -195,7 +268,7 @@ def build_report(results_dir: str | Path, out_dir: str | Path, *, models: Sequen
         summary.appendix_e = sec
     if compare_to is not None:
         single, twin_warnings = evaluate_twins(compare_to, out, [r.material.name for r in results], models,
-                                               subcells, code, isotropize)
+                                               subcells, code, isotropize, jobs)
         summary.warnings.extend(twin_warnings)
         if _polarized(results):
             sec = polarization_section(single, results)

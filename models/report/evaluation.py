@@ -25,7 +25,7 @@ from models._jit import models_key
 from models.base import ModelError
 from models.compare.errors import NoCellsError, require_cells
 from models.evaluation import comparison_side, evaluate, group_name
-from models.report.files import material_dir, read_json, write_json
+from models.report.files import OnceWriter, material_dir, read_json, write_json
 from models.report.results import MaterialResult, ReportError, ReportMaterial
 
 CACHE_FORMAT = "goniometer.report-cache"
@@ -93,13 +93,15 @@ def judged_side(reference: SimulationResult, where: str) -> str:
 
 
 def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, subcells: int,
-                   isotropize: str | None = None) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
+                   isotropize: str | None = None, seconds: dict[str, float] | None = None
+                   ) -> tuple[dict, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """Evaluate ``models`` (None: all of the registry) on ``reference``, one model at a time.
     Returns the ``gonio evaluate --json`` object (with ``failed``: model -> message for the models
     that failed, :class:`models.base.ModelFailure`, which :func:`models.evaluation.evaluate`
     records, and ``cells``, ``cells_total``: the support of every error) and model -> (top,
     internal). A reference without a valid cell on its side judges no model: each model is failed
-    with the reason (``docs/report.md``), and the other materials stand.
+    with the reason (``docs/report.md``), and the other materials stand. ``seconds``, if given,
+    receives each evaluated model's time (wall clock).
     """
     stack = reference.stack
     side = judged_side(reference, stack.name)
@@ -123,6 +125,7 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
     doc["cells"], doc["cells_total"] = cov.cells, cov.cells_total
     slices: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
+        t0 = time.perf_counter()
         try:
             ev = evaluate(reference, [name], s=subcells, isotropize=isotropize)
         except ModelError as e:
@@ -138,6 +141,8 @@ def run_evaluation(reference: SimulationResult, models: Sequence[str] | None, su
                 doc.setdefault(key, {})[name] = getattr(ev, key)[name]
         ms = ev.slices[name]
         slices[name] = (ms.top, ms.internal)
+        if seconds is not None:
+            seconds[name] = time.perf_counter() - t0
     return doc, slices
 
 
@@ -158,7 +163,8 @@ def round_mantissa(a: np.ndarray, bits: int = SLICE_CACHE_MANTISSA_BITS) -> np.n
 
 
 def _save_cache(json_path: Path, h5_path: Path, entry: dict, slices: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
-    """The integrated model slices (for figures only: float32 rounded by :func:`round_mantissa`;
+    """The integrated model slices (for figures only: float32 rounded by :func:`round_mantissa`,
+    each distinct array once, chunked per incident direction, :class:`models.report.files.OnceWriter`;
     the errors are computed at full precision and kept in the JSON) and the JSON entry."""
     h5_path.parent.mkdir(parents=True, exist_ok=True)
     with store.atomic_path(h5_path) as tmp:
@@ -166,12 +172,19 @@ def _save_cache(json_path: Path, h5_path: Path, entry: dict, slices: dict[str, t
             f.attrs["format"] = CACHE_FORMAT
             f.attrs["key"] = entry["key"]
             f.attrs["precision"] = f"float32 rounded to {SLICE_CACHE_MANTISSA_BITS} mantissa bits"
+            once = OnceWriter(f)
             for name, (top, internal) in slices.items():
                 g = f.create_group(group_name(name))
                 for part, arr in (("top", top), ("internal", internal)):
-                    g.create_dataset(part, data=round_mantissa(arr), chunks=True, compression="gzip",
-                                     compression_opts=4, shuffle=True)
+                    once.put(f"{g.name}/{part}", round_mantissa(arr))
     write_json(json_path, entry)  # written last: it vouches for the slices file by its key
+
+
+def figure_slices(slices: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The slices the figures are drawn from: as the cache keeps them (:func:`round_mantissa`, read
+    back as float64), so that figures drawn from a fresh evaluation and from the cache are the same."""
+    return {n: (round_mantissa(t).astype(np.float64), round_mantissa(i).astype(np.float64))
+            for n, (t, i) in slices.items()}
 
 
 def load_slices(h5_path: Path, key: str, names: Iterable[str]) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
@@ -217,9 +230,55 @@ def evaluate_material(mat: ReportMaterial, out: Path, models: Sequence[str] | No
         return MaterialResult(mat, cached["evaluation"], key, None, True), None
     ref = read_reference(mat.path)
     t0 = time.perf_counter()
-    evaluation, slices = run_evaluation(ref, models, subcells, isotropize)
+    seconds: dict[str, float] = {}
+    evaluation, slices = run_evaluation(ref, models, subcells, isotropize, seconds)
     entry = {"format": CACHE_FORMAT, "version": CACHE_VERSION, "key": key, "reference": digest,
              "reference_path": str(mat.path), "evaluation": evaluation, "subcells": subcells,
-             "elapsed_s": time.perf_counter() - t0}
+             "elapsed_s": time.perf_counter() - t0, "model_elapsed_s": seconds}
     _save_cache(json_path, h5_path, entry, slices)
-    return MaterialResult(mat, evaluation, key, slices, False), ref
+    return MaterialResult(mat, evaluation, key, figure_slices(slices), False), ref
+
+
+def warm_up_models(materials: Sequence[ReportMaterial], models: Sequence[str] | None, subcells: int,
+                   isotropize: str | None = None) -> None:
+    """Compile, or load from numba's cache, what evaluating ``materials`` calls, here, before worker
+    processes start (:mod:`models.workers`: two workers compiling one function at once would both
+    write it to the cache): for the first material of each (category, parametrization), the grid's
+    sub-cells, masks, solid angles and top-view pixels on a tiny grid of its kind, and every model
+    that applies evaluated at a few directions. Whatever fails here is left to the evaluation, which
+    reports it (a model's failure is one line of the report, never the warm-up's)."""
+    from goniometer.grids.slice_grid import SliceGrid, light_direction
+    from models.evaluation import isotropized
+    from models.report.geometry import pixel_map
+    seen = set()
+    for mat in materials:
+        if (mat.category, mat.parametrization) in seen:
+            continue
+        seen.add((mat.category, mat.parametrization))
+        try:
+            stack, _ = store.describe(mat.path)
+            side = comparison_side(stack)
+            grid = SliceGrid(mat.parametrization, 2, 4, "reflection" if side == "brdf" else "transmission")
+            light = light_direction(30.0, 0.0)
+            v, _ = grid.subcells(light, min(subcells, 2))
+            mask = grid.mask(light, min(subcells, 2))
+            grid.proj_solid_angle(light)
+            pixel_map(grid, light, mask, 4)
+        except Exception:  # noqa: BLE001 -- the evaluation reports what is wrong with the file
+            continue
+        names = models if models is not None else [n for n, m in registry.all_models().items() if not m.on_request]
+        try:
+            available = registry.models_for(list(names))
+        except ModelError:   # a bad adapter spec: the evaluation says so
+            continue
+        for name, model in available.items():
+            if name not in names:
+                continue
+            try:
+                model_stack = stack
+                if isotropize and not model.anisotropic:
+                    model_stack = isotropized(stack, isotropize)
+                if side in model.sides and model.reason(model_stack) is None:
+                    model.evaluate(model_stack, light, v.reshape(-1, 3)[:8], side)
+            except Exception:  # noqa: BLE001 -- a model's failure is the evaluation's to report
+                continue

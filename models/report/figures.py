@@ -55,8 +55,9 @@ def model_style(names: Iterable[str]) -> dict[str, dict[str, str]]:
     """Colour and marker of every model: the paper's for its models, a fixed fallback palette
     (assigned in name order) for the others."""
     out: dict[str, dict[str, str]] = {}
-    others = sorted(n for n in set(names) if n not in PAPER_COLOURS)
-    for n in set(names):
+    names = list(dict.fromkeys(names))   # given order, not a set's (the page would depend on the hash seed)
+    others = sorted(n for n in names if n not in PAPER_COLOURS)
+    for n in names:
         if n in PAPER_COLOURS:
             out[n] = {"colour": PAPER_COLOURS[n], "marker": PAPER_MARKERS.get(n, "o")}
     for i, n in enumerate(others):

@@ -1,14 +1,21 @@
 """The report's files: atomic text and JSON writes, reading a JSON file that may be absent or
-damaged, and safe names for a material's directories (the layout is in ``docs/report.md``)."""
+damaged, safe names for a material's directories, and the datasets of its HDF5 caches, each distinct
+array once (:class:`OnceWriter`; the layout is in ``docs/report.md``)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from goniometer import atomic
+
+if TYPE_CHECKING:
+    import h5py
 
 
 def write_text(path: Path, text: str) -> None:
@@ -40,3 +47,28 @@ def material_dir(name: str) -> Path:
     """Relative directory of a material's figures and cache entry (``plastic/P1-a0_0.05``)."""
     parts = [safe_part(p) for p in name.split("/") if p not in ("", ".", "..")]
     return Path(*parts) if parts else Path("_")
+
+
+#: the filters of the report's HDF5 caches (lossless: gzip, with the shuffle filter)
+H5_FILTERS = {"compression": "gzip", "compression_opts": 6, "shuffle": True}
+
+
+class OnceWriter:
+    """Writes the datasets of an HDF5 file storing each distinct array once: an array equal to one
+    already written (same dtype, shape and bytes: e.g. the top lobe several models share) becomes a
+    hard link to it, which readers see as an ordinary dataset. Arrays with a leading incident axis
+    are chunked one incident direction per chunk, every array compressed by :data:`H5_FILTERS`."""
+
+    def __init__(self, f: "h5py.Group") -> None:
+        self.f = f
+        self.written: dict[tuple, str] = {}
+
+    def put(self, path: str, data: np.ndarray, per_incident: bool = True) -> None:
+        data = np.ascontiguousarray(data)
+        key = (data.dtype.str, data.shape, hashlib.sha256(data.tobytes()).digest())
+        if key in self.written:
+            self.f[path] = self.f[self.written[key]]
+            return
+        chunks = (1,) + data.shape[1:] if per_incident and data.ndim > 1 and data.shape[0] > 0 else True
+        self.f.create_dataset(path, data=data, chunks=chunks, **H5_FILTERS)
+        self.written[key] = self.f[path].name

@@ -29,8 +29,9 @@ from typing import Sequence
 import h5py
 import numpy as np
 
-from models.report.evaluation import evaluate_material
+from models.report.evaluation import evaluate_material, warm_up_models
 from models.report.results import MaterialResult, ReportError, material_sort_key, open_results
+from models.workers import run_in_workers
 
 #: incident elevations the table shows beside the mean (the nearest incident of the file)
 AT_DEG = (0.0, 80.0)
@@ -40,19 +41,27 @@ TWIN_DIR = "multiple-scattering"
 
 
 def evaluate_twins(compare_to: str | Path, out: Path, names: Sequence[str], models: Sequence[str] | None,
-                   subcells: int, code: str, isotropize: str | None = None) -> tuple[list[MaterialResult], list[str]]:
+                   subcells: int, code: str, isotropize: str | None = None,
+                   jobs: int = 1) -> tuple[list[MaterialResult], list[str]]:
     """Evaluations of the materials of the results directory ``compare_to`` whose names are in
-    ``names`` (cached under ``out/multiple-scattering``), and warnings."""
+    ``names`` (cached under ``out/multiple-scattering``; ``jobs`` worker processes,
+    :mod:`models.workers`), and warnings."""
     rd = Path(compare_to)
     _, materials, _, warnings = open_results(rd, None, exclude=out)
     wanted = set(names)
-    results = []
-    for mat in materials:
-        if mat.name in wanted:
-            res, _ = evaluate_material(mat, out / TWIN_DIR, models, subcells, code, isotropize)
-            res.slices = None
-            results.append(res)
+    twins = [(mat, out / TWIN_DIR, None if models is None else tuple(models), subcells, code, isotropize)
+             for mat in materials if mat.name in wanted]
+    results = run_in_workers(_twin_step, twins, jobs, writes_under=out / TWIN_DIR,
+                             warm_up=lambda: warm_up_models([t[0] for t in twins], models, subcells, isotropize))
     return results, [f"--compare-to {rd}: {w}" for w in warnings]
+
+
+def _twin_step(twin: tuple) -> MaterialResult:
+    """The evaluation of one twin (its slices dropped), here or in a worker process."""
+    mat, out, models, subcells, code, isotropize = twin
+    res, _ = evaluate_material(mat, out, None if models is None else list(models), subcells, code, isotropize)
+    res.slices = None
+    return res
 
 
 def _energies(path: Path) -> dict[str, np.ndarray]:

@@ -229,10 +229,12 @@ def markdown(summary: dict, results: dict[str, QuantityResult]) -> str:
 
 def write_production_report(results_dir: str | Path, out_dir: str | Path, with_belcour: bool = True,
                             seed: int = SPLIT_SEED,
-                            progress: Callable[[int, int, str], None] | None = None) -> dict:
-    """Measure, fit and write the report of ``results_dir`` into ``out_dir``; returns the summary."""
+                            progress: Callable[[int, int, str], None] | None = None, jobs: int = 1) -> dict:
+    """Measure, fit and write the report of ``results_dir`` into ``out_dir``; returns the summary.
+    ``jobs``: worker processes that measure the materials side by side (:mod:`models.workers`; the
+    summary is the same whatever ``jobs``)."""
     results_dir, out = Path(results_dir), Path(out_dir)
-    measurements, missing = measure_results(results_dir, with_belcour=with_belcour, progress=progress)
+    measurements, missing = measure_results(results_dir, with_belcour=with_belcour, progress=progress, jobs=jobs)
     params = {}
     for path in result_files(results_dir):
         stack, _ = store.describe(path)

@@ -28,7 +28,7 @@ from models.render import (RenderError, SphereSet, SphereView, comparison_figure
                            slices_reference, view_text, write_png)
 from models.render.reference import Reference
 from models.report.evaluation import read_reference
-from models.report.files import material_dir, read_json, write_json
+from models.report.files import OnceWriter, material_dir, read_json, write_json
 from models.report.results import MaterialResult, ReportMaterial
 
 #: light angles (degrees from the view direction) of every material's spheres, and their size
@@ -89,17 +89,18 @@ def _save(path: Path, tag: str, key: str, spheres: SphereSet) -> None:
     with store.atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = SPHERES_FORMAT
+            once = OnceWriter(f)
             for t, (data, attrs) in keep.items():
                 g = f.create_group(t)
                 g.attrs.update(attrs)
                 for n, a in data.items():
-                    g.create_dataset(n, data=a, compression="gzip", compression_opts=4, shuffle=True)
+                    once.put(f"{t}/{n}", a, per_incident=False)
             g = f.create_group(tag)
             g.attrs.update({"key": key, "order": json.dumps(list(spheres.images)),
                             "skipped": json.dumps(spheres.skipped), "failed": json.dumps(spheres.failed),
                             "description": spheres.reference.description})
             for n, img in spheres.images.items():
-                g.create_dataset(group_name(n), data=img.astype(np.float32), compression="gzip", compression_opts=4, shuffle=True)
+                once.put(f"{tag}/{group_name(n)}", img.astype(np.float32), per_incident=False)
 
 
 class _Lazy:
@@ -135,6 +136,8 @@ def sphere_sets(res: MaterialResult, lazy: _Lazy, out: Path, specs: Sequence[tup
     sets = render_views(reference, list(names), [SphereView(size, angle, reference.side) for _, angle, size in specs])
     for (tag, _, _), key, spheres in zip(specs, keys, sets):
         _save(path, tag, key, spheres)
+        # drawn from the images as the cache keeps them (float32), as a rerun draws them
+        spheres.images = {n: img.astype(np.float32).astype(np.float64) for n, img in spheres.images.items()}
     return sets, True
 
 

@@ -200,6 +200,13 @@ def test_subcells_zero(plastic_file, tmp_path, capsys):
     assert not (tmp_path / "figs").exists() and not (tmp_path / "rep").exists()
 
 
+def test_jobs_zero(tmp_path, capsys):
+    for argv in (["report", str(tmp_path), "--out", str(tmp_path / "rep"), "--jobs", "0"],
+                 ["production", str(tmp_path), "--out", str(tmp_path / "prod"), "--jobs", "0"]):
+        _one_line_error(capsys, argv, "--jobs: 0 is not allowed")
+    assert not (tmp_path / "rep").exists() and not (tmp_path / "prod").exists()
+
+
 def test_plot_out_naming_an_existing_file(plastic_file, tmp_path, capsys):
     f = tmp_path / "figures.png"
     f.write_bytes(b"keep")

@@ -49,6 +49,8 @@ def mirror(alpha, ms=True, rotation=0.0) -> Stack:
 
 #: MIRROR's complex index as the walk takes it (n per channel, then k per channel)
 _FRESNEL_ONE = np.array(MIRROR["ior"] + MIRROR["extinction"])
+#: the film row of an interface without a film (the walk compiled without films does not read it)
+_NO_FILM = np.zeros(0)
 
 
 @numba.njit(cache=True)
@@ -61,7 +63,8 @@ def _walk_cells(lx, ly, lz, ax, ay, eta, conductor, n_rays, seed, param, nt, nph
     per_order = np.zeros(2)
     for _ in range(n_rays):
         ox, oy, oz, f0, f1, f2, n, transmitted = microsurface_walk(
-            lx, ly, lz, ax, ay, conductor, _FRESNEL_ONE, True, True, eta, 1.0 / eta, 10_000, state)
+            lx, ly, lz, ax, ay, conductor, _FRESNEL_ONE, True, True, eta, 1.0 / eta, 10_000, state, None, _NO_FILM,
+            True)
         o = 0 if n == 1 else 1
         side = 1 if transmitted else 0
         i, j = cell_index_fast(param, transmitted, lx, ly, lz, ox, oy, oz, nt, nph, row_cos, col_cos, col_sin)

@@ -62,6 +62,22 @@ def test_read_round_trip(slab_file):
         np.testing.assert_array_equal(back.energy[k], r.energy[k])
 
 
+def test_one_chunk_per_incident_direction_and_lossless(slab_file):
+    # issue 34: the cell datasets are chunked one incident direction per chunk under gzip + shuffle
+    # (lossless: every array reads back bit for bit)
+    p, r = slab_file
+    with h5py.File(p, "r") as f:
+        for side, sd in (("brdf", r.brdf), ("btdf", r.btdf)):
+            g = f[side]
+            for name in ("value", "stderr", "orders", "mask", "proj_solid_angle"):
+                assert g[name].chunks == (1,) + g[name].shape[1:], (side, name)
+                assert g[name].compression == "gzip" and g[name].shuffle, (side, name)
+            assert g["value"][()].tobytes() == sd.value.tobytes()
+            assert g["stderr"][()].tobytes() == sd.stderr.tobytes()
+            assert g["proj_solid_angle"][()].tobytes() == sd.proj_solid_angle.tobytes()
+            assert g["orders"][()].tobytes() == sd.orders.astype(g["orders"].dtype).tobytes()
+
+
 def test_xarray_opens_the_groups(slab_file):
     xr = pytest.importorskip("xarray")
     pytest.importorskip("h5netcdf")

@@ -203,6 +203,23 @@ def test_same_inputs_same_bits_whatever_the_threads():
     assert not np.array_equal(e.internal, PBRTLayered().evaluate(HG_METAL, l, v).internal)
 
 
+def test_it_states_its_cost(tmp_path, capsys):
+    """issue 34: a stochastic model says what it costs before it is integrated (gonio evaluate), the
+    exact ones say nothing."""
+    from goniometer.cli import main
+    from tests.models.harness_helpers import tiny_file
+    path = tiny_file(tmp_path / "p.h5", ROUGH_PLASTIC, rays=2_000, incident=(30.0, 60.0))
+    directions = 2 * 9 * 18 * 3 * 3
+    assert PBRTLayered().cost_note(directions).startswith(f"stochastic: {2 * directions:,} random walks (2 per")
+    assert PBRTLayeredConverged().cost_note(10).startswith("stochastic: 640 random walks (64 per")
+    assert registry.get("ww09").cost_note(directions) is None
+    capsys.readouterr()
+    assert main(["evaluate", str(path), "--model", "pbrt-layered", "--model", "ww09", "--subcells", "3"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert f"integrating pbrt-layered (stochastic: {2 * directions:,} random walks" in "\n".join(err), err
+    assert "integrating ww09 ..." in err
+
+
 @pytest.mark.parametrize("n_samples", [1, 8])
 def test_standard_errors_match_the_spread_over_seeds(n_samples):
     """The reported standard error (from the walks' sample variance; with one walk, from one more

@@ -209,3 +209,14 @@ def test_production_definitions(name, counts):
     assert min(c.coat_ior for c in coated) == 1.3 and max(c.coat_ior for c in coated) == 2.0
     assert {c.multiple_scattering for c in coated} == {False, True}
     assert {c.base for c in coated} == {"conductor", "lambertian"}
+
+
+def test_worker_processes_measure_the_same(tiny_results, tmp_path):
+    """gonio production --jobs 2 (docs/report.md, "Workers"): the same summary, configurations and
+    Markdown as one job."""
+    from models.report.production import write_production_report
+    one = write_production_report(tiny_results, tmp_path / "one", jobs=1)
+    two = write_production_report(tiny_results, tmp_path / "two", jobs=2)
+    assert one == two and one["n_measured"] >= 2
+    for name in ("summary.json", "configurations.json", "production.md"):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name

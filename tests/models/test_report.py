@@ -14,6 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
@@ -24,7 +25,8 @@ import models.report.build as report_module
 from models.evaluation import evaluate
 from models.report import ReportError, build_report, model_style, open_results
 from models.compare.errors import luminance
-from models.report.evaluation import cache_paths, load_slices, round_mantissa
+from models.evaluation import group_name
+from models.report.evaluation import cache_paths, figure_slices, load_slices, round_mantissa, run_evaluation
 from models.report.figures import DISK_PX, ORDER_DISK_PX, PANEL_GAP_PX, PAPER_COLOURS
 from models.report.geometry import plane_cells
 from models.report import hover as hover_mod
@@ -317,6 +319,12 @@ def test_bad_input_raises_report_error(results_dir, tmp_path):
     with pytest.raises(ReportError) as e:
         build_report(broken, tmp_path / "out")
     assert str(bad) in str(e.value)
+    # raised in a worker process: the same error here, the other workers stopped, no temporary file left
+    with pytest.raises(ReportError) as e:
+        build_report(broken, tmp_path / "out-jobs", jobs=2)
+    assert str(bad) in str(e.value) and list((tmp_path / "out-jobs").rglob(".*.tmp-*")) == []
+    with pytest.raises(ReportError, match="jobs = 0: the number of worker processes must be a whole number >= 1"):
+        build_report(results_dir, tmp_path / "out", jobs=0)
     bad_manifest = tmp_path / "badmf"
     bad_manifest.mkdir()
     (bad_manifest / "database.json").write_text("{ not json")
@@ -394,6 +402,36 @@ def test_round_mantissa_precision():
     a = np.random.default_rng(1).lognormal(0, 5, 1000)
     r = round_mantissa(a)
     assert r.dtype == np.float32 and np.max(np.abs(r / a - 1)) <= 2.0 ** -12 + 1e-7
+
+
+def test_the_cache_keeps_each_array_once_and_what_the_figures_were_drawn_from(report, results_dir):
+    """issue 34: equal arrays (a top lobe several models share) are one dataset of the cache, each
+    chunked per incident direction; what a fresh evaluation hands to the figures is, bit for bit,
+    what a rerun reads back from the cache (so a rerun draws the same figures)."""
+    _, out, _, _ = report
+    name = "metal/M4-a0_0.2-a1_0.2"
+    json_path, h5_path = cache_paths(out, name)
+    entry = json.loads(json_path.read_text())
+    names = list(entry["evaluation"]["models"])
+    with h5py.File(h5_path, "r") as f:
+        data = {(n, part): f[f"{group_name(n)}/{part}"] for n in names for part in ("top", "internal")}
+        address = {k: h5py.h5o.get_info(d.id).addr for k, d in data.items()}
+        arrays = {k: d[()] for k, d in data.items()}
+        assert all(d.chunks == (1,) + d.shape[1:] and d.compression == "gzip" for d in data.values())
+    keys = list(arrays)
+    for i, a in enumerate(keys):
+        for b in keys[i + 1:]:
+            same = arrays[a].tobytes() == arrays[b].tobytes()
+            assert (address[a] == address[b]) == same, (a, b)
+    assert len(set(address.values())) < len(address), "the models' shared top lobe is stored once"
+    ref = store.read(next(p for p in _h5_files(results_dir) if p.stem == "M4-a0_0.2-a1_0.2"))
+    _, fresh = run_evaluation(ref, None, 5)
+    drawn, back = figure_slices(fresh), load_slices(h5_path, entry["key"], names)
+    assert set(drawn) == set(back) == set(names)
+    for n in names:
+        for k in range(2):
+            assert drawn[n][k].dtype == back[n][k].dtype == np.float64
+            assert drawn[n][k].tobytes() == back[n][k].tobytes(), n
 
 
 # ---------------------------------------------------------------------- headless Chromium

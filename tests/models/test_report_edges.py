@@ -6,10 +6,16 @@ cannot be shown, ``errors.json`` lists what was not drawn, and a figure that rai
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
+from goniometer.atomic import TEMP_GLOB
 from goniometer.cli import main as gonio
 from goniometer.database import load_database, simulate_database
 import models.report.build as build_module
@@ -166,7 +172,8 @@ def test_an_interrupted_report_says_what_it_cached(plastics, tmp_path, capsys, m
         return real(*args, **kwargs)
     monkeypatch.setattr(build_module, "evaluate_material", second_interrupts)
     capsys.readouterr()
-    assert gonio(["report", str(plastics), "--out", str(out), "--model", "ww09", "--incidents", "60"]) == 130
+    assert gonio(["report", str(plastics), "--out", str(out), "--model", "ww09", "--incidents", "60",
+                  "--jobs", "1"]) == 130   # one job: here, where the monkeypatch is
     err = capsys.readouterr().err
     assert err.splitlines()[0] == "report: 2 material(s); loading the models ..."
     line = err.strip().splitlines()[-1]
@@ -186,3 +193,39 @@ def test_the_report_progress_keeps_its_last_words(plastics, tmp_path, capsys):
                          "report: 2 material(s); plastic/P1-a0_0.05: evaluating ..."]
     last = [x for x in lines if x.startswith("report: 100%")][-1]
     assert last.endswith(" s]") and "figures drawn in" in last, last
+
+
+@pytest.fixture(scope="module")
+def tiny_results(tmp_path_factory) -> Path:
+    results = tmp_path_factory.mktemp("tiny") / "results"
+    simulate_database(load_database(TINY), results, "quick")
+    return results
+
+
+@pytest.mark.parametrize("who", ["group", "report"])
+def test_ctrl_c_stops_the_workers_and_a_rerun_resumes(tiny_results, tmp_path, who):
+    """gonio report --jobs 2 interrupted once a material is cached: Ctrl-C at a terminal (the whole
+    process group) or a SIGINT to the report alone (which passes it on to its workers): exit status
+    130 and its one line, no traceback, no temporary file, no page; the rerun reuses what was cached."""
+    results, out = tiny_results, tmp_path / "report"
+    proc = subprocess.Popen([sys.executable, "-m", "goniometer.cli", "report", str(results), "--out", str(out),
+                             "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 600
+    while not list((out / "cache").rglob("*.json")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.poll() is None, "the report ended before it could be interrupted"
+    if who == "group":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 130, err
+    lines = err.replace("\r", "\n").strip().splitlines()
+    assert lines[-1].startswith("gonio: interrupted; ") and "rerun the same command to resume" in lines[-1]
+    assert "Traceback" not in err and "Error" not in err, err
+    assert list(out.rglob(TEMP_GLOB)) == [] and not (out / "index.html").exists()
+    cached = len(list((out / "cache").rglob("*.json")))
+    assert 1 <= cached < 5
+    summary = build_report(results, out, jobs=1)
+    assert len(summary.reused) == cached and len(summary.evaluated) == 5 - cached

@@ -26,6 +26,7 @@ from models.production.study.effective import (CoatedBase, Darkening, Production
                                                effective_roughness, layered_prediction,
                                                normal_incidence_index, roughness_from)
 from models.belcour import BelcourForward, lobe_statistics
+from models.workers import run_in_workers
 
 #: the existing model the production formulas are compared with
 BELCOUR = "belcour-fwd"
@@ -92,13 +93,36 @@ def result_files(results_dir: str | Path) -> list[Path]:
                   if not any(part.startswith(".") for part in p.relative_to(root).parts))
 
 
+def _measure_file(pair: tuple[Path, Path, bool]) -> Measurement:
+    """:func:`measure_pair` of a coated file and its twin's file (here or in a worker process)."""
+    coated, bare, with_belcour = pair
+    return measure_pair(store.read(coated), store.read(bare), with_belcour)
+
+
+def _warm_up(coated: Path) -> None:
+    """Compile, or load from numba's cache, belcour-fwd's evaluation and the grid's sub-cells here,
+    before worker processes start (:mod:`models.workers`); what fails is the measurement's to say."""
+    from goniometer.grids.slice_grid import SliceGrid, light_direction
+    try:
+        stack, _ = store.describe(coated)
+        model = BelcourForward()
+        v, _ = SliceGrid("classic", 2, 4).subcells(light_direction(30.0, 0.0), 2)
+        if model.reason(stack) is None:
+            model.evaluate(stack, light_direction(30.0, 0.0), v.reshape(-1, 3)[:8], "brdf")
+    except Exception:  # noqa: BLE001 -- the measurement reports what is wrong
+        pass
+
+
 def measure_results(results_dir: str | Path, with_belcour: bool = True,
-                    progress: Callable[[int, int, str], None] | None = None) -> tuple[list[Measurement], list[str]]:
-    """Measure every coated material of ``results_dir`` that has its bare twin.
+                    progress: Callable[[int, int, str], None] | None = None,
+                    jobs: int = 1) -> tuple[list[Measurement], list[str]]:
+    """Measure every coated material of ``results_dir`` that has its bare twin, in ``jobs`` worker
+    processes (:mod:`models.workers`; 1: here, one after the other; the measurements are the same).
 
     Returns the measurements (in file order) and the names of coated materials skipped for want of
-    a twin. Files that are neither coated nor bare are ignored. Raises :class:`ProductionError` if
-    no coated material can be measured."""
+    a twin. Files that are neither coated nor bare are ignored. ``progress(done, total, name)``
+    when a material starts and once at the end. Raises :class:`ProductionError` if no coated
+    material can be measured."""
     bare: dict[str, Path] = {}
     coated: list[tuple[Path, CoatedBase]] = []
     for path in result_files(results_dir):
@@ -114,18 +138,20 @@ def measure_results(results_dir: str | Path, with_belcour: bool = True,
         cfg = coated_base(stack)
         if cfg is not None:
             coated.append((path, cfg))
-    out: list[Measurement] = []
-    missing: list[str] = []
-    twins: dict[str, SimulationResult] = {}
-    for i, (path, cfg) in enumerate(coated):
+    missing = [cfg.name for _, cfg in coated if cfg.base_key not in bare]
+    pairs = [(path, bare[cfg.base_key], with_belcour) for path, cfg in coated if cfg.base_key in bare]
+    names = [cfg.name for _, cfg in coated if cfg.base_key in bare]
+    finished = [len(missing)]
+
+    def start(i: int) -> None:
         if progress is not None:
-            progress(i, len(coated), cfg.name)
-        if cfg.base_key not in bare:
-            missing.append(cfg.name)
-            continue
-        if cfg.base_key not in twins:
-            twins[cfg.base_key] = store.read(bare[cfg.base_key])
-        out.append(measure_pair(store.read(path), twins[cfg.base_key], with_belcour))
+            progress(finished[0], len(coated), names[i])
+
+    def done(i: int, m: Measurement) -> None:
+        finished[0] += 1
+
+    out = run_in_workers(_measure_file, pairs, jobs, done=done, start=start,
+                         warm_up=(lambda: _warm_up(pairs[0][0])) if with_belcour and pairs else None)
     if progress is not None:
         progress(len(coated), len(coated), "")
     if not out:

@@ -128,9 +128,11 @@ def test_the_lane_kernel_is_picked_where_every_event_is_vectorised():
         assert variant.lanes is True and variant.height_correlated is (None if only_walks else True), name
         # a scattering medium is the media variant's, whose event makes the free flights
         assert (tracer.kernel_flags(p, False, False).media is True) == name.startswith("scattering"), name
-        # the per-path kernel's only variant is the masking's
+        # the per-path kernel's variants are the masking's and the films'
         paths = tracer.kernel_flags(p, True, True, tracer.KERNEL_PATHS)
-        assert paths._replace(height_correlated=None) == tracer.Variant(*(None,) * len(tracer.Variant._fields))
+        assert paths.film is (True if name.startswith("film") else None), name
+        none = tracer.Variant(*(None,) * len(tracer.Variant._fields))
+        assert paths._replace(height_correlated=None, film=None) == none
 
 
 def test_a_check_between_kernels_can_fail():
