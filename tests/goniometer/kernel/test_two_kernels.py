@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from goniometer.kernel import tracer
+from goniometer.run.settings import EVENT_CAP
 from goniometer.grids.slice_grid import boundary_tables, light_direction
 from goniometer.stack import Film, Interface, Lambertian, Medium, Stack
 from goniometer.kernel.packing import pack
