@@ -279,14 +279,16 @@ class CompileWatch:
         import numba.core.event as ev
         modules = [ev] + [m for m in (sys.modules.get("numba.cuda.core.event"),)
                           if m is not None and hasattr(m, "register") and hasattr(m, "Listener")]
+        # each event module takes only its own kind (numba-cuda refuses a "numba:" kind)
+        kinds = ["numba:compile" if m is ev else "numba-cuda:compile" for m in modules]
         listeners = [self._listener(m) for m in modules]
-        for m, listener in zip(modules, listeners):
-            m.register("numba:compile", listener)
+        for m, kind, listener in zip(modules, kinds, listeners):
+            m.register(kind, listener)
         try:
             yield self
         finally:
-            for m, listener in zip(modules, listeners):
-                m.unregister("numba:compile", listener)
+            for m, kind, listener in zip(modules, kinds, listeners):
+                m.unregister(kind, listener)
 
     def _listener(self, module):
         watch = self
