@@ -86,19 +86,14 @@ def _stokes(args: argparse.Namespace, angle: float, size: int) -> int:
     """``gonio render --stokes``: refused in one line for a file without Mueller matrices."""
     from goniometer.files import slices as store
     from models.render import RenderError
-    from models.render.stokes import NotPolarized, polarized_result, render_stokes, stokes_figure, write_png
+    from models.render.stokes import NotPolarized, render_stokes_file
 
+    output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
     try:
-        result = polarized_result(args.file)
+        sphere = render_stokes_file(args.file, args.out, angle, size)
     except NotPolarized as e:
         raise UsageError(f"--stokes: {e}") from None
     except (RenderError, store.StoreError) as e:
-        raise UsageError(str(e) if str(e).startswith(str(args.file)) else f"{args.file}: {e}") from None
-    output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
-    try:
-        sphere = render_stokes(result, size, angle, str(args.file))
-        write_png(args.out, stokes_figure(sphere))
-    except RenderError as e:
         raise UsageError(str(e) if str(e).startswith(str(args.file)) else f"{args.file}: {e}") from None
     doc = sphere.to_json()
     if args.json:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 
+import h5py
 import numpy as np
 import pytest
 
@@ -110,3 +111,9 @@ def test_cli_stokes_is_refused_on_a_scalar_file_and_with_models(tmp_path, capsys
     assert not (tmp_path / "s.png").exists()
     code, _, err = _run(capsys, path, "--out", tmp_path / "s.png", "--stokes")
     assert "a scalar file (no Mueller matrices)" in err
+    tab = tmp_path / "t.h5"                       # a tabulated file holds no Mueller matrices either
+    with h5py.File(tab, "w") as f:
+        f.attrs["format"] = "goniometer.tabulated"
+    code, out, err = _run(capsys, tab, "--out", tmp_path / "s.png", "--stokes")
+    assert code == 2 and err.startswith("gonio: error: --stokes: ") and "holds no Mueller matrices" in err, err
+    assert not (tmp_path / "s.png").exists()
