@@ -83,6 +83,31 @@ def test_a_wrong_frame_rotation_fails_the_check(glass, monkeypatch, wrong):
     assert failing >= 10
 
 
+def test_a_coat_over_a_diffuse_base_sends_out_radial_polarization():
+    """Light leaving a smooth coat from a depolarizing base is p-polarized (the refraction passes more
+    p than s), along the plane of the normal and the camera: in the image, the radial direction
+    from the sphere's centre. This checks the camera frame's handedness (y = k x x, k towards the
+    camera, angles counter-clockwise), which the horizontal AOLP of the glass cannot: the mirrored
+    angles fail."""
+    plastic = Stack("plastic", (Interface(0.0, (1.5,) * 3), Lambertian((0.8,) * 3)), "plastic")
+    r = g.simulate(plastic, g.SimulationSettings(incident_deg=tuple(range(0, 90, 10)), rays=50_000, resolution=(9, 36),
+                                                 polarized=True, seed=3, threads=2))
+    sphere = render_stokes(r, 48, 0.0)          # light along the line of sight
+    a = sphere.aolp_deg
+    ok = np.isfinite(a)
+    assert ok.sum() >= 500
+    s, se = sphere.stokes, sphere.stderr
+    with np.errstate(invalid="ignore", divide="ignore"):
+        se_a = np.degrees(0.5 * np.hypot(se[:, 1], se[:, 2]) / np.hypot(s[:, 1], s[:, 2]))
+    n = sphere.view.normals
+    radial = np.degrees(np.arctan2(n[:, 1], n[:, 0]))
+
+    def off(angle: np.ndarray) -> np.ndarray:
+        return np.abs((angle - radial + 90.0) % 180.0 - 90.0)
+    assert np.all(off(a)[ok] <= Z_TOL * se_a[ok] + 1e-9)
+    assert np.sum(off(-a)[ok] > Z_TOL * se_a[ok] + 1e-9) > 0.5 * ok.sum()
+
+
 def _run(capsys, *argv) -> tuple[int, str, str]:
     code = gonio(["render", *map(str, argv)])
     out, err = capsys.readouterr()
