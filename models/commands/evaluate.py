@@ -48,7 +48,8 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders; a "
-                                    "polarized file's Mueller elements and degree of polarization), optionally with models")
+                                    "polarized file's Mueller elements and degree of polarization), "
+                                    "optionally with models")
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG figures")
     p.add_argument("--model", action="append", metavar="NAME",

@@ -100,8 +100,9 @@ def _stokes(args: argparse.Namespace, angle: float, size: int) -> int:
         print(json.dumps({**doc, "out": str(args.out)}, indent=2))
         return 0
     median = "-" if doc["dolp_median"] is None else f"{doc['dolp_median']:.3g}"
-    print(f"{doc['material']}: {doc['side'].upper()} sphere, {doc['size']} px, light at {doc['light_angle_deg']:g} deg; "
-          f"polarization for unpolarized light on {doc['shown_fraction']:.1%} of the sphere, DOLP median {median}")
+    print(f"{doc['material']}: {doc['side'].upper()} sphere, {doc['size']} px, light at "
+          f"{doc['light_angle_deg']:g} deg; polarization for unpolarized light on {doc['shown_fraction']:.1%} "
+          f"of the sphere, DOLP median {median}")
     print(f"({doc['frame']}; {doc['signal_rule']})")
     print(f"wrote {args.out}")
     return 0

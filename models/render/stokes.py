@@ -247,7 +247,8 @@ def stokes_figure(sphere: StokesSphere):
     bar = fig.colorbar(ScalarMappable(norm=colors.Normalize(-90.0, 90.0), cmap=colormap[AOLP_CMAP]), ax=axes[2],
                        orientation="horizontal", fraction=0.05, pad=0.04, ticks=[-90, -45, 0, 45, 90])
     bar.set_label("angle of linear polarization (degrees, camera frame)", fontsize=8)
-    what = ("BTDF, sphere backlit" if view.side == BTDF else "BRDF, light") + f" at {view.light_angle_deg:g}° from the view"
+    what = ("BTDF, sphere backlit" if view.side == BTDF else "BRDF, light") + \
+        f" at {view.light_angle_deg:g}° from the view"
     fig.suptitle("\n".join([f"{sphere.material}: polarization for unpolarized light, {what}",
                             "white light (Rec. 709 luminance of the channels); AOLP in the camera frame:",
                             *textwrap.wrap(CAMERA_FRAME[len("camera frame: "):], 110)]), fontsize=9)

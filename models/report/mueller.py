@@ -76,7 +76,8 @@ def _mueller_figure(sd: SliceData, side: str, m: int, theta: float, phi: float, 
                        ticks=[-1, -0.5, 0, 0.5, 1])
     bar.set_label("m_ij = M_ij / M00 (1: M_ij and M00 in sr⁻¹)", fontsize=7)
     bar.ax.tick_params(labelsize=7)
-    fig.suptitle(f"{title}: Mueller matrix normalized by M00, {_side_text(side)}, θ_l = {theta:g}°, φ_l = {phi:g}°\n"
+    fig.suptitle(f"{title}: Mueller matrix normalized by M00, {_side_text(side)}, "
+                 f"θ_l = {theta:g}°, φ_l = {phi:g}°\n"
                  f"white light; {FRAMES_TEXT}; +x (φ = 0°) right, +y up; ring: the light l\n"
                  f"{SIGNAL_RULE}, or outside the comparison mask", fontsize=7.5, wrap=True)
     return fig

@@ -23,8 +23,8 @@ DIMS = ("incident", "channel", "theta", "phi", "mueller_row", "mueller_col")
 
 
 def _file(tmp_path_factory, polarized: bool):
-    r = simulate(SLAB, SimulationSettings(incident_deg=(0.0, 30.0), rays=3000, resolution=(6, 8), parametrization="half",
-                                          max_order=3, threads=1, polarized=polarized))
+    r = simulate(SLAB, SimulationSettings(incident_deg=(0.0, 30.0), rays=3000, resolution=(6, 8),
+                                          parametrization="half", max_order=3, threads=1, polarized=polarized))
     p = tmp_path_factory.mktemp("xrp") / ("pol.h5" if polarized else "scalar.h5")
     store.write(p, r)
     return p, r
