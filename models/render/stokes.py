@@ -140,6 +140,7 @@ class StokesSphere:
 
     @property
     def dolp_stderr(self) -> np.ndarray:
+        """(P,) the bound of :attr:`dolp`'s standard error (:func:`dolp_stderr`), NaN where not shown."""
         return np.where(self.shown, dolp_stderr(self.stokes, self.stderr), np.nan)
 
     @property
@@ -189,6 +190,9 @@ def render_stokes(result: SimulationResult, view_size: int, light_angle_deg: flo
     """The Stokes sphere of a polarized result: its compared side (as ``gonio render``) lit by
     unpolarized light, each pixel's first Mueller column interpolated like the intensity
     (:class:`models.render.reference.SlicesBSDF`) and turned into the camera's frame."""
+    where = where or result.stack.name
+    if not result.settings.polarized:
+        raise NotPolarized(f"{where}: a scalar result (no Mueller matrices)")
     ref = slices_reference(result, where)
     sd = result.brdf if ref.side == "brdf" else result.btdf
     M, C = sd.mueller.shape[:2]

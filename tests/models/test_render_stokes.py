@@ -128,6 +128,8 @@ def test_cli_stokes_writes_the_png_and_its_summary(glass, tmp_path, capsys):
 def test_cli_stokes_is_refused_on_a_scalar_file_and_with_models(tmp_path, capsys):
     r = g.simulate(GLASS, g.SimulationSettings(incident_deg=(30.0, 60.0), rays=2000, resolution=(3, 6), threads=1))
     path = store.write(tmp_path / "scalar.h5", r)
+    with pytest.raises(stokes.NotPolarized, match="a scalar result"):
+        render_stokes(r, 32, 30.0)
     for extra, start in (((), "gonio: error: --stokes: "), (("--model", "ww09"), "gonio: error: --stokes: ")):
         code, out, err = _run(capsys, path, "--out", tmp_path / "s.png", "--stokes", *extra)
         lines = err.strip().splitlines()
