@@ -9,6 +9,12 @@ phi_l in degrees), ``channel`` (R, G, B), ``order``, ``theta`` and ``phi`` (cell
 degrees). The functions below add what a user wants on top of that: cells whose ``mask`` is
 False hold meaningless numbers in the file (they are kept there so that the energy sums close,
 ``docs/slices-format.md`` §5) and come back as NaN in every 1/sr variable.
+
+A polarized run's slice groups add the dimensions ``mueller_row`` (the exit beam's Stokes component,
+0..3) and ``mueller_col`` (the incident beam's) and the variables ``mueller`` and ``mueller_stderr``
+(``incident, channel, theta, phi, mueller_row, mueller_col``; 1/sr, masked like ``value``), in the
+s/p frames of ``docs/polarization.md`` section 2, which the group's attributes ``polarized`` and
+``stokes_frames`` say. A scalar file's groups have none of them.
 """
 
 from __future__ import annotations
@@ -33,6 +39,10 @@ TABULATED = "goniometer.tabulated"
 _FORMATS = (store.FORMAT, "goniometer.model-slices", TABULATED)
 #: the note left in the attributes of a group whose masked cells were replaced by NaN
 MASKED_NOTE = "cells with mask == False are NaN in every 1/sr variable (they are meaningless in the file)"
+#: the attribute ``stokes_frames`` of a polarized slice group: the frames of its Mueller matrices
+STOKES_FRAMES = ("sp: each beam's x is the s of its own plane of incidence, x_in = normalize(l x z), "
+                 "x_out = normalize(z x v), y = k x x (docs/polarization.md section 2); "
+                 "goniometer.grids.stokes.convert_mueller converts them")
 
 
 def _xarray():
@@ -67,6 +77,8 @@ def _check_file(p: Path) -> tuple[str, np.ndarray]:
 def _finish(ds: "xarray.Dataset", phi_deg: np.ndarray, masked: bool) -> "xarray.Dataset":
     """Add ``incident_phi`` where an older file lacks it, and turn masked cells into NaN."""
     ds = ds.copy()
+    if "mueller" in ds.data_vars:
+        ds.attrs.update({"polarized": 1, "stokes_frames": STOKES_FRAMES})
     if "incident" in ds.dims and store.INCIDENT_PHI not in ds.variables:
         # files written before the auxiliary coordinate existed: take it from /incident/phi_deg
         ds = ds.assign_coords({store.INCIDENT_PHI: ("incident", phi_deg,
@@ -89,7 +101,10 @@ def open_dataset(path: str | Path, side: str = "brdf", model: str | None = None,
     give ``model`` too. Variables in 1/sr (``value``, ``stderr``, ``orders``, ...) are NaN where
     ``mask`` is False unless ``masked=False``. Values are BSDF values without the cosine factor,
     angles in degrees, ``l`` and ``v`` pointing away from the surface (``docs/slices-format.md``).
-    The dataset's attributes add the file's ``format``, ``material`` name and ``category``.
+    The dataset's attributes add the file's ``format``, ``material`` name and ``category``. A
+    polarized file's group holds ``mueller`` and ``mueller_stderr`` (dimensions ``incident, channel,
+    theta, phi, mueller_row, mueller_col``) and the attributes ``polarized`` = 1 and
+    ``stokes_frames`` (module docstring); a scalar file's holds neither.
     Raises StoreError for a file that is not ours or lacks the side, ValueError for a bad ``side``.
     """
     xr = _xarray()

@@ -47,7 +47,8 @@ def register(sub) -> None:
     add_reference_options(p)
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders), "
+    p = sub.add_parser("plot", help="figures of one simulated file (incident plane, top views, bounce orders; a "
+                                    "polarized file's Mueller elements and degree of polarization), "
                                     "optionally with models")
     p.add_argument("file", metavar="FILE.h5")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG figures")
@@ -244,6 +245,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
     from models.base import ModelError
     from models.commands.failures import report_failures
     from models.report import ReportError, plot_file
+    from models.report.mueller import NOTE as POLARIZATION_NOTE, plot_polarization
 
     at_least_one(args.subcells, "--subcells", "the number of sub-cells per cell side")
     if Path(args.out).exists() and not Path(args.out).is_dir():
@@ -256,8 +258,12 @@ def cmd_plot(args: argparse.Namespace) -> int:
         incidents = thetas
     try:
         r = plot_file(args.file, args.out, args.model, incidents, subcells=args.subcells, isotropize=args.isotropize)
+        polarization = plot_polarization(args.file, args.out, incidents)   # none for a scalar file
     except (ReportError, ModelError) as e:
         raise UsageError(f"{args.file}: {e}" if not str(e).startswith(str(args.file)) else str(e)) from None
+    if polarization:
+        r["figures"] += polarization
+        r["polarization"] = POLARIZATION_NOTE
     failed = (r.get("evaluation") or {}).get("failed", {})
     if args.json:
         print(json.dumps(r, indent=2))
@@ -267,6 +273,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
         print(f"  {p}")
     if "reference" in r:
         print(f"({r['reference']})")
+    if "polarization" in r:
+        print(f"({r['polarization']})")
     return report_failures(failed)
 
 

@@ -60,13 +60,16 @@ def _check_isotropic(stack: Stack, where: str) -> None:
 class SlicesBSDF:
     """``f(l, v)`` interpolated from the slices of one side of a simulated result (module docstring)."""
 
-    def __init__(self, result: SimulationResult, side: str) -> None:
+    def __init__(self, result: SimulationResult, side: str, cells: np.ndarray | None = None) -> None:
+        """``cells``: what to interpolate instead of the side's ``value``, (M, N, n_theta, n_phi) for
+        any N (e.g. a polarized file's Stokes columns, :mod:`models.render.stokes`); the call then
+        returns (P, N)."""
         sd = result.brdf if side == "brdf" else result.btdf
         if sd is None:
             raise RenderError(f"{result.stack.name}: the file has no {side.upper()} slices")
         self.grid = sd.grid
         self.transmission = side == "btdf"
-        self.value = np.asarray(sd.value, dtype=np.float64)
+        self.value = np.asarray(sd.value if cells is None else cells, dtype=np.float64)
         self.mask = np.asarray(sd.mask, dtype=bool)
         self.phi = np.radians(np.asarray(result.phi_deg, dtype=np.float64))
         rounded = np.round(np.asarray(result.theta_deg, dtype=np.float64), 9)
@@ -94,7 +97,7 @@ class SlicesBSDF:
     def sample(self, m: int, th: np.ndarray, ph: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bilinear sample of slice ``m`` at slice coordinates ``(th, ph)`` (``ph`` relative to the
         slice's light azimuth): ``(sum of weight x value (N, 3), sum of weights (N,))`` over the
-        unmasked corners."""
+        unmasked corners (``(N, C)`` for cells of C channels)."""
         nt, nph = self.grid.n_theta, self.grid.n_phi
         if self.grid.parametrization == "classic":
             u = th / (0.5 * np.pi) * nt - 0.5
@@ -109,7 +112,7 @@ class SlicesBSDF:
         b = w - j
         j0 = np.mod(j.astype(np.int64), nph)
         j1 = np.mod(j0 + 1, nph)
-        acc = np.zeros((len(th), 3))
+        acc = np.zeros((len(th), self.value.shape[1]))
         wsum = np.zeros(len(th))
         value, mask = self.value[m], self.mask[m]
         for r, c, wt in ((r0, j0, (1 - a) * (1 - b)), (r0, j1, (1 - a) * b), (r1, j0, a * (1 - b)), (r1, j1, a * b)):
@@ -122,7 +125,7 @@ class SlicesBSDF:
         theta_l, vr = align(l, v)
         th, ph = self.coordinates(theta_l, vr)
         k0, k1, t, inside = bracket(theta_l, self.nodes)
-        acc = np.zeros((len(theta_l), 3))
+        acc = np.zeros((len(theta_l), self.value.shape[1]))
         wsum = np.zeros(len(theta_l))
         for k, group in enumerate(self.groups):
             weight = np.where(k0 == k, 1.0 - t, 0.0) + np.where(k1 == k, t, 0.0)
