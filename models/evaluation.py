@@ -4,6 +4,11 @@ The comparison side follows Bati 2019: a stack that transmits (a slab) is judged
 every other stack on its BRDF. For a BRDF, "internal" drops the reflection off the top interface
 (bounce order 1 in the reference, the top lobe in the model); for a BTDF "internal" and "total"
 are the same comparison.
+
+On a polarized file (``docs/polarization.md`` §5) every model keeps its intensity errors against the
+file's ``value`` (``M00``), and a polarized model (:attr:`models.base.Model.polarized`) also gets the
+errors of its Mueller matrices element by element (:func:`models.compare.errors.mueller_errors`,
+``Evaluation.mueller``); a model that gives none is listed in ``Evaluation.intensity_only`` with why.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from models import registry
 from models.compare import errors
 from models.base import ModelError, ModelFailure, failure, require_slices
 from models.compare.errors import Coverage, require_cells
-from models.compare.integrate import ModelSlices, integrate
+from models.compare.integrate import ModelSlices, MuellerSlices, integrate, integrate_mueller
 
 MODEL_SLICES_FORMAT = "goniometer.model-slices"
 
@@ -51,6 +56,14 @@ class Evaluation:
     coverage: Coverage | None = None
     #: the reference is a measurement (docs/measured.md): no bounce orders, "internal" is the whole BRDF
     measured: bool = False
+    #: the reference is polarized (its judged side holds Mueller matrices, docs/polarization.md §5)
+    polarized: bool = False
+    #: polarized models' per-element errors (models.compare.errors.mueller_errors), model -> object
+    mueller: dict[str, dict] = field(default_factory=dict)
+    #: their integrated Mueller matrices
+    mueller_slices: dict[str, MuellerSlices] = field(default_factory=dict)
+    #: on a polarized reference, the evaluated models judged on the intensity only, and why
+    intensity_only: dict[str, str] = field(default_factory=dict)
 
     def fail(self, name: str, e: ModelFailure) -> None:
         """Record that model ``name`` failed (its one line under ``failed``; no note of it kept)."""
@@ -69,9 +82,16 @@ class Evaluation:
     def to_json(self) -> dict:
         """The object printed by ``gonio evaluate --json`` (``fits``: parameters and convergence of
         fitted models, when any was asked for; ``failed``: model -> why it failed; ``cells``,
-        ``cells_total``: the support of every error, as in each error object)."""
+        ``cells_total``: the support of every error, as in each error object). On a polarized
+        reference only: ``polarized`` (true), ``mueller`` (model -> the per-element errors of
+        :func:`models.compare.errors.mueller_errors`) and ``intensity_only`` (model -> why it has
+        intensity errors only)."""
         out = {"material": self.material, "category": self.category, "side": self.side,
                "models": self.errors, "skipped": self.skipped, "failed": self.failed}
+        if self.polarized:
+            out["polarized"] = True
+            out["mueller"] = self.mueller
+            out["intensity_only"] = self.intensity_only
         if self.coverage is not None:
             out["cells"], out["cells_total"] = self.coverage.cells, self.coverage.cells_total
         if self.fits:
@@ -150,6 +170,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
                                  f"(noise floor unknown) and no bounce orders ('internal' compares the whole BRDF)")
     result.coverage = require_cells(reference, side)
     cells_total = result.coverage.cells_total
+    result.polarized = sd.mueller is not None
     anisotropic = any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers)
     for name, model in available.items():
         if names and name not in names:
@@ -188,6 +209,8 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         result.slices[name] = ms
         result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf") and not result.measured,
                                              cells_total=cells_total)
+        if result.polarized:
+            _judge_mueller(result, model, reference, sd, side, s, model_stack, cells_total)
     for name in fitted:
         if not names:
             result.skipped[name] = f"fitted to the file on request only (--model {name})"
@@ -208,7 +231,27 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         result.errors[name] = errors.compare(sd, ms, drop_first_order=False, cells_total=cells_total)
         result.fits[name] = {"params": fr.params, "converged": fr.converged, "message": fr.message,
                              "n_cells": fr.n_cells}
+        if result.polarized:
+            result.intensity_only[name] = "a fitted scalar model: it gives intensities, not Mueller matrices"
     return result
+
+
+def _judge_mueller(result: Evaluation, model, reference: SimulationResult, sd, side: str, s: int, stack: Stack,
+                   cells_total: int) -> None:
+    """On a polarized reference, the per-element errors of ``model``'s Mueller matrices, or why it
+    is judged on the intensity only; a model whose Mueller matrices fail is recorded under
+    ``failed`` (its intensity errors kept)."""
+    try:
+        reason = model.mueller_reason(stack)
+        if reason is not None:
+            result.intensity_only[model.name] = reason
+            return
+        mu = integrate_mueller(model, reference, side, s, stack=stack)
+    except ModelFailure as e:
+        result.fail(model.name, ModelFailure(e.model, f"its Mueller matrices: {e.reason}"))
+        return
+    result.mueller_slices[model.name] = mu
+    result.mueller[model.name] = errors.mueller_errors(sd, mu, cells_total)
 
 
 def _fit(reference: SimulationResult, name: str, s: int):
