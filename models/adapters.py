@@ -281,7 +281,8 @@ class MitsubaFileModel(Model):
         from models.production.mitsuba import POLARIZING_PLUGINS
         if not self.polarized:
             return (f"Mitsuba's {self.plugin} is judged on the intensity only: of its plugins only "
-                    f"{', '.join(POLARIZING_PLUGINS)} carry polarization, the others depolarize")
+                    f"{', '.join(POLARIZING_PLUGINS)} carry polarization, the others depolarize "
+                    f"(docs/polarization.md section 5)")
         return super().mueller_reason(stack)
 
     def support_mueller_reason(self, stack: Stack) -> str | None:
@@ -289,6 +290,12 @@ class MitsubaFileModel(Model):
         if mitsuba_polarized_variant() is None:
             return "this Mitsuba has no polarized variant (scalar_spectral_polarized)"
         return None
+
+    def mueller_note(self, stack: Stack) -> str | None:
+        from models.production.mitsuba import channel_wavelengths, mitsuba_polarized_variant
+        nm = ", ".join(f"{x:g}" for x in channel_wavelengths(stack))
+        return (f"Mitsuba's {self.plugin} in {mitsuba_polarized_variant()}, R G B at {nm} nm, from its stokes_basis "
+                f"frames to the file's s/p frames")
 
     def polarized_bsdf(self) -> Any:
         """The file's BSDF loaded in the polarized variant (loaded on first use)."""

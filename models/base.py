@@ -226,6 +226,11 @@ class Model(ABC):
         """A polarized model's own refusals of Mueller matrices for ``stack`` (None: it gives them)."""
         return None
 
+    def mueller_note(self, stack: Stack) -> str | None:
+        """How a polarized model computes its Mueller matrices for ``stack``, in words, when the
+        reader needs it beside the numbers (e.g. a renderer's variant and wavelengths); None for none."""
+        return None
+
     def evaluate_mueller(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> np.ndarray:
         """The Mueller matrices of the whole BSDF, ``v.shape[:-1] + (3, 4, 4)`` (channel, row,
         column), 1/sr without the cosine, in the frames :attr:`mueller_frames` (module docstring).

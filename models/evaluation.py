@@ -239,19 +239,25 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
 def _judge_mueller(result: Evaluation, model, reference: SimulationResult, sd, side: str, s: int, stack: Stack,
                    cells_total: int) -> None:
     """On a polarized reference, the per-element errors of ``model``'s Mueller matrices, or why it
-    is judged on the intensity only; a model whose Mueller matrices fail is recorded under
-    ``failed`` (its intensity errors kept)."""
+    is judged on the intensity only; a model whose Mueller matrices (or their note) fail is recorded
+    under ``failed``, its intensity errors kept."""
     try:
         reason = model.mueller_reason(stack)
         if reason is not None:
             result.intensity_only[model.name] = reason
             return
         mu = integrate_mueller(model, reference, side, s, stack=stack)
+        try:
+            note = model.mueller_note(stack)
+        except Exception as e:  # noqa: BLE001 -- the model's own code
+            raise failure(model.name, "mueller_note", e) from None
     except ModelFailure as e:
         result.fail(model.name, ModelFailure(e.model, f"its Mueller matrices: {e.reason}"))
         return
     result.mueller_slices[model.name] = mu
     result.mueller[model.name] = errors.mueller_errors(sd, mu, cells_total)
+    if note:
+        result.mueller[model.name]["note"] = str(note)
 
 
 def _fit(reference: SimulationResult, name: str, s: int):

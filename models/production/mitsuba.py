@@ -106,6 +106,9 @@ SCALAR_POLARIZED = "scalar_spectral_polarized"
 #: mitsuba3#1512, #1625; mitsuba2#435); ``conductor`` and ``dielectric`` are smooth, so ``eval``
 #: gives them no value off their delta directions
 POLARIZING_PLUGINS = ("conductor", "roughconductor", "dielectric", "pplastic")
+#: the C++ classes of those plugins (what a loaded BSDF's ``class_name()`` says)
+POLARIZING_CLASSES = {"SmoothConductor": "conductor", "RoughConductor": "roughconductor",
+                      "SmoothDielectric": "dielectric", "PolarizedPlastic": "pplastic"}
 
 _PROBE_POLARIZED = """
 import mitsuba as mi, drjit as dr
@@ -157,9 +160,10 @@ def channel_wavelengths(stack: Stack) -> tuple[float, float, float]:
 
 
 def plugin_name(bsdf: Any) -> str:
-    """The plugin a loaded Mitsuba BSDF is (``roughconductor``, ...): its class name, lower case."""
-    name = bsdf.class_name() if hasattr(bsdf, "class_name") else str(bsdf).split("[", 1)[0]
-    return name.strip().lower()
+    """The plugin a loaded Mitsuba BSDF is: one of :data:`POLARIZING_PLUGINS` for their classes
+    (:data:`POLARIZING_CLASSES`), else its C++ class name (``SmoothDiffuse`` for ``diffuse``)."""
+    name = (bsdf.class_name() if hasattr(bsdf, "class_name") else str(bsdf).split("[", 1)[0]).strip()
+    return POLARIZING_CLASSES.get(name, name)
 
 
 class MitsubaBSDF:
