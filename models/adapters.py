@@ -25,7 +25,7 @@
   with the vectorised variant; with ``scalar_rgb`` one Python-level call per direction, about
   5 us each (a 90 x 360 slice at 5 x 5 sub-cells: about 4 s per incident direction).
 
-  On a polarized file (``docs/polarization.md`` §5) a file whose BSDF is one of the plugins that
+  On a polarized file (``docs/polarization.md``, "Models on polarized files") a file whose BSDF is one of the plugins that
   carry polarization (:data:`models.production.mitsuba.POLARIZING_PLUGINS`: ``conductor``,
   ``roughconductor``, ``dielectric``, ``pplastic``) is a polarized model: the same file is loaded a
   second time in the polarized variant (:func:`models.production.mitsuba.mitsuba_polarized_variant`)
@@ -282,7 +282,7 @@ class MitsubaFileModel(Model):
         if not self.polarized:
             return (f"Mitsuba's {self.plugin} is judged on the intensity only: of its plugins only "
                     f"{', '.join(POLARIZING_PLUGINS)} carry polarization, the others depolarize "
-                    f"(docs/polarization.md section 5)")
+                    f"(docs/polarization.md, Models on polarized files)")
         return super().mueller_reason(stack)
 
     def support_mueller_reason(self, stack: Stack) -> str | None:
@@ -294,8 +294,10 @@ class MitsubaFileModel(Model):
     def mueller_note(self, stack: Stack) -> str | None:
         from models.production.mitsuba import channel_wavelengths, mitsuba_polarized_variant
         nm = ", ".join(f"{x:g}" for x in channel_wavelengths(stack))
+        smooth = ("; a smooth plugin: eval gives its delta lobes no value, so it predicts no light in any cell"
+                  if self.plugin in ("conductor", "dielectric") else "")
         return (f"Mitsuba's {self.plugin} in {mitsuba_polarized_variant()}, R G B at {nm} nm, from its stokes_basis "
-                f"frames to the file's s/p frames")
+                f"frames to the file's s/p frames{smooth}")
 
     def polarized_bsdf(self) -> Any:
         """The file's BSDF loaded in the polarized variant (loaded on first use)."""
