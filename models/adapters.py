@@ -25,8 +25,8 @@
   with the vectorised variant; with ``scalar_rgb`` one Python-level call per direction, about
   5 us each (a 90 x 360 slice at 5 x 5 sub-cells: about 4 s per incident direction).
 
-  On a polarized file (``docs/polarization.md``, "Models on polarized files") a file whose BSDF is one of the plugins that
-  carry polarization (:data:`models.production.mitsuba.POLARIZING_PLUGINS`: ``conductor``,
+  On a polarized file (``docs/polarization.md``, "Models on polarized files") a file whose BSDF is
+  one of the plugins that carry polarization (:data:`models.production.mitsuba.POLARIZING_PLUGINS`: ``conductor``,
   ``roughconductor``, ``dielectric``, ``pplastic``) is a polarized model: the same file is loaded a
   second time in the polarized variant (:func:`models.production.mitsuba.mitsuba_polarized_variant`)
   and its Mueller matrices (:meth:`models.production.mitsuba.MitsubaBSDF.eval_mueller`, channel

@@ -19,8 +19,8 @@ Conventions (same as :mod:`goniometer.optics` and ``docs/slices-format.md``):
   (:meth:`Model.evaluate_mueller`): ``(..., 3, 4, 4)``, the whole BSDF (no top/internal split),
   1/sr without the cosine, mapping the Stokes vector of the light arriving along ``-l`` to that of
   the light leaving along ``v``, in the frames ``mueller_frames`` names (default ``"sp"``, the
-  files' s/p frames; ``docs/polarization.md`` §1-2 and "Models on polarized files"). ``M[..., 0, 0]`` is the intensity
-  ``top + internal``.
+  files' s/p frames; ``docs/polarization.md`` §1-2 and "Models on polarized files").
+  ``M[..., 0, 0]`` is the intensity ``top + internal``.
 
 Writing a model, in a plugin package or behind ``--model python:MODULE:NAME``: ``docs/models.md``,
 "Writing a model (plugins)".

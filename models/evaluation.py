@@ -5,10 +5,11 @@ every other stack on its BRDF. For a BRDF, "internal" drops the reflection off t
 (bounce order 1 in the reference, the top lobe in the model); for a BTDF "internal" and "total"
 are the same comparison.
 
-On a polarized file (``docs/polarization.md``, "Models on polarized files") every model keeps its intensity errors against the
-file's ``value`` (``M00``), and a polarized model (:attr:`models.base.Model.polarized`) also gets the
-errors of its Mueller matrices element by element (:func:`models.compare.errors.mueller_errors`,
-``Evaluation.mueller``); a model that gives none is listed in ``Evaluation.intensity_only`` with why.
+On a polarized file (``docs/polarization.md``, "Models on polarized files") every model keeps its
+intensity errors against the file's ``value`` (``M00``), and a polarized model
+(:attr:`models.base.Model.polarized`) also gets the errors of its Mueller matrices element by element
+(:func:`models.compare.errors.mueller_errors`, ``Evaluation.mueller``); a model that gives none is
+listed in ``Evaluation.intensity_only`` with why.
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ class Evaluation:
     coverage: Coverage | None = None
     #: the reference is a measurement (docs/measured.md): no bounce orders, "internal" is the whole BRDF
     measured: bool = False
-    #: the reference is polarized (its judged side holds Mueller matrices, docs/polarization.md, "Models on polarized files")
+    #: the reference is polarized: its judged side holds Mueller matrices (docs/polarization.md, "Models on
+    #: polarized files")
     polarized: bool = False
     #: polarized models' per-element errors (models.compare.errors.mueller_errors), model -> object
     mueller: dict[str, dict] = field(default_factory=dict)

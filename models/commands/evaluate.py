@@ -38,7 +38,7 @@ def register(sub) -> None:
                                    "error against M00 (the file's value), and polarized models (mitsuba:FILE of "
                                    "conductor, roughconductor, dielectric or pplastic; a plugin Model with "
                                    "polarized = True) also get the RMSE and noise floor of each of the 16 Mueller "
-                                   "elements, per channel (docs/polarization.md, "Models on polarized files").")
+                                   "elements, per channel (docs/polarization.md, 'Models on polarized files').")
     p.add_argument("file", metavar="FILE", help="a slices file, or a measured MERL .binary / RGL .bsdf (with --stack)")
     p.add_argument("--model", action="append", metavar="NAME",
                    help="a model to evaluate: a name of gonio models, python:MODULE:NAME or mitsuba:FILE.xml|.json "

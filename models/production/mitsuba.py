@@ -99,7 +99,8 @@ def mitsuba_variant() -> str | None:
     return SCALAR if SCALAR in mi.variants() else None
 
 
-#: Mitsuba's polarized variants, vectorised first (``docs/polarization.md``, "Models on polarized files")
+#: Mitsuba's polarized variants, vectorised first (``docs/polarization.md``, "Models on polarized
+#: files")
 VECTORISED_POLARIZED = "llvm_ad_spectral_polarized"
 SCALAR_POLARIZED = "scalar_spectral_polarized"
 #: Mitsuba 3's BSDF plugins whose polarized ``eval`` carries polarization (the others depolarize:

@@ -1,5 +1,5 @@
-"""gonio evaluate on a polarized file (issue 33 item 5, docs/polarization.md, "Models on polarized files"): polarized
-models judged element by element against the file's Mueller matrices with a noise floor per element,
+"""gonio evaluate on a polarized file (issue 33 item 5; docs/polarization.md, "Models on polarized
+files"): polarized models judged element by element against the file's Mueller matrices with a noise floor per element,
 every model's intensity against M00 unchanged, scalar files as before."""
 
 from __future__ import annotations
