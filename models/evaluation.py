@@ -282,7 +282,8 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
     reference; per model a group ``/<model>/<side>`` with ``value`` (= top + internal), ``top``,
     ``internal`` (M, 3, n_theta, n_phi; 1/sr) and the reference's ``mask`` and
     ``proj_solid_angle``; attribute ``subcells``; for a stochastic model also ``top_stderr`` and
-    ``internal_stderr``. The group of a model is named by :func:`group_name` (an adapter spec's
+    ``internal_stderr``; for a polarized model judged on a polarized reference ``mueller``
+    (M, 3, n_theta, n_phi, 4, 4; 1/sr, the reference's s/p frames). The group of a model is named by :func:`group_name` (an adapter spec's
     ``/`` escaped).
     """
     p = store.check_writable(path)
@@ -310,6 +311,13 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
                         w.put(f"{part}_stderr", ms.stderr(part), store.CELLS, "1/sr",
                               long_name=f"{name} {part} standard error",
                               description="the stochastic model's own standard error of the cell mean")
+                mu = evaluation.mueller_slices.get(name)
+                if mu is not None:
+                    w.mueller_scales()
+                    w.put("mueller", mu.mueller, store.CELLS + ("mueller_row", "mueller_col"), "1/sr",
+                          long_name=f"{name} Mueller matrix cell mean",
+                          description="the polarized model's Mueller matrices integrated over the reference's cells, "
+                                      "in its s/p frames (docs/polarization.md)")
     return p
 
 
@@ -321,9 +329,11 @@ def group_name(model: str) -> str:
 
 
 def read_slices(path: str | Path, model: str, side: str) -> dict[str, np.ndarray]:
-    """Read one model's saved slices (``value``, ``top``, ``internal``, ``mask``, ``proj_solid_angle``)."""
+    """Read one model's saved slices (``value``, ``top``, ``internal``, ``mask``, ``proj_solid_angle``,
+    and ``mueller`` when the file holds it)."""
     with h5py.File(path, "r") as f:
         if f.attrs.get("format") != MODEL_SLICES_FORMAT:
             raise store.StoreError(f"{path}: not a {MODEL_SLICES_FORMAT} file")
         g = f[f"{group_name(model)}/{side}"]
-        return {k: np.asarray(g[k][()]) for k in ("value", "top", "internal", "mask", "proj_solid_angle")}
+        keys = ("value", "top", "internal", "mask", "proj_solid_angle") + (("mueller",) if "mueller" in g else ())
+        return {k: np.asarray(g[k][()]) for k in keys}
