@@ -161,9 +161,13 @@ def integrate_mueller_slice(model: Model, stack: Stack, grid: SliceGrid, light: 
         raise ModelFailure(model.name, f"produced non-finite Mueller matrices for {side} at "
                                        f"l = {np.round(light, 6).tolist()}")
     try:
-        sp = to_file_frames(value, model.mueller_frames, light, geo.v, phi_l_deg)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sp = to_file_frames(value, model.mueller_frames, light, geo.v, phi_l_deg)
     except ModelError as e:
         raise ModelFailure(model.name, str(e)) from None
+    if not np.all(np.isfinite(sp)):
+        raise ModelFailure(model.name, f"its {model.mueller_frames!r} frames are undefined at some sub-cell direction "
+                                       f"for l = {np.round(light, 6).tolist()} (v parallel to l)")
     f = sp.reshape(w.shape + (3, 4, 4))
     return np.einsum("ijabcxy,ijab->cijxy", f, w, optimize=True) * inv[None, :, :, None, None]
 

@@ -237,3 +237,34 @@ def test_mitsuba_mueller_channels_are_their_wavelengths():
         one = MitsubaBSDF({**_conductor(0.3), "eta": eta[c], "k": k[c]}, variant).eval_mueller(l, v, (550.0,) * 3)
         assert np.allclose(got[:, c], one[:, 0], rtol=1e-5, atol=1e-7)
     assert not np.allclose(got[:, 0], got[:, 2])
+
+
+@pytest.mark.parametrize("l", [(0.0, 0.0, 1.0), (0.3, -0.4, np.sqrt(0.75))])
+def test_a_models_frames_are_taken_to_the_files(l):
+    """to_file_frames gives, from any frame family a model states, what convert_mueller gives into the
+    file's s/p frames of the incident azimuth (30 degrees); at l = z a model's "sp" frame is the limit
+    along the azimuth 0, which that azimuth then turns."""
+    from goniometer.grids.stokes import convert_mueller
+    from models.compare.integrate import to_file_frames
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(5, 3))      # v[0] at the normal ("plane" frames are undefined there for l = z)
+    v[:, 2] = np.abs(v[:, 2])
+    v[0] = (0.0, 0.0, 1.0)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    L = np.broadcast_to(np.array(l), v.shape)
+    phi_v = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
+    file_sp = np.full(5, 30.0)
+    model_sp = np.zeros(5)
+    want = rng.normal(size=(5, 3, 4, 4))              # in the file's frames
+    for frames, phi in (("mitsuba", file_sp), ("plane", file_sp), ("sp", model_sp)):
+        with np.errstate(invalid="ignore"):
+            given = np.stack([convert_mueller(convert_mueller(want[:, c], L, v, "sp", "mitsuba", file_sp, phi_v),
+                                              L, v, "mitsuba", frames, phi, phi_v) for c in range(3)], axis=1)
+        with np.errstate(invalid="ignore"):        # (the undefined "plane" frames: NaN)
+            got = to_file_frames(given, frames, np.array(l), v, 30.0)
+        defined = np.linalg.norm(np.cross(L, v), axis=1) > 0 if frames == "plane" else np.ones(5, dtype=bool)
+        assert np.allclose(got[defined], want[defined], atol=1e-12), frames
+    if l[2] == 1.0:   # the model's "sp" frame at the normal is not the file's: the azimuth matters
+        assert not np.allclose(to_file_frames(want, "sp", np.array(l), v, 30.0), want, atol=1e-6)
+    with pytest.raises(ModelError, match="mueller_frames: 'xy' is not one of sp, mitsuba, plane"):
+        to_file_frames(want, "xy", np.array(l), v, 30.0)
