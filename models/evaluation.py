@@ -253,8 +253,8 @@ def _judge_mueller(result: Evaluation, model, reference: SimulationResult, sd, s
             note = model.mueller_note(stack)
         except Exception as e:  # noqa: BLE001 -- the model's own code
             raise failure(model.name, "mueller_note", e) from None
-    except ModelFailure as e:
-        result.fail(model.name, ModelFailure(e.model, f"its Mueller matrices: {e.reason}"))
+    except ModelFailure as e:     # (its intensity errors and their notes stand)
+        result.failed[model.name] = f"its Mueller matrices: {e.reason}"
         return
     result.mueller_slices[model.name] = mu
     result.mueller[model.name] = errors.mueller_errors(sd, mu, cells_total)
@@ -283,8 +283,8 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
     ``internal`` (M, 3, n_theta, n_phi; 1/sr) and the reference's ``mask`` and
     ``proj_solid_angle``; attribute ``subcells``; for a stochastic model also ``top_stderr`` and
     ``internal_stderr``; for a polarized model judged on a polarized reference ``mueller``
-    (M, 3, n_theta, n_phi, 4, 4; 1/sr, the reference's s/p frames). The group of a model is named by :func:`group_name` (an adapter spec's
-    ``/`` escaped).
+    (M, 3, n_theta, n_phi, 4, 4; 1/sr, the reference's s/p frames). The group of a model is named
+    by :func:`group_name` (an adapter spec's ``/`` escaped).
     """
     p = store.check_writable(path)
     sd = reference.brdf if evaluation.side == "brdf" else reference.btdf
@@ -317,7 +317,7 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
                     w.put("mueller", mu.mueller, store.CELLS + ("mueller_row", "mueller_col"), "1/sr",
                           long_name=f"{name} Mueller matrix cell mean",
                           description="the polarized model's Mueller matrices integrated over the reference's cells, "
-                                      "in its s/p frames (docs/polarization.md)")
+                                      "in the reference's s/p frames (docs/polarization.md)")
     return p
 
 
