@@ -234,7 +234,7 @@ def no_model_applies(file: str, ev) -> str:
 def mueller_block(ev) -> list[str]:
     """The lines ``gonio evaluate`` prints on a polarized file: per polarized model a 4 x 4 grid,
     each element's channel-mean RMSE over its noise floor (1/sr, ``models.compare.errors.mueller_errors``),
-    then one line per model judged on the intensity only, saying why."""
+    then one line per reason some models are judged on the intensity only, naming them."""
     lines = [f"polarized file: the intensity errors above compare M00 (the file's value); the Mueller matrices "
              f"of polarized models, element by element in the file's s/p frames (whole {ev.side.upper()}):"]
     for name, e in ev.mueller.items():
@@ -245,8 +245,11 @@ def mueller_block(ev) -> list[str]:
             lines.append(f"  M{i}j " + "  ".join(cells))
     if not ev.mueller:
         lines.append("  (no evaluated model gives Mueller matrices)")
-    for name, reason in ev.intensity_only.items():
-        lines.append(f"intensity only {name}: {reason}")
+    by_reason: dict[str, list[str]] = {}
+    for name, reason in ev.intensity_only.items():     # one line per reason (every scalar model shares one)
+        by_reason.setdefault(reason, []).append(name)
+    for reason, names in by_reason.items():
+        lines.append(f"intensity only {', '.join(names)}: {reason}")
     return lines
 
 

@@ -63,6 +63,10 @@ class WrongFrames(Depolarizer):
 
 def scalar(l, v, stack):
     return np.full(v.shape[:-1] + (3,), F)
+
+
+def lambertian(l, v, stack):
+    return np.full(v.shape[:-1] + (3,), 0.3 / np.pi)
 '''
 
 
@@ -183,6 +187,8 @@ def test_a_model_without_mueller_matrices_is_judged_on_the_intensity_only(polari
     assert "Mitsuba's SmoothDiffuse is judged on the intensity only" in d["intensity_only"][diffuse]
     out = _evaluate(capsys, polarized["file"], fn, json_out=False)
     assert f"intensity only {fn}: a scalar model" in out
+    out = _evaluate(capsys, polarized["file"], fn, f"python:{polarized['plugin']}:lambertian", json_out=False)
+    assert f"intensity only {fn}, python:{polarized['plugin']}:lambertian: a scalar model" in out
     assert "(no evaluated model gives Mueller matrices)" in out
 
 
