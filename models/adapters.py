@@ -25,6 +25,15 @@
   with the vectorised variant; with ``scalar_rgb`` one Python-level call per direction, about
   5 us each (a 90 x 360 slice at 5 x 5 sub-cells: about 4 s per incident direction).
 
+  On a polarized file (``docs/polarization.md``, "Models on polarized files") a file whose BSDF is
+  one of the plugins that carry polarization (:data:`models.production.mitsuba.POLARIZING_PLUGINS`: ``conductor``,
+  ``roughconductor``, ``dielectric``, ``pplastic``) is a polarized model: the same file is loaded a
+  second time in the polarized variant (:func:`models.production.mitsuba.mitsuba_polarized_variant`)
+  and its Mueller matrices (:meth:`models.production.mitsuba.MitsubaBSDF.eval_mueller`, channel
+  ``c`` at :func:`models.production.mitsuba.channel_wavelengths`) are judged element by element,
+  taken from Mitsuba's ``stokes_basis`` frames to the file's s/p frames (``mueller_frames =
+  "mitsuba"``). Any other plugin is judged on the intensity only, and the evaluation says why.
+
 Every failure is a :class:`models.base.ModelError` whose message is one line starting with the spec:
 a malformed spec, a module that does not import, a missing attribute, something that is neither a
 Model nor callable, a file Mitsuba refuses or that holds no BSDF, Mitsuba missing.
@@ -231,7 +240,7 @@ def _mitsuba(spec: str) -> Model:
         raise ModelError(f"{spec}: {_one_line(e)}") from None
     except (RuntimeError, TypeError, OSError) as e:
         raise ModelError(f"{spec}: Mitsuba refused the file: {_one_line(e)}") from None
-    return MitsubaFileModel(spec, bsdf)
+    return MitsubaFileModel(spec, bsdf, path)
 
 
 class MitsubaFileModel(Model):
@@ -243,9 +252,18 @@ class MitsubaFileModel(Model):
     scattering = True
     films = True
 
-    def __init__(self, spec: str, bsdf: Any) -> None:
+    #: Mitsuba's polarized ``eval`` in its ``stokes_basis`` frames (module docstring)
+    mueller_frames = "mitsuba"
+
+    def __init__(self, spec: str, bsdf: Any, path: Path | None = None) -> None:
+        from models.production.mitsuba import POLARIZING_PLUGINS, plugin_name
         self.name = spec
         self.bsdf = bsdf
+        self.path = path
+        self.plugin = plugin_name(bsdf.bsdf)
+        #: Mueller matrices from the plugins that carry polarization (module docstring)
+        self.polarized = self.plugin in POLARIZING_PLUGINS
+        self._polarized_bsdf: Any = None
         self.description = f"{spec}: a fixed Mitsuba BSDF; it does not read the stack"
         self.approximation = (f"a fixed Mitsuba BSDF ({spec[len(MITSUBA):]}, variant {bsdf.variant}); "
                               f"it does not read the stack; {NO_SPLIT}")
@@ -256,3 +274,42 @@ class MitsubaFileModel(Model):
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         internal = self.bsdf.eval(l, v, side=side)
         return ModelValue(np.zeros_like(internal), internal)
+
+    def mueller_reason(self, stack: Stack) -> str | None:
+        """Why this file gives no Mueller matrices: a plugin that depolarizes (None for the
+        plugins that carry polarization, :data:`~models.production.mitsuba.POLARIZING_PLUGINS`)."""
+        from models.production.mitsuba import POLARIZING_PLUGINS
+        if not self.polarized:
+            return (f"Mitsuba's {self.plugin} is judged on the intensity only: of its plugins only "
+                    f"{', '.join(POLARIZING_PLUGINS)} carry polarization, the others depolarize "
+                    f"(docs/polarization.md, Models on polarized files)")
+        return super().mueller_reason(stack)
+
+    def support_mueller_reason(self, stack: Stack) -> str | None:
+        from models.production.mitsuba import mitsuba_polarized_variant
+        if mitsuba_polarized_variant() is None:
+            return "this Mitsuba has no polarized variant (scalar_spectral_polarized)"
+        return None
+
+    def mueller_note(self, stack: Stack) -> str | None:
+        from models.production.mitsuba import channel_wavelengths, mitsuba_polarized_variant
+        nm = ", ".join(f"{x:g}" for x in channel_wavelengths(stack))
+        smooth = ("; a smooth plugin: eval gives its delta lobes no value, so it predicts no light in any cell"
+                  if self.plugin in ("conductor", "dielectric") else "")
+        return (f"Mitsuba's {self.plugin} in {mitsuba_polarized_variant()}, R G B at {nm} nm, from its stokes_basis "
+                f"frames to the file's s/p frames{smooth}")
+
+    def polarized_bsdf(self) -> Any:
+        """The file's BSDF loaded in the polarized variant (loaded on first use)."""
+        if self._polarized_bsdf is None:
+            from models.production.mitsuba import MitsubaBSDF, mitsuba_polarized_variant
+            variant = mitsuba_polarized_variant()
+            if self.path is not None:
+                self._polarized_bsdf = MitsubaBSDF.from_file(self.path, variant)
+            else:
+                self._polarized_bsdf = MitsubaBSDF(self.bsdf.spec, variant)
+        return self._polarized_bsdf
+
+    def _evaluate_mueller(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> np.ndarray:
+        from models.production.mitsuba import channel_wavelengths
+        return self.polarized_bsdf().eval_mueller(l, v, channel_wavelengths(stack), side=side)

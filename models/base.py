@@ -15,6 +15,12 @@ Conventions (same as :mod:`goniometer.optics` and ``docs/slices-format.md``):
   standard errors beside its values (``ModelValue.stderr_top``, ``stderr_internal``); the
   comparison then reports the model's noise beside the reference's noise floor
   (``docs/models.md`` §3).
+* A polarized model (``polarized = True``) also returns Mueller matrices
+  (:meth:`Model.evaluate_mueller`): ``(..., 3, 4, 4)``, the whole BSDF (no top/internal split),
+  1/sr without the cosine, mapping the Stokes vector of the light arriving along ``-l`` to that of
+  the light leaving along ``v``, in the frames ``mueller_frames`` names (default ``"sp"``, the
+  files' s/p frames; ``docs/polarization.md`` §1-2 and "Models on polarized files").
+  ``M[..., 0, 0]`` is the intensity ``top + internal``.
 
 Writing a model, in a plugin package or behind ``--model python:MODULE:NAME``: ``docs/models.md``,
 "Writing a model (plugins)".
@@ -122,6 +128,14 @@ class Model(ABC):
     #: a sentence every evaluation records under ``approximations`` (e.g. an adapter that does not
     #: read the stack); None for none
     approximation: str | None = None
+    #: whether the model gives Mueller matrices (:meth:`evaluate_mueller`, ``docs/models.md``,
+    #: "Polarized models"); a scalar model is judged on the intensity of a polarized file only
+    polarized: bool = False
+    #: the Stokes frames of :meth:`_evaluate_mueller`'s matrices, one of
+    #: :data:`goniometer.grids.stokes.FRAMES`: ``"sp"`` (the files' s/p frames; at ``l = z`` the
+    #: limit along the azimuth 0, at ``v = z`` along ``atan2(v_y, v_x)``), ``"mitsuba"`` (Mitsuba
+    #: 3's ``stokes_basis``) or ``"plane"``; the harness converts them to the file's s/p frames
+    mueller_frames: str = "sp"
 
     @abstractmethod
     def support_reason(self, stack: Stack) -> str | None:
@@ -190,6 +204,66 @@ class Model(ABC):
     @abstractmethod
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         """Evaluate for a supported stack (inputs already checked)."""
+
+    def mueller_reason(self, stack: Stack) -> str | None:
+        """None when the model gives Mueller matrices for ``stack`` (it supports the stack:
+        :meth:`reason`), otherwise why it is judged on the intensity only (one line): a scalar model
+        (``polarized = False``), or the polarized model's own :meth:`support_mueller_reason`. A
+        ``support_mueller_reason`` that raises or returns something else than None or a string is
+        the model's failure (:class:`ModelFailure`)."""
+        if not self.polarized:
+            return "a scalar model: it gives intensities, not Mueller matrices"
+        try:
+            reason = self.support_mueller_reason(stack)
+        except Exception as e:  # noqa: BLE001 -- any failure of the model's own code is its failure
+            raise failure(self.name, "support_mueller_reason", e) from None
+        if reason is not None and not isinstance(reason, str):
+            raise ModelFailure(self.name, f"support_mueller_reason returned a {type(reason).__name__}, not None "
+                                          f"or a one-line reason")
+        return reason
+
+    def support_mueller_reason(self, stack: Stack) -> str | None:
+        """A polarized model's own refusals of Mueller matrices for ``stack`` (None: it gives them)."""
+        return None
+
+    def mueller_note(self, stack: Stack) -> str | None:
+        """How a polarized model computes its Mueller matrices for ``stack``, in words, when the
+        reader needs it beside the numbers (e.g. a renderer's variant and wavelengths); None for none."""
+        return None
+
+    def evaluate_mueller(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> np.ndarray:
+        """The Mueller matrices of the whole BSDF, ``v.shape[:-1] + (3, 4, 4)`` (channel, row,
+        column), 1/sr without the cosine, in the frames :attr:`mueller_frames` (module docstring).
+        Raises :class:`ModelError` when the model does not give them for ``stack``
+        (:meth:`mueller_reason`) or cannot evaluate it, :class:`ModelFailure` when
+        ``_evaluate_mueller`` raises or returns another shape or something else than real numbers."""
+        if side not in self.sides:
+            raise ModelError(f"{self.name}: cannot evaluate the {side.upper()} (it models {', '.join(self.sides)})")
+        reason = self.reason(stack)
+        if reason is None:
+            reason = self.mueller_reason(stack)
+        if reason is not None:
+            raise ModelError(f"{self.name}: {reason}")
+        l = np.asarray(l, dtype=np.float64).reshape(3)
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape[-1] != 3:
+            raise ModelError(f"{self.name}: v must have shape (..., 3), got {v.shape}")
+        try:
+            value = self._evaluate_mueller(stack, l, v, side)
+            value = np.asarray(value)
+        except Exception as e:  # noqa: BLE001 -- any failure of the model's own code is its failure
+            raise failure(self.name, "_evaluate_mueller", e) from None
+        want = v.shape[:-1] + (3, 4, 4)
+        if value.shape != want:
+            raise ModelFailure(self.name, f"_evaluate_mueller returned shape {value.shape}; expected {want} "
+                                          f"(channel, row, column last)")
+        if value.dtype.kind not in "biuf":
+            raise ModelFailure(self.name, f"_evaluate_mueller returned dtype {value.dtype}, not real numbers")
+        return value
+
+    def _evaluate_mueller(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> np.ndarray:
+        """A polarized model's Mueller matrices (:meth:`evaluate_mueller`; inputs already checked)."""
+        raise ModelError(f"{self.name}: polarized = True but _evaluate_mueller is not implemented")
 
 
 def _check_value(name: str, value: object, want: tuple[int, ...]) -> None:

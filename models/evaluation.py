@@ -4,6 +4,12 @@ The comparison side follows Bati 2019: a stack that transmits (a slab) is judged
 every other stack on its BRDF. For a BRDF, "internal" drops the reflection off the top interface
 (bounce order 1 in the reference, the top lobe in the model); for a BTDF "internal" and "total"
 are the same comparison.
+
+On a polarized file (``docs/polarization.md``, "Models on polarized files") every model keeps its
+intensity errors against the file's ``value`` (``M00``), and a polarized model
+(:attr:`models.base.Model.polarized`) also gets the errors of its Mueller matrices element by element
+(:func:`models.compare.errors.mueller_errors`, ``Evaluation.mueller``); a model that gives none is
+listed in ``Evaluation.intensity_only`` with why.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from models import registry
 from models.compare import errors
 from models.base import ModelError, ModelFailure, failure, require_slices
 from models.compare.errors import Coverage, require_cells
-from models.compare.integrate import ModelSlices, integrate
+from models.compare.integrate import ModelSlices, MuellerSlices, integrate, integrate_mueller
 
 MODEL_SLICES_FORMAT = "goniometer.model-slices"
 
@@ -51,6 +57,15 @@ class Evaluation:
     coverage: Coverage | None = None
     #: the reference is a measurement (docs/measured.md): no bounce orders, "internal" is the whole BRDF
     measured: bool = False
+    #: the reference is polarized: its judged side holds Mueller matrices (docs/polarization.md, "Models on
+    #: polarized files")
+    polarized: bool = False
+    #: polarized models' per-element errors (models.compare.errors.mueller_errors), model -> object
+    mueller: dict[str, dict] = field(default_factory=dict)
+    #: their integrated Mueller matrices
+    mueller_slices: dict[str, MuellerSlices] = field(default_factory=dict)
+    #: on a polarized reference, the evaluated models judged on the intensity only, and why
+    intensity_only: dict[str, str] = field(default_factory=dict)
 
     def fail(self, name: str, e: ModelFailure) -> None:
         """Record that model ``name`` failed (its one line under ``failed``; no note of it kept)."""
@@ -69,9 +84,16 @@ class Evaluation:
     def to_json(self) -> dict:
         """The object printed by ``gonio evaluate --json`` (``fits``: parameters and convergence of
         fitted models, when any was asked for; ``failed``: model -> why it failed; ``cells``,
-        ``cells_total``: the support of every error, as in each error object)."""
+        ``cells_total``: the support of every error, as in each error object). On a polarized
+        reference only: ``polarized`` (true), ``mueller`` (model -> the per-element errors of
+        :func:`models.compare.errors.mueller_errors`) and ``intensity_only`` (model -> why it has
+        intensity errors only)."""
         out = {"material": self.material, "category": self.category, "side": self.side,
                "models": self.errors, "skipped": self.skipped, "failed": self.failed}
+        if self.polarized:
+            out["polarized"] = True
+            out["mueller"] = self.mueller
+            out["intensity_only"] = self.intensity_only
         if self.coverage is not None:
             out["cells"], out["cells_total"] = self.coverage.cells, self.coverage.cells_total
         if self.fits:
@@ -150,6 +172,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
                                  f"(noise floor unknown) and no bounce orders ('internal' compares the whole BRDF)")
     result.coverage = require_cells(reference, side)
     cells_total = result.coverage.cells_total
+    result.polarized = sd.mueller is not None
     anisotropic = any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers)
     for name, model in available.items():
         if names and name not in names:
@@ -188,6 +211,8 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         result.slices[name] = ms
         result.errors[name] = errors.compare(sd, ms, drop_first_order=(side == "brdf") and not result.measured,
                                              cells_total=cells_total)
+        if result.polarized:
+            _judge_mueller(result, model, reference, sd, side, s, model_stack, cells_total)
     for name in fitted:
         if not names:
             result.skipped[name] = f"fitted to the file on request only (--model {name})"
@@ -208,7 +233,33 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
         result.errors[name] = errors.compare(sd, ms, drop_first_order=False, cells_total=cells_total)
         result.fits[name] = {"params": fr.params, "converged": fr.converged, "message": fr.message,
                              "n_cells": fr.n_cells}
+        if result.polarized:
+            result.intensity_only[name] = "a fitted scalar model: it gives intensities, not Mueller matrices"
     return result
+
+
+def _judge_mueller(result: Evaluation, model, reference: SimulationResult, sd, side: str, s: int, stack: Stack,
+                   cells_total: int) -> None:
+    """On a polarized reference, the per-element errors of ``model``'s Mueller matrices, or why it
+    is judged on the intensity only; a model whose Mueller matrices (or their note) fail is recorded
+    under ``failed``, its intensity errors kept."""
+    try:
+        reason = model.mueller_reason(stack)
+        if reason is not None:
+            result.intensity_only[model.name] = reason
+            return
+        mu = integrate_mueller(model, reference, side, s, stack=stack)
+        try:
+            note = model.mueller_note(stack)
+        except Exception as e:  # noqa: BLE001 -- the model's own code
+            raise failure(model.name, "mueller_note", e) from None
+    except ModelFailure as e:     # (its intensity errors and their notes stand)
+        result.failed[model.name] = f"its Mueller matrices: {e.reason}"
+        return
+    result.mueller_slices[model.name] = mu
+    result.mueller[model.name] = errors.mueller_errors(sd, mu, cells_total)
+    if note:
+        result.mueller[model.name]["note"] = str(note)
 
 
 def _fit(reference: SimulationResult, name: str, s: int):
@@ -231,8 +282,9 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
     reference; per model a group ``/<model>/<side>`` with ``value`` (= top + internal), ``top``,
     ``internal`` (M, 3, n_theta, n_phi; 1/sr) and the reference's ``mask`` and
     ``proj_solid_angle``; attribute ``subcells``; for a stochastic model also ``top_stderr`` and
-    ``internal_stderr``. The group of a model is named by :func:`group_name` (an adapter spec's
-    ``/`` escaped).
+    ``internal_stderr``; for a polarized model judged on a polarized reference ``mueller``
+    (M, 3, n_theta, n_phi, 4, 4; 1/sr, the reference's s/p frames). The group of a model is named
+    by :func:`group_name` (an adapter spec's ``/`` escaped).
     """
     p = store.check_writable(path)
     sd = reference.brdf if evaluation.side == "brdf" else reference.btdf
@@ -259,6 +311,13 @@ def save_slices(path: str | Path, reference: SimulationResult, evaluation: Evalu
                         w.put(f"{part}_stderr", ms.stderr(part), store.CELLS, "1/sr",
                               long_name=f"{name} {part} standard error",
                               description="the stochastic model's own standard error of the cell mean")
+                mu = evaluation.mueller_slices.get(name)
+                if mu is not None:
+                    w.mueller_scales()
+                    w.put("mueller", mu.mueller, store.CELLS + ("mueller_row", "mueller_col"), "1/sr",
+                          long_name=f"{name} Mueller matrix cell mean",
+                          description="the polarized model's Mueller matrices integrated over the reference's cells, "
+                                      "in the reference's s/p frames (docs/polarization.md)")
     return p
 
 
@@ -270,9 +329,11 @@ def group_name(model: str) -> str:
 
 
 def read_slices(path: str | Path, model: str, side: str) -> dict[str, np.ndarray]:
-    """Read one model's saved slices (``value``, ``top``, ``internal``, ``mask``, ``proj_solid_angle``)."""
+    """Read one model's saved slices (``value``, ``top``, ``internal``, ``mask``, ``proj_solid_angle``,
+    and ``mueller`` when the file holds it)."""
     with h5py.File(path, "r") as f:
         if f.attrs.get("format") != MODEL_SLICES_FORMAT:
             raise store.StoreError(f"{path}: not a {MODEL_SLICES_FORMAT} file")
         g = f[f"{group_name(model)}/{side}"]
-        return {k: np.asarray(g[k][()]) for k in ("value", "top", "internal", "mask", "proj_solid_angle")}
+        keys = ("value", "top", "internal", "mask", "proj_solid_angle") + (("mueller",) if "mueller" in g else ())
+        return {k: np.asarray(g[k][()]) for k in keys}

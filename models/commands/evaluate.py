@@ -31,7 +31,14 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     p.set_defaults(func=cmd_models)
 
-    p = sub.add_parser("evaluate", help="integrate models onto a simulated (or measured) file and print their errors")
+    p = sub.add_parser("evaluate", help="integrate models onto a simulated (or measured) file and print their errors",
+                       description="Integrate models onto the cells of a simulated (or measured) file and print "
+                                   "their errors (RMSE of Bati 2019 eq. 4) beside the reference's noise floor. On a "
+                                   "polarized file (gonio simulate --polarized) every model keeps its intensity "
+                                   "error against M00 (the file's value), and polarized models (mitsuba:FILE of "
+                                   "conductor, roughconductor, dielectric or pplastic; a plugin Model with "
+                                   "polarized = True) also get the RMSE and noise floor of each of the 16 Mueller "
+                                   "elements, per channel (docs/polarization.md, 'Models on polarized files').")
     p.add_argument("file", metavar="FILE", help="a slices file, or a measured MERL .binary / RGL .bsdf (with --stack)")
     p.add_argument("--model", action="append", metavar="NAME",
                    help="a model to evaluate: a name of gonio models, python:MODULE:NAME or mitsuba:FILE.xml|.json "
@@ -190,6 +197,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if noisy:
             print("(model noise = a stochastic model's own noise on the internal part and on the total, computed as "
                   "the floor; '-' for an exact model)")
+    if ev.polarized:
+        for line in mueller_block(ev):
+            print(line)
     for name, note in ev.approximations.items():
         print(f"note {name}: {note}")
     if ev.reference_note:
@@ -220,6 +230,28 @@ def no_model_applies(file: str, ev) -> str:
     fitted = "; or fit a compact model to it (--model ggx1-fit)" if ev.side == "brdf" else ""
     return (f"{file}: no model applies to {ev.material} (judged on its {ev.side.upper()}): all {len(ev.skipped)} "
             f"model(s) skip it{hint}; name one (--model NAME) to see why it does not apply{fitted}")
+
+
+def mueller_block(ev) -> list[str]:
+    """The lines ``gonio evaluate`` prints on a polarized file: per polarized model a 4 x 4 grid,
+    each element's channel-mean RMSE over its noise floor (1/sr, ``models.compare.errors.mueller_errors``),
+    then one line per reason some models are judged on the intensity only, naming them."""
+    lines = [f"polarized file: the intensity errors above compare M00 (the file's value); the Mueller matrices "
+             f"of polarized models, element by element in the file's s/p frames (whole {ev.side.upper()}):"]
+    for name, e in ev.mueller.items():
+        note = f" ({e['note']})" if e.get("note") else ""
+        lines.append(f"{name}: RMSE of M_ij / its noise floor (1/sr, channel mean; R G B in --json){note}")
+        for i in range(4):
+            cells = [f"{e['mueller_rmse_mean'][i][j]:8.2e}/{e['mueller_noise_mean'][i][j]:8.2e}" for j in range(4)]
+            lines.append(f"  M{i}j " + "  ".join(cells))
+    if not ev.mueller:
+        lines.append("  (no evaluated model gives Mueller matrices)")
+    by_reason: dict[str, list[str]] = {}
+    for name, reason in ev.intensity_only.items():     # one line per reason (every scalar model shares one)
+        by_reason.setdefault(reason, []).append(name)
+    for reason, names in by_reason.items():
+        lines.append(f"intensity only {', '.join(names)}: {reason}")
+    return lines
 
 
 def table_row(name: str, internal: dict, total: dict, width: int = 16) -> str:

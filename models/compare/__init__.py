@@ -8,12 +8,14 @@ above the model families (it asks the registry).
 
 from models.compare.albedo import HemisphereRule, directional_albedo, hemisphere_rule
 from models.compare.errors import (LOW_COVERAGE, Coverage, NoCellsError, compare, coverage, error_object, noise_floor,
-                                   reference_parts, require_cells, rmse)
-from models.compare.integrate import ModelSlices, integrate, integrate_slice
+                                   mueller_errors, reference_parts, require_cells, rmse)
+from models.compare.integrate import ModelSlices, MuellerSlices, integrate, integrate_mueller, integrate_slice
 
 __all__ = [
     # integration
     "ModelSlices", "integrate", "integrate_slice",
+    # polarized models on polarized files (docs/polarization.md)
+    "MuellerSlices", "integrate_mueller", "mueller_errors",
     # errors
     "compare", "error_object", "rmse", "noise_floor", "reference_parts",
     # the support of an error (docs/models.md section 3)

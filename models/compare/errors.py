@@ -34,7 +34,7 @@ from goniometer.run.results import SimulationResult, SliceData
 from goniometer.grids.slice_grid import light_direction
 from models.base import ModelError
 from models.compare.cells import grid_mask
-from models.compare.integrate import ModelSlices
+from models.compare.integrate import ModelSlices, MuellerSlices
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
@@ -216,3 +216,35 @@ def compare(sd: SliceData, ms: ModelSlices, drop_first_order: bool, cells_total:
     ref, se = reference_parts(sd, internal=True)
     internal = error_object(ref, se, ms.internal, sd.proj_solid_angle, sd.mask, ms.stderr("internal"), cells_total)
     return {"internal": internal, "total": total}
+
+
+def mueller_errors(sd: SliceData, ms: MuellerSlices, cells_total: int | None = None) -> dict:
+    """The per-element errors of a polarized model on a polarized reference's side ``sd``
+    (``docs/models.md`` §3, "Polarized files"): eq. 4 per Mueller element ``M_ij`` and channel,
+    against the file's ``mueller``, over the same valid cells as the intensity errors; the noise
+    floor per element from the file's ``mueller_stderr`` (:func:`noise_floor`). Keys:
+    ``mueller_rmse`` and ``mueller_noise`` ([4][4][C], 1/sr), their channel means
+    ``mueller_rmse_mean`` and ``mueller_noise_mean`` ([4][4]), ``mueller_norm`` ([4][4][C], the
+    reference against zero), ``cells``, ``cells_total``. The whole BSDF is compared (the files keep
+    no Mueller matrices per bounce order). ``mueller_rmse[0][0]`` is the total intensity error of
+    a model whose ``M00`` is its intensity."""
+    if sd.mueller is None:
+        raise ModelError("the reference file is not polarized: it has no Mueller matrices")
+
+    def flat(a: np.ndarray) -> np.ndarray:     # (M, C, nt, nph, 4, 4) -> (M, C * 16, nt, nph)
+        M, C, nt, nph = a.shape[:4]
+        return np.moveaxis(a, (4, 5), (2, 3)).reshape(M, C * 16, nt, nph)
+
+    def grid(x: np.ndarray) -> np.ndarray:     # (C * 16,) -> (4, 4, C)
+        return np.moveaxis(x.reshape(-1, 4, 4), 0, -1)
+
+    omega, mask = sd.proj_solid_angle, sd.mask
+    ref = flat(sd.mueller)
+    e = grid(rmse(ref, flat(ms.mueller), omega, mask))
+    nf = grid(noise_floor(flat(sd.mueller_stderr), omega, mask))
+    size = grid(rmse(ref, np.zeros_like(ref), omega, mask))
+    return {"mueller_rmse": e.tolist(), "mueller_rmse_mean": e.mean(axis=-1).tolist(),
+            "mueller_noise": nf.tolist(), "mueller_noise_mean": nf.mean(axis=-1).tolist(),
+            "mueller_norm": size.tolist(),
+            "cells": int(np.count_nonzero(mask & (omega > 0))),
+            "cells_total": int(mask.size if cells_total is None else cells_total)}

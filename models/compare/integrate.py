@@ -112,3 +112,76 @@ def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, 
             if se is not None:
                 errors.setdefault(key, np.zeros((M, 3, nt, nph)))[m] = se
     return ModelSlices(model.name, side, sd.grid, top, internal, s, errors.get("top"), errors.get("internal"))
+
+
+# ---------------------------------------------------------------------- Mueller matrices (polarized files)
+
+@dataclass
+class MuellerSlices:
+    """A polarized model's Mueller matrices integrated onto the cells of one side of a polarized
+    reference: ``mueller`` (M, 3, n_theta, n_phi, 4, 4), 1/sr, in the file's s/p frames
+    (``docs/polarization.md`` §2), laid out as the file's ``mueller``."""
+
+    model: str
+    side: str
+    grid: SliceGrid
+    mueller: np.ndarray
+    subcells: int
+
+
+def to_file_frames(mueller: np.ndarray, frames: str, l: np.ndarray, v: np.ndarray, phi_l_deg: float) -> np.ndarray:
+    """Mueller matrices ``(N, ..., 4, 4)`` of light along ``-l`` to each ``v`` (N, 3), given in the
+    frame family ``frames`` (:attr:`models.base.Model.mueller_frames`), in the file's s/p frames of
+    an incident direction of azimuth ``phi_l_deg`` (:func:`goniometer.grids.stokes.frame_x`; a
+    model's ``"sp"`` frames take the limit along the azimuth 0 at ``l = z``, each exit the limit
+    along its own azimuth at ``v = z``)."""
+    from goniometer.grids.stokes import FRAMES, frame_x, rotator
+    if frames not in FRAMES:
+        raise ModelError(f"mueller_frames: {frames!r} is not one of {', '.join(FRAMES)}")
+    phi_v = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
+    L = np.broadcast_to(np.asarray(l, dtype=np.float64), v.shape)
+    a_in, a_out = frame_x(frames, L, v, np.zeros(len(v)), phi_v)
+    b_in, b_out = frame_x("sp", L, v, np.full(len(v), float(phi_l_deg)), phi_v)
+    r_in = rotator(-L, a_in, b_in)
+    r_out = rotator(v, a_out, b_out)
+    extra = (None,) * (mueller.ndim - 3)          # the channel axes between the direction and the matrix
+    return r_out[(slice(None), *extra)] @ mueller @ np.swapaxes(r_in, -1, -2)[(slice(None), *extra)]
+
+
+def integrate_mueller_slice(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray, phi_l_deg: float,
+                            s: int = 5) -> np.ndarray:
+    """The cell means (3, n_theta, n_phi, 4, 4) of ``model``'s Mueller matrices for one light
+    direction, each sub-cell's matrix taken to the file's s/p frames of its own direction before
+    the projected-solid-angle average (the simulator's cell mean of its exits' matrices)."""
+    side = SIDE_OF_GRID[grid.side]
+    geo = cell_geometry(grid, light, s)
+    w, inv = geo.w, geo.inv
+    value = model.evaluate_mueller(stack, light, geo.v, side)          # (N, 3, 4, 4)
+    if not np.all(np.isfinite(value)):
+        raise ModelFailure(model.name, f"produced non-finite Mueller matrices for {side} at "
+                                       f"l = {np.round(light, 6).tolist()}")
+    try:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sp = to_file_frames(value, model.mueller_frames, light, geo.v, phi_l_deg)
+    except ModelError as e:
+        raise ModelFailure(model.name, str(e)) from None
+    if not np.all(np.isfinite(sp)):
+        raise ModelFailure(model.name, f"its {model.mueller_frames!r} frames are undefined at some sub-cell direction "
+                                       f"for l = {np.round(light, 6).tolist()} (v parallel to l)")
+    f = sp.reshape(w.shape + (3, 4, 4))
+    return np.einsum("ijabcxy,ijab->cijxy", f, w, optimize=True) * inv[None, :, :, None, None]
+
+
+def integrate_mueller(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None
+                      ) -> MuellerSlices:
+    """Integrate ``model``'s Mueller matrices onto the ``side`` cells of the polarized ``reference``
+    (:func:`integrate_mueller_slice` per incident direction)."""
+    sd: SliceData | None = reference.brdf if side == "brdf" else reference.btdf
+    if sd is None:
+        raise ModelError(f"the reference file has no {side.upper()} slices")
+    M = len(reference.theta_deg)
+    nt, nph = sd.grid.shape
+    out = np.zeros((M, 3, nt, nph, 4, 4))
+    for m, (t, p) in enumerate(zip(reference.theta_deg, reference.phi_deg)):
+        out[m] = integrate_mueller_slice(model, stack or reference.stack, sd.grid, light_direction(t, p), float(p), s)
+    return MuellerSlices(model.name, side, sd.grid, out, s)

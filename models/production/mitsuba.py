@@ -99,6 +99,74 @@ def mitsuba_variant() -> str | None:
     return SCALAR if SCALAR in mi.variants() else None
 
 
+#: Mitsuba's polarized variants, vectorised first (``docs/polarization.md``, "Models on polarized
+#: files")
+VECTORISED_POLARIZED = "llvm_ad_spectral_polarized"
+SCALAR_POLARIZED = "scalar_spectral_polarized"
+#: Mitsuba 3's BSDF plugins whose polarized ``eval`` carries polarization (the others depolarize:
+#: mitsuba3#1512, #1625; mitsuba2#435); ``conductor`` and ``dielectric`` are smooth, so ``eval``
+#: gives them no value off their delta directions
+POLARIZING_PLUGINS = ("conductor", "roughconductor", "dielectric", "pplastic")
+#: the C++ classes of those plugins (what a loaded BSDF's ``class_name()`` says)
+POLARIZING_CLASSES = {"SmoothConductor": "conductor", "RoughConductor": "roughconductor",
+                      "SmoothDielectric": "dielectric", "PolarizedPlastic": "pplastic"}
+
+_PROBE_POLARIZED = """
+import mitsuba as mi, drjit as dr
+mi.set_variant('llvm_ad_spectral_polarized')
+b = mi.load_dict({'type': 'roughconductor', 'distribution': 'ggx'})
+si = dr.zeros(mi.SurfaceInteraction3f, 2)
+si.wi = mi.Vector3f([0.0, 0.6], [0.0, 0.0], [1.0, 0.8])
+si.wavelengths = mi.UnpolarizedSpectrum(610.0, 550.0, 465.0, 465.0)
+v = b.eval(mi.BSDFContext(mi.TransportMode.Importance), si, mi.Vector3f([0.0, 0.0], [0.0, 0.0], [1.0, 1.0]))
+dr.eval(v)
+print('ok', float(v[0, 0][0][0]))
+"""
+
+
+@lru_cache(maxsize=1)
+def vectorised_polarized_works() -> bool:
+    """Whether ``llvm_ad_spectral_polarized`` evaluates a BSDF, tried in a subprocess as
+    :func:`vectorised_variant_works`; memoised per process."""
+    mi = mitsuba_module()
+    if mi is None or VECTORISED_POLARIZED not in mi.variants():
+        return False
+    try:
+        run = subprocess.run([sys.executable, "-c", _PROBE_POLARIZED], capture_output=True, text=True, timeout=300)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return run.returncode == 0 and run.stdout.startswith("ok")
+
+
+def mitsuba_polarized_variant() -> str | None:
+    """The polarized Mitsuba variant polarized models use: ``llvm_ad_spectral_polarized`` where it
+    works, else ``scalar_spectral_polarized``; None when Mitsuba or both variants are missing."""
+    mi = mitsuba_module()
+    if mi is None:
+        return None
+    if vectorised_polarized_works():
+        return VECTORISED_POLARIZED
+    return SCALAR_POLARIZED if SCALAR_POLARIZED in mi.variants() else None
+
+
+def channel_wavelengths(stack: Stack) -> tuple[float, float, float]:
+    """The wavelengths (nm) a spectral Mitsuba variant evaluates the three channels of ``stack``
+    at: the stack's own (a wavelength triple of a spectral run), else where the RGB channels sit on
+    the wavelength axis of the project's stated upsampling (R 610, G 550, B 465 nm,
+    ``docs/rgl-format.md``)."""
+    if stack.wavelengths_nm is not None:
+        return tuple(float(x) for x in stack.wavelengths_nm)
+    from goniometer.files.rgl_export import CHANNEL_NM
+    return CHANNEL_NM
+
+
+def plugin_name(bsdf: Any) -> str:
+    """The plugin a loaded Mitsuba BSDF is: one of :data:`POLARIZING_PLUGINS` for their classes
+    (:data:`POLARIZING_CLASSES`), else its C++ class name (``SmoothDiffuse`` for ``diffuse``)."""
+    name = (bsdf.class_name() if hasattr(bsdf, "class_name") else str(bsdf).split("[", 1)[0]).strip()
+    return POLARIZING_CLASSES.get(name, name)
+
+
 class MitsubaBSDF:
     """One Mitsuba BSDF loaded from a plugin dictionary in ``variant`` (or from a file,
     :meth:`from_file`), evaluated without cosine."""
@@ -169,6 +237,49 @@ class MitsubaBSDF:
                 vals[k] = self.bsdf.eval(ctx, si, t.Vector3f(w[k, 0], w[k, 1], w[k, 2]))
         out[up] = vals / np.abs(w[:, 2:3])
         return out.reshape(shape + (3,))
+
+    def eval_mueller(self, l: np.ndarray, v: np.ndarray, wavelengths_nm: tuple[float, float, float],
+                     side: str = "brdf") -> np.ndarray:
+        """The Mueller matrices ``v.shape[:-1] + (3, 4, 4)`` of a BSDF loaded in a polarized
+        variant, without cosine, in Mitsuba 3's ``stokes_basis`` frames (``"mitsuba"`` of
+        :mod:`goniometer.grids.stokes`): ``eval`` in importance mode with ``si.wi = l``, ``wo = v``
+        (the light arriving along ``-l``, leaving along ``v``), divided by ``|v_z|``; channel ``c``
+        is the spectral entry evaluated at ``wavelengths_nm[c]`` (one call for the three). 0 where
+        :meth:`eval` gives 0 (``l_z <= 0``, ``v`` off the side's hemisphere)."""
+        mi = mitsuba_module()
+        shape = v.shape[:-1]
+        vv = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros((vv.shape[0], 3, 4, 4))
+        up = np.flatnonzero(vv[:, 2] > 0.0) if side == "brdf" else np.flatnonzero(vv[:, 2] < 0.0)
+        if l[2] <= 0.0 or up.size == 0:
+            return out.reshape(shape + (3, 4, 4))
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        t = self._types
+        w = vv[up]
+        lam = [float(x) for x in wavelengths_nm]
+        lam4 = t.UnpolarizedSpectrum(lam[0], lam[1], lam[2], lam[2])
+        if self.variant == VECTORISED_POLARIZED:
+            import drjit as dr
+            n = w.shape[0]
+            si = dr.zeros(t.SurfaceInteraction3f, n)
+            si.wi = t.Vector3f(np.full(n, l[0]), np.full(n, l[1]), np.full(n, l[2]))
+            si.wavelengths = lam4
+            value = self.bsdf.eval(ctx, si, t.Vector3f(w[:, 0], w[:, 1], w[:, 2]))
+            vals = np.empty((n, 3, 4, 4))
+            for i in range(4):
+                for j in range(4):
+                    for c in range(3):
+                        vals[:, c, i, j] = np.asarray(value[i, j][c], dtype=np.float64)
+        else:
+            si = t.SurfaceInteraction3f()
+            si.wi = t.Vector3f(float(l[0]), float(l[1]), float(l[2]))
+            si.wavelengths = lam4
+            vals = np.empty((w.shape[0], 3, 4, 4))
+            for k in range(w.shape[0]):
+                a = np.asarray(self.bsdf.eval(ctx, si, t.Vector3f(w[k, 0], w[k, 1], w[k, 2])), dtype=np.float64)
+                vals[k] = np.moveaxis(a[:, :, :3], -1, 0)          # (row, col, wavelength) -> (c, row, col)
+        out[up] = vals / np.abs(w[:, 2])[:, None, None, None]
+        return out.reshape(shape + (3, 4, 4))
 
 
 def _rgb(values) -> dict:
