@@ -8,8 +8,9 @@ import sys
 
 import numpy as np
 
-from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_overwrite, add_spectral, compile_kernels,
-                                   output_path, progress_bar, sigint_latch, thread_number, usage_errors, whole_number)
+from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_overwrite, add_polarized, add_spectral,
+                                   compile_kernels, output_path, progress_bar, sigint_latch, thread_number,
+                                   usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -26,6 +27,7 @@ def register(sub) -> None:
                    help="numba threads (default: all cores); the file does not depend on it")
     add_device(p)
     add_spectral(p)
+    add_polarized(p)
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoint an interrupted run left (.FILE.h5.partial) and trace from the start "
                         "(default: resume it; a checkpoint of other settings or another code version is refused, "
@@ -64,9 +66,10 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
         stack, table = load_toml(args.config)
         base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
         settings = TabulationSettings(seed=base.seed, masking=base.masking, spectral=base.spectral,
-                                      wavelength_bins=base.wavelength_bins, device=base.device).with_overrides(
+                                      wavelength_bins=base.wavelength_bins, device=base.device,
+                                      polarized=base.polarized).with_overrides(
             rays=args.rays, seed=args.seed, threads=args.threads, spectral=args.spectral,
-            wavelength_bins=args.wavelength_bins, device=args.device)
+            wavelength_bins=args.wavelength_bins, device=args.device, polarized=args.polarized)
         check_tabulable(stack, settings)
         paths = settings.rays * len(_launches(stack, settings))
     with usage_errors(DeviceError):
@@ -83,6 +86,8 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
 
     spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {paths // settings.rays} launch(es) "
                 f"of {settings.rays:,} paths" if settings.spectral else "")
+    if settings.polarized:
+        spectral += ", polarized (Mueller matrices in the plane frames, docs/polarization.md section 4)"
     print(f"tabulating {stack.name} ({stack.category}): {settings.rays:,} rays over the hemisphere "
           f"(cos-weighted){spectral}, MERL grid 90x90x180, "
           f"{'CUDA' if settings.device == 'cuda' else f'{thread_count(settings.threads)} thread(s)'}",
