@@ -36,12 +36,16 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_tabulate)
 
     p = sub.add_parser("export", help="export a simulated file to another tool's format: MERL .binary (from a "
-                                      "tabulated file) or the RGL tensor file of Mitsuba 3's and pbrt-v4's measured "
-                                      "material (from a file simulated with --parametrization rgl)")
-    p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate (merl) or by gonio simulate "
+                                      "tabulated file), the RGL tensor file of Mitsuba 3's and pbrt-v4's measured "
+                                      "material (from a file simulated with --parametrization rgl) or the .pbsdf of "
+                                      "Mitsuba 3's measured_polarized (from a polarized tabulated file)")
+    p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate (merl), gonio tabulate "
+                                                   "--polarized (mitsuba-polarized) or by gonio simulate "
                                                    "--parametrization rgl (rgl)")
-    p.add_argument("--format", required=True, choices=("merl", "rgl"),
-                   help="output format: merl (MERL .binary) or rgl (RGL tensor file, docs/rgl-format.md)")
+    p.add_argument("--format", required=True, choices=("merl", "rgl", "mitsuba-polarized"),
+                   help="output format: merl (MERL .binary), rgl (RGL tensor file, docs/rgl-format.md) or "
+                        "mitsuba-polarized (Mitsuba 3's measured_polarized tensor file, docs/polarization.md "
+                        "section 4)")
     p.add_argument("--out", required=True, metavar="FILE", help="the file to write (required)")
     p.add_argument("--spectral", action="store_true",
                    help="rgl: write the spectral file (spectra + wavelengths: pbrt-v4, Mitsuba's spectral variants) "
@@ -150,7 +154,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.format == "rgl":
         return _export_rgl(args)
     if args.spectral:
-        raise UsageError("--spectral: goes with --format rgl (a MERL file is RGB)")
+        raise UsageError(f"--spectral: goes with --format rgl (a {args.format} file's channels are the tabulated file's)")
+    if args.format == "mitsuba-polarized":
+        return _export_polarized(args)
     from goniometer.files.merl import write_merl
     from goniometer.files.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
@@ -163,6 +169,41 @@ def cmd_export(args: argparse.Namespace) -> int:
     n = int(np.count_nonzero(tab.hits))
     print(f"wrote {out} (MERL .binary, 90x90x180; {n:,} cells with data, {tab.hits.size - n:,} marked negative)")
     return 0
+
+
+def _export_polarized(args: argparse.Namespace) -> int:
+    """``gonio export T.h5 --format mitsuba-polarized --out X.pbsdf`` (``docs/polarization.md`` section 4)."""
+    from goniometer.files.mitsuba_polarized import PolarizedExportError, export_pbsdf, wavelengths
+    from goniometer.files.tabulated import FORMAT as TAB_FORMAT
+    from goniometer.files.tabulated import TabulatedError, read_tabulated
+    if _format_of(args.file) == "goniometer.slices":
+        raise UsageError(f"{args.file}: a slices file; mitsuba-polarized exports a polarized tabulated file "
+                         f"(gonio tabulate CONFIG --polarized --out T.h5)")
+    with usage_errors(TabulatedError):
+        if _format_of(args.file) == TAB_FORMAT and not _polarized(args.file):
+            raise UsageError(f"{args.file}: a scalar tabulation: measured_polarized holds Mueller matrices; tabulate "
+                             f"with --polarized (gonio tabulate CONFIG --polarized --out T.h5)")
+        tab = read_tabulated(args.file)
+    out = output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
+    with usage_errors(PolarizedExportError, prefix=str(args.file)):
+        wvls, ch = wavelengths(tab)
+        export_pbsdf(tab, out)
+    s = tab.settings
+    if s.spectral and s.wavelength_bins > 3:
+        print(f"note: {args.file} has {s.wavelength_bins} wavelength bins; the file holds 5 (Mitsuba's plugin reads 5): "
+              f"bins {', '.join(str(int(c) + 1) for c in ch)} at {', '.join(str(int(w)) for w in wvls)} nm",
+              file=sys.stderr)
+    print(f"wrote {out} (Mitsuba 3 measured_polarized tensor file: M [phi_d 360, theta_d 90, theta_h 90, 5 wavelengths "
+          f"{'/'.join(str(int(w)) for w in wvls)} nm, 4, 4], plane frames; {int(np.count_nonzero(tab.hits)):,} cells "
+          f"with data)")
+    print(f"  Mitsuba 3 (*_spectral_polarized variants): {{'type': 'measured_polarized', 'filename': '{out}'}}")
+    return 0
+
+
+def _polarized(path: str) -> bool:
+    import h5py
+    with h5py.File(path, "r") as f:
+        return bool(f["simulation"].attrs.get("polarized", False)) if "simulation" in f else False
 
 
 def _export_rgl(args: argparse.Namespace) -> int:
