@@ -478,7 +478,7 @@ def _info_tabulated(args: argparse.Namespace) -> int:
     from goniometer.run.results import ENERGY_TERMS
     from goniometer.files.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
-        spectral = read_tabulated(args.file)
+        spectral = read_tabulated(args.file, mueller=False)   # (what info says needs no Mueller matrices)
     t = spectral.rgb()   # a spectral file's energies are shown in linear sRGB; "spectral" lists the bins
     s = spectral.settings
     n_data = int(np.count_nonzero(t.hits))

@@ -54,12 +54,26 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_export)
 
 
+def tabulation_settings(table: dict, args: argparse.Namespace):
+    """The :class:`~goniometer.run.settings.TabulationSettings` of ``gonio tabulate``: the material
+    file's ``[simulation]`` table (``seed``, ``masking``, ``spectral``, ``wavelength_bins``,
+    ``device``, ``polarized``; ``table`` as :func:`goniometer.stack.load_toml` returns it), then the
+    options given. Raises :class:`~goniometer.run.settings.SettingsError`."""
+    from goniometer.run.settings import SimulationSettings, TabulationSettings
+    base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
+    return TabulationSettings(seed=base.seed, masking=base.masking, spectral=base.spectral,
+                              wavelength_bins=base.wavelength_bins, device=base.device,
+                              polarized=base.polarized).with_overrides(
+        rays=args.rays, seed=args.seed, threads=args.threads, spectral=args.spectral,
+        wavelength_bins=args.wavelength_bins, device=args.device, polarized=args.polarized)
+
+
 def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.files import slices as store
     from goniometer.atomic import is_environment_error
     from goniometer.run.checkpoints import checkpoint_dir
     from goniometer.cli.simulate import checkpoint_refusals
-    from goniometer.run.settings import SettingsError, SimulationSettings, TabulationSettings
+    from goniometer.run.settings import SettingsError
     from goniometer.stack import StackError, load_toml
     from goniometer.files.tabulated import write_tabulated
     from goniometer.run.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable,
@@ -68,12 +82,7 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.kernel.tracer import DeviceError, check_device, thread_count
     with usage_errors(StackError, SettingsError, TabulationError, store.StoreError):
         stack, table = load_toml(args.config)
-        base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
-        settings = TabulationSettings(seed=base.seed, masking=base.masking, spectral=base.spectral,
-                                      wavelength_bins=base.wavelength_bins, device=base.device,
-                                      polarized=base.polarized).with_overrides(
-            rays=args.rays, seed=args.seed, threads=args.threads, spectral=args.spectral,
-            wavelength_bins=args.wavelength_bins, device=args.device, polarized=args.polarized)
+        settings = tabulation_settings(table, args)
         check_tabulable(stack, settings)
         paths = settings.rays * len(_launches(stack, settings))
     with usage_errors(DeviceError):

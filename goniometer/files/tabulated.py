@@ -155,21 +155,23 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
 
 # ---------------------------------------------------------------------- reading
 
-def read_tabulated(path: str | Path) -> TabulatedBRDF:
-    """Read a tabulated file (raises :class:`TabulatedError` naming the file and the reason)."""
+def read_tabulated(path: str | Path, mueller: bool = True) -> TabulatedBRDF:
+    """Read a tabulated file (raises :class:`TabulatedError` naming the file and the reason).
+    ``mueller``: read a polarized file's Mueller matrices (False: leave them out, 1.1 GB for RGB;
+    ``settings.polarized`` still says what the file holds)."""
     p = Path(path)
     if not p.is_file():
         raise TabulatedError(f"{p}: no such file")
     try:
         with h5py.File(p, "r") as f:
-            return _read(f, p)
+            return _read(f, p, mueller)
     except TabulatedError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise TabulatedError(f"{p}: not a readable {FORMAT} file ({e})") from None
 
 
-def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
+def _read(f: h5py.File, p: Path, mueller: bool = True) -> TabulatedBRDF:
     fmt = f.attrs.get("format")
     if fmt != FORMAT:
         hint = " (a slices file: gonio tabulate writes tabulated files)" if fmt == "goniometer.slices" else ""
@@ -213,5 +215,5 @@ def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
         roulette=en["roulette"][()], capped=en["capped"][()], capped_paths=int(sim["capped_paths"]),
         mean_events=float(sim["mean_events"]), elapsed_s=float(sim["elapsed_s"]), threads=int(sim["threads"]),
         compile_s=float(sim.get("compile_s", 0.0)), launches=int(sim.get("launches", 1)),
-        mueller=g["mueller"][()] if settings.polarized else None,
-        mueller_stderr=g["mueller_stderr"][()] if settings.polarized else None)
+        mueller=g["mueller"][()] if settings.polarized and mueller else None,
+        mueller_stderr=g["mueller_stderr"][()] if settings.polarized and mueller else None)

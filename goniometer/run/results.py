@@ -525,20 +525,19 @@ class TabulatedBRDF:
             return np.ascontiguousarray(x.T).reshape((C,) + halfdiff.SHAPE)
 
         pol = {}
-        if mueller is not None:
-            m = mueller * scale[:, :, None]
-            m_se = np.maximum(mueller_sq - mueller * mueller / n, 0.0)
-            m_se /= max(n - 1, 1)
-            m_se *= n
-            np.sqrt(m_se, out=m_se)
-            m_se *= scale[:, :, None]
-            m[:, :, 0] = value
-            m_se[:, :, 0] = stderr
+        if mueller is not None:     # (the cells no path left through hold zero sums: computed where hits > 0)
+            nz = np.flatnonzero(hits)
+            s1, s2, sc = mueller[nz], mueller_sq[nz], scale[nz, :, None]
+            m = s1 * sc
+            m_se = np.sqrt(np.maximum(s2 - s1 * s1 / n, 0.0) / max(n - 1, 1) * n) * sc
+            m[:, :, 0] = value[nz]
+            m_se[:, :, 0] = stderr[nz]
 
-            def matrices(x: np.ndarray) -> np.ndarray:     # (N_CELLS, C, 16) -> (C, 90, 90, 180, 4, 4)
-                return np.ascontiguousarray(np.moveaxis(x, 0, 1)).reshape((C,) + halfdiff.SHAPE + (4, 4))
+            def matrices(x: np.ndarray) -> np.ndarray:     # (cells with data, C, 16) -> (C, 90, 90, 180, 4, 4)
+                out = np.zeros((C, halfdiff.N_CELLS, 16))
+                out[:, nz] = np.moveaxis(x, 0, 1)
+                return out.reshape((C,) + halfdiff.SHAPE + (4, 4))
             pol = {"mueller": matrices(m), "mueller_stderr": matrices(m_se)}
-            del m, m_se
 
         en: dict[str, np.ndarray] = {}
         en_se: dict[str, np.ndarray] = {}

@@ -17,7 +17,7 @@ import goniometer as g
 from goniometer.files.rgl_export import CHANNEL_NM
 from goniometer.files.mitsuba_polarized import RECIPROCAL, export_pbsdf, pbsdf_fields, spectral_bins, wavelengths
 from goniometer.files.rgl_tensor import read_tensor
-from goniometer.files.tabulated import read_tabulated, write_tabulated
+from goniometer.files.tabulated import read_tabulated
 from goniometer.grids import halfdiff
 from goniometer.grids.stokes import convert_mueller
 from goniometer.run.tabulation import tabulate
@@ -105,13 +105,30 @@ def _evaluate(mi, bsdf, l, v, nm):
 
 
 @pytest.fixture(scope="module")
-def model_m00(metal_tab):
-    """The roughconductor's intensity at every cell's centre pair (C, 90, 90, 180)."""
-    th, td, pd = np.meshgrid(np.radians(halfdiff.theta_h_centers_deg()), np.radians(halfdiff.theta_d_centers_deg()),
-                             np.radians(halfdiff.phi_d_centers_deg()), indexing="ij")
-    l, v = _pair(th, td, pd)
+def model_m00():
+    """The roughconductor's intensity (C, 90, 90, 180), each cell's mean weighted by cos theta_l
+    cos theta_v as our cells' (docs/tabulated-format.md section 3): a midpoint rule of 4 x 2 x 2
+    points per cell in (sqrt(theta_h), theta_d, phi_d) with the Jacobian ``4 cos theta_d sin
+    theta_h sin theta_d``; the narrow lobe's curvature across a row would otherwise show in the
+    sparse cells' total."""
     layer = METAL.layers[0]
-    return np.stack([_ggx_conductor(l, v, layer.alpha_xy[0], layer.ior[c], layer.extinction[c]) for c in range(3)])
+    n_h, n_d, n_p = 4, 2, 2
+    u = (np.arange(halfdiff.N_THETA_H * n_h) + 0.5) / (halfdiff.N_THETA_H * n_h)
+    th = 0.5 * np.pi * u * u
+    td = (np.arange(halfdiff.N_THETA_D * n_d) + 0.5) * (0.5 * np.pi / (halfdiff.N_THETA_D * n_d))
+    pd = (np.arange(halfdiff.N_PHI_D * n_p) + 0.5) * (np.pi / (halfdiff.N_PHI_D * n_p))
+    out = np.zeros((3,) + halfdiff.SHAPE)
+    for i in range(halfdiff.N_THETA_H):
+        h, d, p = np.meshgrid(th[i * n_h:(i + 1) * n_h], td, pd, indexing="ij")
+        l, v = _pair(h, d, p)
+        w = np.cos(d) * np.sin(h) * np.sin(d) * u[i * n_h:(i + 1) * n_h, None, None] \
+            * np.clip(l[..., 2], 0.0, None) * np.clip(v[..., 2], 0.0, None)
+        wsum = w.reshape(n_h, halfdiff.N_THETA_D, n_d, halfdiff.N_PHI_D, n_p).sum(axis=(0, 2, 4))
+        for c in range(3):
+            f = _ggx_conductor(l, v, layer.alpha_xy[0], layer.ior[c], layer.extinction[c]) * w
+            fsum = f.reshape(n_h, halfdiff.N_THETA_D, n_d, halfdiff.N_PHI_D, n_p).sum(axis=(0, 2, 4))
+            out[c, i] = np.divide(fsum, wsum, out=np.zeros_like(fsum), where=wsum > 0)
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -247,26 +264,9 @@ def test_the_intensity_is_m00(metal_tab):
     assert np.all(dop <= 1.0 + 1e-9)
 
 
-def test_a_polarized_tabulation_has_the_same_bits_on_one_and_two_threads():
-    a = tabulate(METAL, _settings(rays=30_000, chunk_rays=4096, threads=1))
-    b = tabulate(METAL, _settings(rays=30_000, chunk_rays=4096, threads=2))
-    np.testing.assert_array_equal(a.mueller, b.mueller)
-    np.testing.assert_array_equal(a.mueller_stderr, b.mueller_stderr)
-    np.testing.assert_array_equal(a.value, b.value)
-
-
-def test_the_files_and_the_export_layout(tmp_path, metal_tab):
-    """The tabulated file keeps the matrices (and says so); the export's fields are the plugin's
-    layout: 5 wavelengths (RGB at 465, 550, 610 nm, the ends repeated at 360 and 830 nm), phi_d over
-    both halves, the folded half the reciprocal matrices."""
-    p = write_tabulated(tmp_path / "t.h5", metal_tab)
-    with h5py.File(p) as f:
-        assert f["simulation"].attrs["polarized"] and f["brdf"].attrs["stokes_frames"] == "plane"
-        assert f["brdf/mueller"].dims[4][0].name.endswith("mueller_row")
-    back = read_tabulated(p)
-    assert back.settings.polarized
-    np.testing.assert_array_equal(back.mueller, metal_tab.mueller)
-    np.testing.assert_array_equal(back.mueller_stderr, metal_tab.mueller_stderr)
+def test_the_export_layout(metal_tab):
+    """The export's fields are the plugin's layout: 5 wavelengths (RGB at 465, 550, 610 nm, the ends
+    repeated at 360 and 830 nm), phi_d over both halves, the folded half the reciprocal matrices."""
     fields = pbsdf_fields(metal_tab)
     assert fields["wvls"].dtype == np.uint16 and list(fields["wvls"]) == [360, 465, 550, 610, 830]
     assert list(wavelengths(metal_tab)[1]) == [2, 2, 1, 0, 0]
@@ -295,14 +295,23 @@ def _config(tmp_path, extra: str = "") -> str:
 
 
 def test_gonio_tabulate_polarized_export_and_info(tmp_path, capsys):
-    """The command line: --polarized (and the [simulation] key), gonio info says polarized, gonio
-    export --format mitsuba-polarized writes the tensor file, refuses to overwrite it without
-    --overwrite and refuses a scalar tabulation in one line."""
+    """The command line: --polarized (and the [simulation] key) writes the file's Mueller matrices,
+    the same bits on two threads as the library's on one (read back from the file); gonio info says
+    polarized; gonio export --format mitsuba-polarized writes the tensor file, refuses to overwrite
+    it without --overwrite and refuses a scalar tabulation in one line."""
     from goniometer.cli import main
     out = tmp_path / "t.h5"
-    assert main(["tabulate", _config(tmp_path), "--polarized", "--rays", "20000", "--threads", "1",
+    assert main(["tabulate", _config(tmp_path), "--polarized", "--rays", "20000", "--threads", "2",
                  "--out", str(out)]) == 0
-    assert read_tabulated(out).polarized
+    with h5py.File(out) as f:
+        assert f["simulation"].attrs["polarized"] and f["brdf"].attrs["stokes_frames"] == "plane"
+        assert f["brdf/mueller"].dims[4][0].name.endswith("mueller_row")
+    back = read_tabulated(out)
+    ref = tabulate(METAL, g.TabulationSettings(rays=20000, seed=1, threads=1, polarized=True))
+    assert back.polarized and back.settings.polarized
+    np.testing.assert_array_equal(back.mueller, ref.mueller)
+    np.testing.assert_array_equal(back.mueller_stderr, ref.mueller_stderr)
+    np.testing.assert_array_equal(back.value, ref.value)
     assert main(["info", str(out)]) == 0
     assert "polarized: each cell holds its Mueller matrix" in capsys.readouterr().out
     x = tmp_path / "t.pbsdf"
@@ -312,11 +321,15 @@ def test_gonio_tabulate_polarized_export_and_info(tmp_path, capsys):
     capsys.readouterr()
     assert main(["export", str(out), "--format", "mitsuba-polarized", "--out", str(x)]) == 2
     assert "--overwrite" in capsys.readouterr().err
-    # the [simulation] key
-    out2 = tmp_path / "t2.h5"
-    assert main(["tabulate", _config(tmp_path, "[simulation]\npolarized = true\n"), "--rays", "2000", "--threads", "1",
-                 "--out", str(out2)]) == 0
-    assert read_tabulated(out2).polarized
+    # the [simulation] key, and the option over it
+    from goniometer.cli import build_parser
+    from goniometer.cli.tabulate import tabulation_settings
+    from goniometer.stack import load_toml
+    cfg = _config(tmp_path, "[simulation]\npolarized = true\n")
+    args = build_parser().parse_args(["tabulate", cfg, "--out", str(tmp_path / "k.h5")])
+    assert tabulation_settings(load_toml(cfg)[1], args).polarized
+    args = build_parser().parse_args(["tabulate", _config(tmp_path), "--out", "k.h5"])
+    assert not tabulation_settings(load_toml(_config(tmp_path))[1], args).polarized
     # a scalar tabulation is refused, naming what is needed
     sca = tmp_path / "s.h5"
     assert main(["tabulate", _config(tmp_path), "--rays", "2000", "--threads", "1", "--out", str(sca)]) == 0
