@@ -283,8 +283,33 @@ def test_the_export_layout(metal_tab):
 
 
 def test_spectral_bins_are_spread_and_three_channels_are_padded():
+    """Five wavelengths whatever the channels: a spectral tabulation's five bins evenly spread (at
+    their centres), three bins padded at 360 and 830 nm with their end bins."""
+    from types import SimpleNamespace
     assert list(spectral_bins(30)) == [0, 7, 14, 22, 29]
     assert len(set(spectral_bins(6))) == 5
+    for bins in (3, 6, 30):
+        s = g.TabulationSettings(spectral=True, wavelength_bins=bins, polarized=True)
+        nm, ch = wavelengths(SimpleNamespace(settings=s, wavelengths_nm=s.wavelengths_nm))
+        assert nm.dtype == np.uint16 and len(nm) == 5 and np.all(np.diff(nm.astype(int)) > 0)
+        centres = np.round(s.wavelengths_nm[ch])
+        if bins == 3:
+            assert list(ch) == [0, 0, 1, 2, 2] and nm[0] == 360 and nm[-1] == 830
+            np.testing.assert_array_equal(nm[1:4], centres[1:4])
+        else:
+            assert list(ch) == list(spectral_bins(bins))
+            np.testing.assert_array_equal(nm, centres)
+
+
+def test_a_slices_file_is_refused_for_the_polarized_export(tmp_path, capsys):
+    from goniometer.cli import main
+    r = g.simulate(METAL, g.SimulationSettings(incident_deg=(30.0,), rays=2000, resolution=(3, 6), threads=1,
+                                               polarized=True))
+    g.write(tmp_path / "s.h5", r)
+    assert main(["export", str(tmp_path / "s.h5"), "--format", "mitsuba-polarized", "--out",
+                 str(tmp_path / "s.pbsdf")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "a slices file" in err and "gonio tabulate CONFIG --polarized" in err
 
 
 def _config(tmp_path, extra: str = "") -> str:
