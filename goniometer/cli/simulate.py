@@ -514,8 +514,8 @@ def _info_tabulated(args: argparse.Namespace) -> int:
         print(f"  spectral: {s.wavelength_bins} wavelength bins, {wl[0]:.1f}-{wl[-1]:.1f} nm (centres), "
               f"{spectral.paths:,} paths in {spectral.launches} launch(es)")
     if s.polarized:
-        print("  polarized: each cell holds its Mueller matrix (mueller, mueller_stderr; plane frames x = normalize(l x "
-              "v) of the cell's pair, docs/polarization.md section 4)")
+        print("  polarized: each cell holds its Mueller matrix (mueller, mueller_stderr; plane frames x = "
+              "normalize(l x v) of the cell's pair, docs/polarization.md section 4)")
     print(f"  energy under uniform diffuse light ({'linear sRGB of the bins' if s.spectral else 'R G B'}):")
     for k in ENERGY_TERMS:
         print(f"    {k:13s} " + " ".join(f"{x:7.4f}" for x in t.energy[k]))

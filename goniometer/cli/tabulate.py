@@ -162,10 +162,13 @@ def _print_summary(t) -> None:
 def cmd_export(args: argparse.Namespace) -> int:
     if args.format == "rgl":
         return _export_rgl(args)
-    if args.spectral:
-        raise UsageError(f"--spectral: goes with --format rgl (a {args.format} file's channels are the tabulated file's)")
+    if args.spectral and args.format == "mitsuba-polarized":
+        raise UsageError("--spectral: goes with --format rgl (a mitsuba-polarized file holds the tabulated file's "
+                         "channels or bins)")
     if args.format == "mitsuba-polarized":
         return _export_polarized(args)
+    if args.spectral:
+        raise UsageError("--spectral: goes with --format rgl (a MERL file is RGB)")
     from goniometer.files.merl import write_merl
     from goniometer.files.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
@@ -199,8 +202,8 @@ def _export_polarized(args: argparse.Namespace) -> int:
         export_pbsdf(tab, out)
     s = tab.settings
     if s.spectral and s.wavelength_bins > 3:
-        print(f"note: {args.file} has {s.wavelength_bins} wavelength bins; the file holds 5 (Mitsuba's plugin reads 5): "
-              f"bins {', '.join(str(int(c) + 1) for c in ch)} at {', '.join(str(int(w)) for w in wvls)} nm",
+        print(f"note: {args.file} has {s.wavelength_bins} wavelength bins; the file holds 5 (Mitsuba's plugin reads "
+              f"5): bins {', '.join(str(int(c) + 1) for c in ch)} at {', '.join(str(int(w)) for w in wvls)} nm",
               file=sys.stderr)
     print(f"wrote {out} (Mitsuba 3 measured_polarized tensor file: M [phi_d 360, theta_d 90, theta_h 90, 5 wavelengths "
           f"{'/'.join(str(int(w)) for w in wvls)} nm, 4, 4], plane frames; {int(np.count_nonzero(tab.hits)):,} cells "
