@@ -373,3 +373,27 @@ def test_a_polarized_tabulation_on_cuda_is_refused_in_one_line(tmp_path, capsys)
     assert err.count("\n") == 0 and "polarized" in err
     with pytest.raises(g.SettingsError, match="polarized"):
         g.TabulationSettings(polarized=True, device="cuda")
+
+
+@pytest.mark.parametrize("folded", [False, True])
+def test_a_paths_record_is_its_matrix_in_the_plane_frames(folded):
+    """The kernel's record of an exit (goniometer.kernel.polarized.tabulated_exit) is the path's
+    matrix taken from the s/p frames to the plane frames as goniometer.grids.stokes converts it, and
+    in the folded half reciprocity's D M^T D of that."""
+    from goniometer.kernel.polarized import P_FRAME, tabulated_exit
+    from goniometer.grids.stokes import frame_x
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        l, v = rng.normal(size=3), rng.normal(size=3)
+        l[2], v[2] = abs(l[2]), abs(v[2])
+        l, v = l / np.linalg.norm(l), v / np.linalg.norm(v)
+        m = rng.normal(size=(3, 4, 4))
+        pol = np.zeros((4, 16))
+        pol[:3] = m.reshape(3, 16)
+        pol[P_FRAME, :3] = frame_x("sp", l, v)[1]
+        out = np.empty((16, 3))
+        tabulated_exit(pol, *l, *v, folded, out)
+        want = convert_mueller(m, l, v, "sp", "plane")
+        if folded:
+            want = np.swapaxes(want, -1, -2) * RECIPROCAL
+        np.testing.assert_allclose(np.moveaxis(out.reshape(4, 4, 3), -1, 0), want, atol=1e-12)
