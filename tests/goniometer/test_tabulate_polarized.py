@@ -397,3 +397,29 @@ def test_a_paths_record_is_its_matrix_in_the_plane_frames(folded):
         if folded:
             want = np.swapaxes(want, -1, -2) * RECIPROCAL
         np.testing.assert_allclose(np.moveaxis(out.reshape(4, 4, 3), -1, 0), want, atol=1e-12)
+
+
+def test_a_polarized_tabulation_resumes_to_the_same_bits(tmp_path):
+    """Interrupted after its first batch, a polarized tabulation resumes from its checkpoint (which
+    keeps the Mueller sums) to the bits of an uninterrupted run; a scalar run's checkpoint is not
+    a polarized run's (the run's identity says polarized)."""
+    from goniometer.run.checkpoints import CheckpointMismatch
+    from goniometer.run.tabulation import TabulationCheckpoint, tabulation_description
+    settings = _settings(rays=40_000, chunk_rays=4096)
+    one = tabulate(METAL, settings)
+    cp = TabulationCheckpoint(tmp_path / "cp", tabulation_description(METAL, settings))
+
+    def stop(n):
+        raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        tabulate(METAL, settings, checkpoint=cp, progress=stop)
+    with np.load(tmp_path / "cp" / "state.npz") as z:
+        assert {"mueller", "mueller_sq"} <= set(z.files) and 0 < int(z["next_chunk"]) < 10
+    again = tabulate(METAL, settings, checkpoint=cp)
+    np.testing.assert_array_equal(again.mueller, one.mueller)
+    np.testing.assert_array_equal(again.mueller_stderr, one.mueller_stderr)
+    np.testing.assert_array_equal(again.value, one.value)
+    scalar = replace(settings, polarized=False)
+    assert "polarized" not in tabulation_description(METAL, scalar)["settings"]
+    with pytest.raises(CheckpointMismatch):
+        TabulationCheckpoint(tmp_path / "cp", tabulation_description(METAL, scalar)).check()
