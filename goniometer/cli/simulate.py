@@ -478,7 +478,7 @@ def _info_tabulated(args: argparse.Namespace) -> int:
     from goniometer.run.results import ENERGY_TERMS
     from goniometer.files.tabulated import TabulatedError, read_tabulated
     with usage_errors(TabulatedError):
-        spectral = read_tabulated(args.file)
+        spectral = read_tabulated(args.file, mueller=False)   # (what info says needs no Mueller matrices)
     t = spectral.rgb()   # a spectral file's energies are shown in linear sRGB; "spectral" lists the bins
     s = spectral.settings
     n_data = int(np.count_nonzero(t.hits))
@@ -487,7 +487,7 @@ def _info_tabulated(args: argparse.Namespace) -> int:
         "material": {"name": t.stack.name, "category": t.stack.category, "base": t.stack.base,
                      "config": json.loads(t.stack.to_json())},
         "settings": {"rays": s.rays, "seed": s.seed, "masking": s.masking, "chunk_rays": s.chunk_rays,
-                     "spectral": s.spectral, "device": s.device},
+                     "spectral": s.spectral, "device": s.device, "polarized": s.polarized},
         "grid": {"name": "merl", "shape": list(t.hits.shape), "cells_with_data": n_data},
         "energy": {k: [float(x) for x in v] for k, v in t.energy.items()},
         "performance": {"threads": t.threads, "elapsed_s": t.elapsed_s, "rays_per_s": t.rays_per_s,
@@ -513,6 +513,9 @@ def _info_tabulated(args: argparse.Namespace) -> int:
         wl = spectral.wavelengths_nm
         print(f"  spectral: {s.wavelength_bins} wavelength bins, {wl[0]:.1f}-{wl[-1]:.1f} nm (centres), "
               f"{spectral.paths:,} paths in {spectral.launches} launch(es)")
+    if s.polarized:
+        print("  polarized: each cell holds its Mueller matrix (mueller, mueller_stderr; plane frames x = "
+              "normalize(l x v) of the cell's pair, docs/polarization.md section 5)")
     print(f"  energy under uniform diffuse light ({'linear sRGB of the bins' if s.spectral else 'R G B'}):")
     for k in ENERGY_TERMS:
         print(f"    {k:13s} " + " ".join(f"{x:7.4f}" for x in t.energy[k]))

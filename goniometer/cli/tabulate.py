@@ -8,8 +8,9 @@ import sys
 
 import numpy as np
 
-from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_overwrite, add_spectral, compile_kernels,
-                                   output_path, progress_bar, sigint_latch, thread_number, usage_errors, whole_number)
+from goniometer.cli.common import (ResumeAware, UsageError, add_device, add_overwrite, add_polarized, add_spectral,
+                                   compile_kernels, output_path, progress_bar, sigint_latch, thread_number,
+                                   usage_errors, whole_number)
 
 
 def register(sub) -> None:
@@ -26,6 +27,7 @@ def register(sub) -> None:
                    help="numba threads (default: all cores); the file does not depend on it")
     add_device(p)
     add_spectral(p)
+    add_polarized(p)
     p.add_argument("--restart", action="store_true",
                    help="discard the checkpoint an interrupted run left (.FILE.h5.partial) and trace from the start "
                         "(default: resume it; a checkpoint of other settings or another code version is refused, "
@@ -34,12 +36,16 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_tabulate)
 
     p = sub.add_parser("export", help="export a simulated file to another tool's format: MERL .binary (from a "
-                                      "tabulated file) or the RGL tensor file of Mitsuba 3's and pbrt-v4's measured "
-                                      "material (from a file simulated with --parametrization rgl)")
-    p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate (merl) or by gonio simulate "
+                                      "tabulated file), the RGL tensor file of Mitsuba 3's and pbrt-v4's measured "
+                                      "material (from a file simulated with --parametrization rgl) or the .pbsdf of "
+                                      "Mitsuba 3's measured_polarized (from a polarized tabulated file)")
+    p.add_argument("file", metavar="FILE.h5", help="a file written by gonio tabulate (merl), gonio tabulate "
+                                                   "--polarized (mitsuba-polarized) or by gonio simulate "
                                                    "--parametrization rgl (rgl)")
-    p.add_argument("--format", required=True, choices=("merl", "rgl"),
-                   help="output format: merl (MERL .binary) or rgl (RGL tensor file, docs/rgl-format.md)")
+    p.add_argument("--format", required=True, choices=("merl", "rgl", "mitsuba-polarized"),
+                   help="output format: merl (MERL .binary), rgl (RGL tensor file, docs/rgl-format.md) or "
+                        "mitsuba-polarized (Mitsuba 3's measured_polarized tensor file, docs/polarization.md "
+                        "section 4)")
     p.add_argument("--out", required=True, metavar="FILE", help="the file to write (required)")
     p.add_argument("--spectral", action="store_true",
                    help="rgl: write the spectral file (spectra + wavelengths: pbrt-v4, Mitsuba's spectral variants) "
@@ -48,12 +54,26 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_export)
 
 
+def tabulation_settings(table: dict, args: argparse.Namespace):
+    """The :class:`~goniometer.run.settings.TabulationSettings` of ``gonio tabulate``: the material
+    file's ``[simulation]`` table (``seed``, ``masking``, ``spectral``, ``wavelength_bins``,
+    ``device``, ``polarized``; ``table`` as :func:`goniometer.stack.load_toml` returns it), then the
+    options given. Raises :class:`~goniometer.run.settings.SettingsError`."""
+    from goniometer.run.settings import SimulationSettings, TabulationSettings
+    base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
+    return TabulationSettings(seed=base.seed, masking=base.masking, spectral=base.spectral,
+                              wavelength_bins=base.wavelength_bins, device=base.device,
+                              polarized=base.polarized).with_overrides(
+        rays=args.rays, seed=args.seed, threads=args.threads, spectral=args.spectral,
+        wavelength_bins=args.wavelength_bins, device=args.device, polarized=args.polarized)
+
+
 def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.files import slices as store
     from goniometer.atomic import is_environment_error
     from goniometer.run.checkpoints import checkpoint_dir
     from goniometer.cli.simulate import checkpoint_refusals
-    from goniometer.run.settings import SettingsError, SimulationSettings, TabulationSettings
+    from goniometer.run.settings import SettingsError
     from goniometer.stack import StackError, load_toml
     from goniometer.files.tabulated import write_tabulated
     from goniometer.run.tabulation import (TabulationCheckpoint, TabulationError, check_tabulable,
@@ -62,11 +82,7 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
     from goniometer.kernel.tracer import DeviceError, check_device, thread_count
     with usage_errors(StackError, SettingsError, TabulationError, store.StoreError):
         stack, table = load_toml(args.config)
-        base = SimulationSettings.from_mapping(table, source=f"{args.config}: simulation")
-        settings = TabulationSettings(seed=base.seed, masking=base.masking, spectral=base.spectral,
-                                      wavelength_bins=base.wavelength_bins, device=base.device).with_overrides(
-            rays=args.rays, seed=args.seed, threads=args.threads, spectral=args.spectral,
-            wavelength_bins=args.wavelength_bins, device=args.device)
+        settings = tabulation_settings(table, args)
         check_tabulable(stack, settings)
         paths = settings.rays * len(_launches(stack, settings))
     with usage_errors(DeviceError):
@@ -83,6 +99,8 @@ def cmd_tabulate(args: argparse.Namespace) -> int:
 
     spectral = (f", spectral: {settings.wavelength_bins} bins over 360-830 nm in {paths // settings.rays} launch(es) "
                 f"of {settings.rays:,} paths" if settings.spectral else "")
+    if settings.polarized:
+        spectral += ", polarized (Mueller matrices in the plane frames, docs/polarization.md section 5)"
     print(f"tabulating {stack.name} ({stack.category}): {settings.rays:,} rays over the hemisphere "
           f"(cos-weighted){spectral}, MERL grid 90x90x180, "
           f"{'CUDA' if settings.device == 'cuda' else f'{thread_count(settings.threads)} thread(s)'}",
@@ -144,6 +162,11 @@ def _print_summary(t) -> None:
 def cmd_export(args: argparse.Namespace) -> int:
     if args.format == "rgl":
         return _export_rgl(args)
+    if args.spectral and args.format == "mitsuba-polarized":
+        raise UsageError("--spectral: goes with --format rgl (a mitsuba-polarized file holds the tabulated file's "
+                         "channels or bins)")
+    if args.format == "mitsuba-polarized":
+        return _export_polarized(args)
     if args.spectral:
         raise UsageError("--spectral: goes with --format rgl (a MERL file is RGB)")
     from goniometer.files.merl import write_merl
@@ -158,6 +181,41 @@ def cmd_export(args: argparse.Namespace) -> int:
     n = int(np.count_nonzero(tab.hits))
     print(f"wrote {out} (MERL .binary, 90x90x180; {n:,} cells with data, {tab.hits.size - n:,} marked negative)")
     return 0
+
+
+def _export_polarized(args: argparse.Namespace) -> int:
+    """``gonio export T.h5 --format mitsuba-polarized --out X.pbsdf`` (``docs/polarization.md`` section 5)."""
+    from goniometer.files.mitsuba_polarized import PolarizedExportError, export_pbsdf, wavelengths
+    from goniometer.files.tabulated import FORMAT as TAB_FORMAT
+    from goniometer.files.tabulated import TabulatedError, read_tabulated
+    if _format_of(args.file) == "goniometer.slices":
+        raise UsageError(f"{args.file}: a slices file; mitsuba-polarized exports a polarized tabulated file "
+                         f"(gonio tabulate CONFIG --polarized --out T.h5)")
+    with usage_errors(TabulatedError):
+        if _format_of(args.file) == TAB_FORMAT and not _polarized(args.file):
+            raise UsageError(f"{args.file}: a scalar tabulation: measured_polarized holds Mueller matrices; tabulate "
+                             f"with --polarized (gonio tabulate CONFIG --polarized --out T.h5)")
+        tab = read_tabulated(args.file)
+    out = output_path(args.out, inputs=[args.file], overwrite=args.overwrite)
+    with usage_errors(PolarizedExportError, prefix=str(args.file)):
+        wvls, ch = wavelengths(tab)
+        export_pbsdf(tab, out)
+    s = tab.settings
+    if s.spectral and s.wavelength_bins > 3:
+        print(f"note: {args.file} has {s.wavelength_bins} wavelength bins; the file holds 5 (Mitsuba's plugin reads "
+              f"5): bins {', '.join(str(int(c) + 1) for c in ch)} at {', '.join(str(int(w)) for w in wvls)} nm",
+              file=sys.stderr)
+    print(f"wrote {out} (Mitsuba 3 measured_polarized tensor file: M [phi_d 360, theta_d 90, theta_h 90, 5 wavelengths "
+          f"{'/'.join(str(int(w)) for w in wvls)} nm, 4, 4], plane frames; {int(np.count_nonzero(tab.hits)):,} cells "
+          f"with data)")
+    print(f"  Mitsuba 3 (*_spectral_polarized variants): {{'type': 'measured_polarized', 'filename': '{out}'}}")
+    return 0
+
+
+def _polarized(path: str) -> bool:
+    import h5py
+    with h5py.File(path, "r") as f:
+        return bool(f["simulation"].attrs.get("polarized", False)) if "simulation" in f else False
 
 
 def _export_rgl(args: argparse.Namespace) -> int:

@@ -36,7 +36,13 @@ _DESCRIPTION = {
     "stderr": "standard error of value (0 where no path left through the cell)",
     "hits": "number of paths that left through the cell (a cell has data when hits > 0)",
     "measure": "integral of cos(theta_l) cos(theta_v) dw_l dw_v over the cell (folds included); sums to pi^2",
+    "mueller": "a polarized tabulation's only: mean Mueller matrix over the cell (no cosine), the incident beam's "
+               "Stokes vector (along -l) to the exit beam's (along v), both in the plane frames x = normalize(l x v) "
+               "of the cell's pair with phi_d in [0, 180) deg (docs/polarization.md section 5); [..., 0, 0] is value",
+    "mueller_stderr": "a polarized tabulation's only: standard error of each element of mueller",
 }
+#: the Stokes frames of a polarized tabulation's Mueller matrices (goniometer.grids.stokes.FRAMES)
+FRAMES = "plane"
 
 
 class TabulatedError(ValueError):
@@ -94,6 +100,8 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
         sim.attrs["paths"] = t.paths
     if s.device != "cpu":
         sim.attrs["device"] = s.device
+    if s.polarized:   # docs/tabulated-format.md: /brdf/mueller, /brdf/mueller_stderr
+        sim.attrs["polarized"] = True
 
     g = f.create_group("brdf")
     g.attrs["grid"] = "merl"
@@ -110,11 +118,18 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
     _scale(g, "theta_h_edges_deg", halfdiff.theta_h_edges_deg(), "deg", "cell edges in theta_h")
     _scale(g, "theta_d_edges_deg", halfdiff.theta_d_edges_deg(), "deg", "cell edges in theta_d")
     _scale(g, "phi_d_edges_deg", halfdiff.phi_d_edges_deg(), "deg", "cell edges in phi_d")
-    for name, data, dims, units in (
-            ("value", t.value, ("channel", "theta_h", "theta_d", "phi_d"), "1/sr"),
-            ("stderr", t.stderr, ("channel", "theta_h", "theta_d", "phi_d"), "1/sr"),
-            ("hits", t.hits, ("theta_h", "theta_d", "phi_d"), None),
-            ("measure", t.measure, ("theta_h", "theta_d", "phi_d"), "sr^2")):
+    arrays = [("value", t.value, ("channel", "theta_h", "theta_d", "phi_d"), "1/sr"),
+              ("stderr", t.stderr, ("channel", "theta_h", "theta_d", "phi_d"), "1/sr"),
+              ("hits", t.hits, ("theta_h", "theta_d", "phi_d"), None),
+              ("measure", t.measure, ("theta_h", "theta_d", "phi_d"), "sr^2")]
+    if t.mueller is not None:
+        g.attrs["stokes_frames"] = FRAMES
+        for dim, what in (("mueller_row", "row (the exit beam's Stokes component)"),
+                          ("mueller_col", "column (the incident beam's Stokes component)")):
+            scales[dim] = _scale(g, dim, np.arange(4, dtype=np.int64), None, f"Mueller matrix {what}")
+        dims = ("channel", "theta_h", "theta_d", "phi_d", "mueller_row", "mueller_col")
+        arrays += [("mueller", t.mueller, dims, "1/sr"), ("mueller_stderr", t.mueller_stderr, dims, "1/sr")]
+    for name, data, dims, units in arrays:
         d = g.create_dataset(name, data=data, chunks=True, **_COMPRESSION)
         for axis, dim in enumerate(dims):
             d.dims[axis].attach_scale(scales[dim])
@@ -140,21 +155,23 @@ def _write(f: h5py.File, t: TabulatedBRDF) -> None:
 
 # ---------------------------------------------------------------------- reading
 
-def read_tabulated(path: str | Path) -> TabulatedBRDF:
-    """Read a tabulated file (raises :class:`TabulatedError` naming the file and the reason)."""
+def read_tabulated(path: str | Path, mueller: bool = True) -> TabulatedBRDF:
+    """Read a tabulated file (raises :class:`TabulatedError` naming the file and the reason).
+    ``mueller``: read a polarized file's Mueller matrices (False: leave them out, 1.1 GB for RGB;
+    ``settings.polarized`` still says what the file holds)."""
     p = Path(path)
     if not p.is_file():
         raise TabulatedError(f"{p}: no such file")
     try:
         with h5py.File(p, "r") as f:
-            return _read(f, p)
+            return _read(f, p, mueller)
     except TabulatedError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise TabulatedError(f"{p}: not a readable {FORMAT} file ({e})") from None
 
 
-def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
+def _read(f: h5py.File, p: Path, mueller: bool = True) -> TabulatedBRDF:
     fmt = f.attrs.get("format")
     if fmt != FORMAT:
         hint = " (a slices file: gonio tabulate writes tabulated files)" if fmt == "goniometer.slices" else ""
@@ -177,13 +194,17 @@ def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
         settings = TabulationSettings(rays=int(sim["rays"]), seed=int(sim["seed"]), masking=str(sim["masking"]),
                                       chunk_rays=int(sim["chunk_rays"]), event_cap=int(sim["event_cap"]),
                                       spectral=spectral, wavelength_bins=int(sim.get("wavelength_bins", 30)),
-                                      device=str(sim.get("device", "cpu")))
+                                      device=str(sim.get("device", "cpu")),
+                                      polarized=bool(sim.get("polarized", False)))
     except SettingsError as e:
         raise TabulatedError(f"{p}: /simulation: {e}") from None
     g = f["brdf"]
     cells = halfdiff.SHAPE
     C = settings.n_channels
-    for name, shape in (("value", (C,) + cells), ("stderr", (C,) + cells), ("hits", cells), ("measure", cells)):
+    checked = [("value", (C,) + cells), ("stderr", (C,) + cells), ("hits", cells), ("measure", cells)]
+    if settings.polarized:
+        checked += [("mueller", (C,) + cells + (4, 4)), ("mueller_stderr", (C,) + cells + (4, 4))]
+    for name, shape in checked:
         if name not in g or g[name].shape != shape:
             raise TabulatedError(f"{p}: /brdf/{name} is missing or not of shape {shape}")
     en = f["energy"]
@@ -193,4 +214,6 @@ def _read(f: h5py.File, p: Path) -> TabulatedBRDF:
         energy={k: en[k][()] for k in TAB_ENERGY_TERMS}, energy_stderr={k: en[f"{k}_stderr"][()] for k in TAB_ENERGY_TERMS},
         roulette=en["roulette"][()], capped=en["capped"][()], capped_paths=int(sim["capped_paths"]),
         mean_events=float(sim["mean_events"]), elapsed_s=float(sim["elapsed_s"]), threads=int(sim["threads"]),
-        compile_s=float(sim.get("compile_s", 0.0)), launches=int(sim.get("launches", 1)))
+        compile_s=float(sim.get("compile_s", 0.0)), launches=int(sim.get("launches", 1)),
+        mueller=g["mueller"][()] if settings.polarized and mueller else None,
+        mueller_stderr=g["mueller_stderr"][()] if settings.polarized and mueller else None)

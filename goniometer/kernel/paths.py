@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from goniometer.grids.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.halfdiff import halfdiff_angles
 from goniometer.grids.slice_grid import cell_index_fast
 from goniometer.kernel import polarized
 from goniometer.kernel.codegen import prefetch
@@ -96,7 +97,9 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
     ``polar``: None (scalar light), or the initial state of a polarized path
     (:func:`goniometer.kernel.polarized.initial_state`); each exit's Mueller matrices then go to
     ``mbrdf``/``mbtdf`` (the last two of ``outs``: (n_theta, n_phi, 2 * 16, 3), the 16 elements'
-    sums then their squares' per channel; ``docs/polarization.md``).
+    sums then their squares' per channel; ``docs/polarization.md``); a polarized tabulation's
+    reflected exit writes its Mueller matrices instead to ``mbrdf[r, 0]`` ((16, 3), the "plane"
+    frames of its MERL cell, :func:`goniometer.kernel.polarized.tabulated_exit`).
     """
     row_cos, col_cos, col_sin = tables
     brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w, mbrdf, mbtdf = outs
@@ -133,6 +136,9 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
                 exit_w[r, 0] = w0
                 exit_w[r, 1] = w1
                 exit_w[r, 2] = w2
+                if polar is not None:
+                    polarized.tabulated_exit(pol, plx, ply, plz, dx, dy, dz,
+                                             halfdiff_angles(plx, ply, plz, dx, dy, dz)[2] < 0.0, mbrdf[r, 0])
         elif (refl and not (skip_first and order == 1 and single)) or trans:
             i, j = cell_index_fast(param, trans, lx, ly, lz, dx, dy, dz, n_theta, n_phi, row_cos, col_cos, col_sin)
             if i >= 0:

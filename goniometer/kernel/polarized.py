@@ -165,3 +165,45 @@ def film(pol, cos_i, fr, down, reflected, p) -> None:
             optics.mueller_event(pol, ch, ra, rb, rc, rs, 1.0 / p)
         else:
             optics.mueller_event(pol, ch, ta, tb, tc, ts, 1.0 / (1.0 - p))
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def tabulated_exit(pol, lx, ly, lz, vx, vy, vz, folded, out) -> None:
+    """A tabulation's record of a reflected exit (``docs/polarization.md`` section 5): ``out``
+    (16, 3) the path's Mueller matrices per channel (element, channel) in the "plane" frames,
+    ``x = normalize(l x v)`` for both beams (``pol`` holds them in the s/p frames of the incident
+    beam ``-l`` and of the exit ``v``, as :func:`to_exit` leaves them; it is changed here).
+    ``folded``: the pair lies in the half of its MERL cell that reciprocity folds (``phi_d < 0``,
+    :mod:`goniometer.grids.halfdiff`): the record is then the reciprocal matrix ``D M^T D``,
+    ``D = diag(1, 1, -1, 1)``, the cell's matrix for the exchanged pair ``(v, l)``. Where ``l`` and
+    ``v`` are parallel (the plane is not defined) the s/p frames are kept."""
+    xx = ly * vz - lz * vy
+    xy = lz * vx - lx * vz
+    xz = lx * vy - ly * vx
+    n2 = xx * xx + xy * xy + xz * xz
+    if n2 > 1e-28:
+        inv = 1.0 / math.sqrt(n2)
+        xx *= inv
+        xy *= inv
+        xz *= inv
+        to_frame(pol, vx, vy, vz, xx, xy, xz)
+        # the incident beam (along -l): its frame is the one start() set, turned to x on the right
+        n = math.sqrt(lx * lx + ly * ly)
+        hx = -lx / n if n > 0.0 else 1.0
+        hy = -ly / n if n > 0.0 else 0.0
+        sx, sy, sz = optics.normal_frame(-lx, -ly, -lz, hx, hy)
+        c2, s2 = optics.stokes_rotation(-lx, -ly, -lz, sx, sy, sz, xx, xy, xz)
+        for ch in range(3):
+            for i in range(4):
+                m1 = pol[ch, 4 * i + 1]
+                m2 = pol[ch, 4 * i + 2]
+                pol[ch, 4 * i + 1] = c2 * m1 + s2 * m2
+                pol[ch, 4 * i + 2] = c2 * m2 - s2 * m1
+    for ch in range(3):
+        for i in range(4):
+            for j in range(4):
+                if folded:
+                    sign = -1.0 if (i == 2) != (j == 2) else 1.0
+                    out[4 * i + j, ch] = sign * pol[ch, 4 * j + i]
+                else:
+                    out[4 * i + j, ch] = pol[ch, 4 * i + j]

@@ -405,6 +405,11 @@ class TabulatedBRDF:
     (:attr:`wavelengths_nm`); ``hits`` and ``measure`` (sr^2): (90, 90, 180), ``hits`` counting
     the paths of every launch. Energy terms are (C,) fractions of the flux of uniform diffuse
     illumination (incident directions ``cos theta / pi``).
+
+    ``mueller``/``mueller_stderr``: a polarized tabulation's Mueller matrices, ``value.shape + (4,
+    4)``, in the "plane" frames of the cell's pair with ``phi_d`` in [0, 180) (``x = normalize(l x
+    v)`` for both beams, ``docs/polarization.md`` section 5), ``mueller[..., 0, 0]`` equal to
+    ``value``; None for scalar light.
     """
 
     stack: Stack
@@ -424,6 +429,13 @@ class TabulatedBRDF:
     compile_s: float = 0.0
     #: kernel launches of ``settings.rays`` paths each: 1, or a spectral tabulation's (``docs/spectral.md``)
     launches: int = 1
+    mueller: np.ndarray | None = None
+    mueller_stderr: np.ndarray | None = None
+
+    @property
+    def polarized(self) -> bool:
+        """True when the cells hold Mueller matrices (a polarized tabulation)."""
+        return self.mueller is not None
 
     @property
     def has_data(self) -> np.ndarray:
@@ -465,8 +477,9 @@ class TabulatedBRDF:
         def se(a: np.ndarray) -> np.ndarray:
             return combined_stderr(a, W, groups, axis=0)
 
+        pol = {} if self.mueller is None else {"mueller": lin(self.mueller), "mueller_stderr": se(self.mueller_stderr)}
         return replace(self, stack=Stack(self.stack.name, self.stack.layers, self.stack.category),
-                       settings=replace(s, spectral=False), value=lin(self.value), stderr=se(self.stderr),
+                       settings=replace(s, spectral=False), value=lin(self.value), stderr=se(self.stderr), **pol,
                        energy={k: lin(v) for k, v in self.energy.items()},
                        energy_stderr={k: se(v) for k, v in self.energy_stderr.items()},
                        roulette=lin(self.roulette), capped=lin(self.capped))
@@ -491,11 +504,15 @@ class TabulatedBRDF:
     @classmethod
     def from_sums(cls, stack: Stack, settings: TabulationSettings, sums: np.ndarray, sums_sq: np.ndarray,
                   hits: np.ndarray, energy: np.ndarray, energy_sq: np.ndarray, counts: np.ndarray,
-                  elapsed_s: float, threads: int, compile_s: float = 0.0, launches: int = 1) -> "TabulatedBRDF":
+                  elapsed_s: float, threads: int, compile_s: float = 0.0, launches: int = 1,
+                  mueller: np.ndarray | None = None, mueller_sq: np.ndarray | None = None) -> "TabulatedBRDF":
         """Estimates from the raw sums of a tabulation: ``sums``/``sums_sq`` (N_CELLS, C) exit weights
         and their squares per flat MERL cell, ``hits`` (N_CELLS,), and the kernel's energy sums; every
         channel was estimated from ``settings.rays`` paths (a spectral run: ``launches`` launches of
-        ``rays`` paths, whose counters are summed)."""
+        ``rays`` paths, whose counters are summed). ``mueller``/``mueller_sq``: a polarized run's
+        (N_CELLS, C, 16) Mueller element sums and their squares', estimated as the values are; the
+        element ``[0, 0]`` is the path's weight, so it is taken from ``sums`` (the same numbers, up to
+        the last bit of a free flight's rescaling): ``mueller[..., 0, 0]`` is ``value``."""
         n = settings.rays
         C = sums.shape[1]
         mu = np.asarray(halfdiff.cell_measure()).reshape(-1)
@@ -506,6 +523,21 @@ class TabulatedBRDF:
 
         def planes(x: np.ndarray) -> np.ndarray:
             return np.ascontiguousarray(x.T).reshape((C,) + halfdiff.SHAPE)
+
+        pol = {}
+        if mueller is not None:     # (the cells no path left through hold zero sums: computed where hits > 0)
+            nz = np.flatnonzero(hits)
+            s1, s2, sc = mueller[nz], mueller_sq[nz], scale[nz, :, None]
+            m = s1 * sc
+            m_se = np.sqrt(np.maximum(s2 - s1 * s1 / n, 0.0) / max(n - 1, 1) * n) * sc
+            m[:, :, 0] = value[nz]
+            m_se[:, :, 0] = stderr[nz]
+
+            def matrices(x: np.ndarray) -> np.ndarray:     # (cells with data, C, 16) -> (C, 90, 90, 180, 4, 4)
+                out = np.zeros((C, halfdiff.N_CELLS, 16))
+                out[:, nz] = np.moveaxis(x, 0, 1)
+                return out.reshape((C,) + halfdiff.SHAPE + (4, 4))
+            pol = {"mueller": matrices(m), "mueller_stderr": matrices(m_se)}
 
         en: dict[str, np.ndarray] = {}
         en_se: dict[str, np.ndarray] = {}
@@ -520,4 +552,4 @@ class TabulatedBRDF:
             energy=en, energy_stderr=en_se, roulette=energy[tracer.E_ROULETTE] / n,
             capped=energy[tracer.E_CAPPED] / n, capped_paths=int(counts[tracer.C_CAPPED]),
             mean_events=float(counts[tracer.C_EVENTS]) / (n * launches), elapsed_s=elapsed_s, threads=threads,
-            compile_s=compile_s, launches=launches)
+            compile_s=compile_s, launches=launches, **pol)

@@ -326,6 +326,9 @@ class TabulationSettings(_Channels):
     spectral: bool = False
     wavelength_bins: int = 30
     device: str = "cpu"
+    #: a polarized tabulation (``docs/polarization.md`` section 5): each cell holds its Mueller
+    #: matrix beside its intensity, in the "plane" frames
+    polarized: bool = False
 
     def __post_init__(self) -> None:
         self.validate()
@@ -333,7 +336,8 @@ class TabulationSettings(_Channels):
     def validate(self) -> None:
         SimulationSettings(incident_deg=(0.0,), rays=self.rays, seed=self.seed, masking=self.masking,
                            threads=self.threads, chunk_rays=self.chunk_rays, event_cap=self.event_cap,
-                           spectral=self.spectral, wavelength_bins=self.wavelength_bins, device=self.device)
+                           spectral=self.spectral, wavelength_bins=self.wavelength_bins, device=self.device,
+                           polarized=self.polarized)
 
     def with_overrides(self, **kw: Any) -> "TabulationSettings":
         """A copy with the given non-None fields replaced."""

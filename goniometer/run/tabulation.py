@@ -83,16 +83,22 @@ def tabulation_description(stack: Stack, settings: TabulationSettings) -> dict:
         run.update(spectral=True, wavelength_bins=settings.wavelength_bins)
     if settings.device != "cpu":
         run["device"] = settings.device
+    if settings.polarized:   # (the keys of scalar runs predate the field)
+        run["polarized"] = True
     return {"kind": "tabulation", "stack": json.loads(stack.to_json()), "settings": run}
 
 
 class _State:
-    """The raw sums after ``next_chunk`` chunks."""
+    """The raw sums after ``next_chunk`` chunks; a polarized run's also the Mueller elements' sums
+    and their squares' (``mueller``, ``mueller_sq``: (N_CELLS, C, 16), "plane" frames,
+    ``docs/polarization.md`` section 5)."""
 
     #: the arrays of a saved state
     KEYS = ("next_chunk", "cells", "sums", "sums_sq", "hits", "energy", "energy_sq", "counts", "elapsed_s")
+    #: the further arrays of a polarized run's saved state
+    POLARIZED_KEYS = ("mueller", "mueller_sq")
 
-    def __init__(self, n_channels: int = 3) -> None:
+    def __init__(self, n_channels: int = 3, polarized: bool = False) -> None:
         # [next chunk], updated with the sums (see _commit); a spectral run's chunks are numbered
         # launch after launch (chunk c of launch g is g * chunks per launch + c)
         self.chunk = np.zeros(1, dtype=np.int64)
@@ -103,6 +109,8 @@ class _State:
         self.energy_sq = np.zeros((tracer.N_ENERGY_SQ, n_channels))
         self.counts = np.zeros(tracer.N_COUNTS, dtype=np.int64)
         self.elapsed_s = 0.0
+        self.mueller = np.zeros((halfdiff.N_CELLS, n_channels, 16)) if polarized else None
+        self.mueller_sq = np.zeros((halfdiff.N_CELLS, n_channels, 16)) if polarized else None
 
     @property
     def next_chunk(self) -> int:
@@ -110,13 +118,14 @@ class _State:
 
     def save(self, path: Path) -> None:
         nz = np.flatnonzero(self.hits)
+        pol = {} if self.mueller is None else {"mueller": self.mueller[nz], "mueller_sq": self.mueller_sq[nz]}
         atomic.write_npz_compressed(path, next_chunk=self.next_chunk, cells=nz, sums=self.sums[nz],
                                     sums_sq=self.sums_sq[nz], hits=self.hits[nz], energy=self.energy,
-                                    energy_sq=self.energy_sq, counts=self.counts, elapsed_s=self.elapsed_s)
+                                    energy_sq=self.energy_sq, counts=self.counts, elapsed_s=self.elapsed_s, **pol)
 
     @classmethod
-    def load(cls, path: Path, n_channels: int) -> "_State":
-        s = cls(n_channels)
+    def load(cls, path: Path, n_channels: int, polarized: bool = False) -> "_State":
+        s = cls(n_channels, polarized)
         with np.load(path) as z:
             nz = z["cells"]
             s.chunk[0] = int(z["next_chunk"])
@@ -127,6 +136,9 @@ class _State:
             s.energy_sq[...] = z["energy_sq"]
             s.counts[...] = z["counts"]
             s.elapsed_s = float(z["elapsed_s"])
+            if polarized:
+                s.mueller[nz] = z["mueller"]
+                s.mueller_sq[nz] = z["mueller_sq"]
         return s
 
 
@@ -141,6 +153,7 @@ class TabulationCheckpoint:
     def __init__(self, directory: str | Path, meta: dict) -> None:
         self.directory = Path(directory)
         self.meta = dict(meta, code=_checkpoint.code_key())
+        self.polarized = bool(meta.get("settings", {}).get("polarized", False))
 
     @property
     def state_path(self) -> Path:
@@ -157,7 +170,8 @@ class TabulationCheckpoint:
         if self.kept():
             with self._readable():
                 with np.load(self.state_path) as z:
-                    missing = sorted(set(_State.KEYS) - set(z.files))
+                    keys = _State.KEYS + (_State.POLARIZED_KEYS if self.polarized else ())
+                    missing = sorted(set(keys) - set(z.files))
                 if missing:
                     raise KeyError(f"no {missing[0]}")
 
@@ -167,7 +181,7 @@ class TabulationCheckpoint:
         if not self.kept():
             return None
         with self._readable():
-            return _State.load(self.state_path, n_channels)
+            return _State.load(self.state_path, n_channels, self.polarized)
 
     @contextlib.contextmanager
     def _readable(self):
@@ -217,6 +231,26 @@ def _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq
     chunk[0] += exit_cell.shape[0]
 
 
+@numba.njit(cache=True, error_model='numpy')
+def _commit_polarized(exit_cell, exit_w, exit_m, n_valid, energy, energy_sq, counts, sums, sums_sq, hits, acc_energy,
+                      acc_energy_sq, acc_counts, chunk, mueller, mueller_sq):
+    """:func:`_commit` of a polarized run, and in the same compiled call the exits' Mueller
+    matrices ``exit_m`` ((B, chunk_rays, 1, 16, 3), :func:`goniometer.kernel.polarized.tabulated_exit`)
+    to ``mueller``/``mueller_sq`` ((N_CELLS, C, 16) views), in the same order."""
+    nc = sums.shape[1]
+    for b in range(exit_cell.shape[0]):
+        for r in range(n_valid[b]):
+            c = exit_cell[b, r]
+            if c >= 0:
+                for k in range(nc):
+                    for e in range(16):
+                        m = exit_m[b, r, 0, e, k]
+                        mueller[c, k, e] += m
+                        mueller_sq[c, k, e] += m * m
+    _commit(exit_cell, exit_w, n_valid, energy, energy_sq, counts, sums, sums_sq, hits, acc_energy, acc_energy_sq,
+            acc_counts, chunk)
+
+
 def warm_up(stack: Stack | None = None, settings: TabulationSettings | None = None) -> float:
     """Compile (or load from the on-disk cache) the tabulation kernel variants ``stack`` needs under
     ``settings`` (masking, device, a spectral run's launches) and the accumulation, by tabulating 8
@@ -263,9 +297,10 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     settings.validate()
     tracer.check_device(settings.device, settings.threads)
     runs = launches(stack, settings)
+    pol = settings.polarized
     state = checkpoint.load(settings.n_channels) if checkpoint is not None else None
     if state is None:
-        state = _State(settings.n_channels)
+        state = _State(settings.n_channels, pol)
     cr = settings.chunk_rays
     per_launch = tracer.chunk_count(settings.rays, cr)
     n_chunks = per_launch * len(runs)
@@ -286,6 +321,8 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
     counts = np.empty((B, tracer.N_COUNTS), dtype=np.int64)
     exit_cell = np.empty((B, cr), dtype=np.int64)
     exit_w = np.empty((B, cr, 3))
+    # a polarized run's exits' Mueller matrices (the per-path kernel's mbrdf slot; docs/polarization.md section 5)
+    mueller = (np.empty((B, cr, 1, 16, 3)), np.empty((B, 0, 0, 0, 3))) if pol else None
     last_save = time.monotonic()
     try:
         while state.next_chunk < n_chunks:
@@ -294,18 +331,26 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
             run = tracer.prepare(pack(st), (0.0, 0.0, 1.0), settings.rays, cr, seed, TAB_STREAM, tracer.P_TABULATE,
                                  1, 1, boundary_tables("classic", 1, 1), 1, settings.event_cap,
                                  height_correlated=settings.masking == "height-correlated", tabulate=True,
-                                 device=settings.device)
+                                 device=settings.device, polarized=pol)
             ch = _channels(bins)
             sums, sums_sq = state.sums[:, ch], state.sums_sq[:, ch]
             acc_energy, acc_energy_sq = state.energy[:, ch], state.energy_sq[:, ch]
+            if pol:
+                acc_m, acc_m_sq = state.mueller[:, ch], state.mueller_sq[:, ch]
             while first < per_launch:
                 t0 = time.perf_counter()
                 nb = min(B, per_launch - first)
                 tracer.launch(run, first, (brdf[:nb], btdf[:nb], energy[:nb], energy_sq[:nb], counts[:nb]),
-                              (exit_cell[:nb], exit_w[:nb]))
+                              (exit_cell[:nb], exit_w[:nb]), mueller=None if mueller is None else
+                              (mueller[0][:nb], mueller[1][:nb]))
                 n_valid = run.chunk_sizes(first, nb)
-                _commit(exit_cell[:nb], exit_w[:nb], n_valid, energy[:nb], energy_sq[:nb], counts[:nb], sums,
-                        sums_sq, state.hits, acc_energy, acc_energy_sq, state.counts, state.chunk)
+                if pol:
+                    _commit_polarized(exit_cell[:nb], exit_w[:nb], mueller[0][:nb], n_valid, energy[:nb],
+                                      energy_sq[:nb], counts[:nb], sums, sums_sq, state.hits, acc_energy,
+                                      acc_energy_sq, state.counts, state.chunk, acc_m, acc_m_sq)
+                else:
+                    _commit(exit_cell[:nb], exit_w[:nb], n_valid, energy[:nb], energy_sq[:nb], counts[:nb], sums,
+                            sums_sq, state.hits, acc_energy, acc_energy_sq, state.counts, state.chunk)
                 first += nb
                 state.elapsed_s += time.perf_counter() - t0
                 if checkpoint is not None and time.monotonic() - last_save > CHECKPOINT_EVERY_S \
@@ -319,7 +364,7 @@ def tabulate(stack: Stack, settings: TabulationSettings, *, checkpoint: Tabulati
             checkpoint.save(state)
         return TabulatedBRDF.from_sums(stack, settings, state.sums, state.sums_sq, state.hits, state.energy,
                                        state.energy_sq, state.counts, state.elapsed_s, threads, compile_s,
-                                       launches=len(runs))
+                                       launches=len(runs), mueller=state.mueller, mueller_sq=state.mueller_sq)
     except KeyboardInterrupt:
         # the state is always whole chunks (_commit is one compiled call): keep it
         if checkpoint is not None and state.next_chunk > 0:

@@ -1,6 +1,6 @@
 """The polarization table of a report (``polarization.md``, ``.json``): how far the scalar reference
 is from the polarized one, and how the models' errors change when they are judged against the
-intensity of polarized light (``docs/polarization.md`` section 4).
+intensity of polarized light (``docs/polarization.md`` section 6).
 
 The report is built over the results directory of a polarized database (``gonio database
 simulate ... --polarized``) with ``--compare-to`` naming the results directory of its scalar twin

@@ -345,8 +345,8 @@ def g_default_bins() -> int:
     (("spectral = true", "spectral = false"), r"simulation: wavelength_bins: goes with spectral = true"),
     (("spectral = true\n", ""), r"simulation: wavelength_bins: goes with spectral = true"),
     (("seed = 7", "seed = 7\nrays = 5"),
-     r"simulation\.rays: unknown key \(allowed: incident_deg, masking, parametrization, resolution, seed, spectral, "
-     r"wavelength_bins\)$"),
+     r"simulation\.rays: unknown key \(allowed: incident_deg, masking, parametrization, polarized, resolution, seed, "
+     r"spectral, wavelength_bins\)$"),
     (("conductor = \"Au\"", "ior = { wavelength_nm = [400, 700], value = [0.2, 0.3] }, extinction = 3.0"),
      r": metal/gold-a0_0\.2: layers\[0\]\.ior: the table covers 400-700 nm but the run's wavelength bins need"),
 ])

@@ -1,5 +1,5 @@
 """gonio report --compare-to a polarized database's scalar twin: polarization.md/.json say how far
-the scalar intensity is from the polarized one (docs/polarization.md section 4), with what the
+the scalar intensity is from the polarized one (docs/polarization.md section 6), with what the
 tables of the tiny database's slab show."""
 
 from __future__ import annotations
