@@ -164,7 +164,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     reference = load_reference(args, subcells=args.subcells)
 
     def progress(name: str) -> None:
-        note = cost_note(name, reference, args.subcells)
+        note = _cost_line(name, reference, args.subcells)
         print(f"integrating {name}" + (f" ({note})" if note else "") + " ...", file=sys.stderr)
     try:
         ev = evaluate(reference, args.model or None, s=args.subcells, isotropize=args.isotropize,
@@ -211,7 +211,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return report_failures(ev.failed)
 
 
-def cost_note(name: str, reference, subcells: int) -> str | None:
+def _cost_line(name: str, reference, subcells: int) -> str | None:
     """The cost a model states for integrating onto ``reference``'s cells (``Model.cost_note``: the
     stochastic ones), or None."""
     from models import registry
