@@ -14,10 +14,13 @@ judged on (internal BRDF, or BTDF) and of the whole BRDF; and, where it applies,
 simulate with bounce order 1 integrated (``first_order = "integrated"``, docs/first-order.md).
 Rows of ``kind = "rgl"``: recording on the RGL grid (``--parametrization rgl``) against a classic run
 of the same rays, and the export's time. Rows of ``kind = "spectral"``: a 30-bin spectral run against
-the RGB run of the same paths (CPU time per path, noise floor per CPU-second). Writes ``benchmarks/results/<date>-<host>.json`` and prints
+the RGB run of the same paths (CPU time per path, noise floor per CPU-second). Rows of
+``kind = "polarized"``: a polarized run of the bench coated metal against its scalar run, the same
+paths (CPU time per path; issue 33's goal is at most 4x, docs/polarization.md section 3). Writes ``benchmarks/results/<date>-<host>.json`` and prints
 a table.
 
 Usage: python benchmarks/bench.py [--rays-per-incident N] [--threads 1,2] [--out FILE] [--only-rgl] [--only-spectral]
+       [--only-polarized]
 """
 
 from __future__ import annotations
@@ -274,6 +277,34 @@ def bench_spectral(rays_per_incident: int, repeats: int = 3, bins: int = 30) -> 
     return rows
 
 
+def bench_polarized(rays_per_incident: int, repeats: int = 3) -> list[dict]:
+    """A polarized run (Mueller matrices, docs/polarization.md section 3) of the bench coated metal
+    against its scalar run, ``rays_per_incident`` paths per incident direction each, one thread, half
+    90 x 360, 7 incident directions, whole simulate (compile excluded: both warmed up first),
+    alternated ``repeats`` times (median ratio of CPU time per path)."""
+    name = "metal/M2-a0_0.05-a1_0.2"
+    stack = MATERIALS[name]
+    common = dict(rays=rays_per_incident, incident_deg=INCIDENT, parametrization="half", threads=1, seed=1)
+    settings = {"polarized": SimulationSettings(polarized=True, **common), "scalar": SimulationSettings(**common)}
+    for st in settings.values():
+        warm_up(stack, st)
+    cpu = {k: [] for k in settings}
+    for _ in range(repeats):
+        for kind, st in settings.items():
+            c0 = time.process_time()
+            simulate(stack, st)
+            cpu[kind].append(time.process_time() - c0)
+    ratios = sorted(a / b for a, b in zip(cpu["polarized"], cpu["scalar"]))
+    n = rays_per_incident * len(INCIDENT)
+    row = {"material": name, "kind": "polarized", "threads": 1, "paths": n,
+           "polarized_paths_per_cpu_s": n / min(cpu["polarized"]), "scalar_paths_per_cpu_s": n / min(cpu["scalar"]),
+           "polarized_vs_scalar_cpu_per_path": ratios[len(ratios) // 2], "polarized_vs_scalar_all": ratios}
+    print(f"{name:28s} polarized: {row['polarized_paths_per_cpu_s'] / 1e6:5.2f} M paths/CPU-s, "
+          f"{row['polarized_vs_scalar_cpu_per_path']:.2f}x the scalar run's CPU time per path (median of {repeats}; "
+          f"scalar {row['scalar_paths_per_cpu_s'] / 1e6:.2f} M paths/CPU-s)", flush=True)
+    return [row]
+
+
 def _integrable(stack) -> bool:
     """True when ``first_order = "integrated"`` applies (a single-scattering interface on top)."""
     from goniometer.run.first_order import check_supported
@@ -326,19 +357,22 @@ def main() -> int:
     ap.add_argument("--no-models", action="store_true", help="skip the model-integration timings")
     ap.add_argument("--only-rgl", action="store_true", help="only the RGL-grid rows")
     ap.add_argument("--only-spectral", action="store_true", help="only the spectral rows")
+    ap.add_argument("--only-polarized", action="store_true", help="only the polarized row")
     args = ap.parse_args()
     threads = [int(x) for x in args.threads.split(",")]
     threads = [t for t in threads if t <= numba.config.NUMBA_NUM_THREADS]
     print(f"machine: {cpu_model()}, {os.cpu_count()} logical CPUs; numba {numba.__version__}")
-    only = args.only_rgl or args.only_spectral
+    only = args.only_rgl or args.only_spectral or args.only_polarized
     ct = {} if args.no_compile_time or only else compile_times()
     if ct:
         print(f"kernel compile {ct['compile_s']:.1f} s, load from cache {ct['cache_load_s']:.2f} s")
     rows = [] if only else run(args.rays_per_incident, threads)
-    if not args.only_spectral:
+    if not (args.only_spectral or args.only_polarized):
         rows += bench_rgl(args.rays_per_incident)
-    if not args.only_rgl:
+    if not (args.only_rgl or args.only_polarized):
         rows += bench_spectral(args.rays_per_incident)
+    if not (args.only_rgl or args.only_spectral):
+        rows += bench_polarized(args.rays_per_incident)
     model_rows = [] if args.no_models or only else bench_models()
     host = socket.gethostname()
     out = args.out or HERE / "results" / f"{dt.date.today().isoformat()}-{host}.json"
