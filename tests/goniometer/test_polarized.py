@@ -112,13 +112,15 @@ def test_one_interface_gives_the_scalar_runs_intensity():
                          where=np.broadcast_to(sca.brdf.mask[:, None], sca.brdf.value.shape))
 
 
-def _mitsuba_cells(r, m: int, sub: int = 6) -> np.ndarray:
+def _mitsuba_cells(r, m: int, stack: Stack = METAL, sub: int = 6) -> np.ndarray:
     """Cell means (C, nt, nph, 4, 4) of Mitsuba 3's polarized roughconductor (scalar_spectral_polarized,
-    GGX, separable masking, each channel's complex index), taken from its stokes_basis frames to the
+    GGX, separable masking, each channel's complex index; ``alpha_u`` along the stack's x, Mitsuba's
+    local frame for the normal z), taken from its stokes_basis frames to the
     s/p frames of each sub-cell direction and weighted by |cos| dw (``sub x sub`` midpoints)."""
     mi = pytest.importorskip("mitsuba")
     mi.set_variant("scalar_spectral_polarized")
-    layer = METAL.layers[0]
+    layer = stack.layers[0]
+    assert layer.rotation_deg == 0.0
     grid = r.brdf.grid
     te, pe = np.radians(grid.theta_edges_deg()), np.radians(grid.phi_edges_deg())
     nt, nph = len(te) - 1, len(pe) - 1
@@ -128,8 +130,8 @@ def _mitsuba_cells(r, m: int, sub: int = 6) -> np.ndarray:
     out = np.zeros((3, nt, nph, 4, 4))
     ctx = mi.BSDFContext()
     for ch in range(3):
-        bsdf = mi.load_dict({"type": "roughconductor", "distribution": "ggx", "alpha": layer.alpha_xy[0],
-                             "sample_visible": True, "eta": layer.ior[ch], "k": layer.extinction[ch]})
+        bsdf = mi.load_dict({"type": "roughconductor", "distribution": "ggx", "alpha_u": layer.alpha_xy[0],
+                             "alpha_v": layer.alpha_xy[1], "sample_visible": True, "eta": layer.ior[ch], "k": layer.extinction[ch]})
         si = mi.SurfaceInteraction3f()
         si.wavelengths = [550.0] * 4
         si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
@@ -152,7 +154,21 @@ def _mitsuba_cells(r, m: int, sub: int = 6) -> np.ndarray:
     return out
 
 
-def test_a_rough_conductor_is_mitsubas_polarized_roughconductor_cell_by_cell():
+#: rough conductors of several roughnesses and complex indices, one anisotropic (the first in the
+#: regular suite, the others in ``make test-slow``)
+ROUGH_CONDUCTORS = [
+    pytest.param(METAL, id="alpha0.3"),
+    pytest.param(Stack("m1", (Interface(0.15, (0.15, 0.4, 1.2), (3.6, 2.9, 2.3)),), "metal"), id="alpha0.15",
+                 marks=pytest.mark.slow),
+    pytest.param(Stack("m5", (Interface(0.6, (2.8, 2.9, 3.0), (3.0, 3.1, 3.3)),), "metal"), id="alpha0.6",
+                 marks=pytest.mark.slow),
+    pytest.param(Stack("ma", (Interface(0.15, (1.1, 0.6, 0.3), (2.0, 2.6, 3.2), roughness_y=0.45),), "metal"),
+                 id="anisotropic", marks=pytest.mark.slow),
+]
+
+
+@pytest.mark.parametrize("stack", ROUGH_CONDUCTORS)
+def test_a_rough_conductor_is_mitsubas_polarized_roughconductor_cell_by_cell(stack):
     """All 16 elements, cell by cell, per channel, at two incidences (one out of the xz plane).
     One chi-square per element and channel over the cells where 200 paths are expected (a cell's
     paths are its own: the cells are independent; the channels and elements of one cell share
@@ -160,9 +176,9 @@ def test_a_rough_conductor_is_mitsubas_polarized_roughconductor_cell_by_cell():
     element's standard error is the cell's own estimate: a ratio of estimates has heavier tails
     than a normal one (about 1 + 2 / n for n paths), hence the 200. A sign convention gone wrong
     (S2 reversed on the way out) fails."""
-    r = g.simulate(METAL, _settings(incident_deg=(30.0, 60.0), incident_phi_deg=(0.0, 40.0), rays=400_000,
+    r = g.simulate(stack, _settings(incident_deg=(30.0, 60.0), incident_phi_deg=(0.0, 40.0), rays=400_000,
                                     resolution=(8, 16)))
-    models = [_mitsuba_cells(r, m) for m in range(2)]
+    models = [_mitsuba_cells(r, m, stack) for m in range(2)]
     sel = np.stack([r.settings.rays * mo[..., 0, 0] * r.brdf.proj_solid_angle[m][None] >= 200
                     for m, mo in enumerate(models)])                       # (M, C, nt, nph)
     model = np.stack(models)
