@@ -31,6 +31,9 @@ from models.report.results import MaterialResult, ReportError, material_sort_key
 
 #: exits per cell and channel both runs must expect before a cell is compared
 MIN_EXITS = 20
+#: a cell's difference counts as resolved beyond this many combined standard errors (about 1e-6
+#: for one cell under normal noise: over the database's few million cells, a handful by chance)
+RESOLVED_Z = 5.0
 
 
 def _read(path: Path) -> dict[str, np.ndarray]:
@@ -63,8 +66,13 @@ def _cells(a: dict, b: dict, side: str, m: int) -> dict:
     z = (vb - va) / np.hypot(sa["stderr"][m][sel], sb["stderr"][m][sel])
     rel = (vb - va) / va
     k = int(np.argmax(np.abs(rel)))
+    # the difference each cell vouches for at RESOLVED_Z: |d| - RESOLVED_Z se, relative, with d's sign
+    se = np.hypot(sa["stderr"][m][sel], sb["stderr"][m][sel])
+    bound = np.sign(vb - va) * np.maximum(np.abs(vb - va) - RESOLVED_Z * se, 0.0) / va
+    kb = int(np.argmax(np.abs(bound)))
     return {"cells": int(np.count_nonzero(sel)), "max_rel_diff": float(rel[k]), "z_at_max_rel": float(z[k]),
-            "max_abs_z": float(np.max(np.abs(z))), "rms_z": float(np.sqrt(np.mean(z * z)))}
+            "max_abs_z": float(np.max(np.abs(z))), "rms_z": float(np.sqrt(np.mean(z * z))),
+            "resolved_rel_diff": float(bound[kb]), "resolved_cells": int(np.count_nonzero(np.abs(z) > RESOLVED_Z))}
 
 
 def polarization_section(scalar: list[MaterialResult], polarized: list[MaterialResult]) -> dict:
@@ -112,20 +120,33 @@ def _by_category(rows: list[dict]) -> dict:
     out = {}
     for cat in sorted({r["category"] for r in rows}):
         cr = [r for r in rows if r["category"] == cat]
-        per_inc = {}
-        for k, row in enumerate(cr[0]["incidents"]):
-            vals = [r["incidents"][k].get("brdf", {}) for r in cr]
-            vals = [v for v in vals if v.get("cells")]
-            if vals:
-                worst = max(vals, key=lambda v: abs(v["max_rel_diff"]))
-                per_inc[f"{row['theta']:g}"] = {"max_rel_diff": worst["max_rel_diff"], "z": worst["z_at_max_rel"],
-                                                 "max_abs_z": max(v["max_abs_z"] for v in vals)}
+        per_side = {}
+        for side in ("brdf", "btdf"):
+            per_side[side] = {}
+            for k, row in enumerate(cr[0]["incidents"]):
+                vals = [r["incidents"][k].get(side, {}) for r in cr]
+                vals = [v for v in vals if v.get("cells")]
+                if vals:
+                    worst = max(vals, key=lambda v: abs(v["max_rel_diff"]))
+                    resolved = max(vals, key=lambda v: abs(v["resolved_rel_diff"]))
+                    energy = "reflected" if side == "brdf" else "transmitted"
+                    en = max((r["incidents"][k][energy] for r in cr), key=lambda e: abs(e["rel_diff"]))
+                    per_side[side][f"{row['theta']:g}"] = {
+                        "max_rel_diff": worst["max_rel_diff"], "z": worst["z_at_max_rel"],
+                        "max_abs_z": max(v["max_abs_z"] for v in vals),
+                        "resolved_rel_diff": resolved["resolved_rel_diff"],
+                        "resolved_cells": sum(v["resolved_cells"] for v in vals),
+                        "cells": sum(v["cells"] for v in vals), "max_rms_z": max(v["rms_z"] for v in vals),
+                        "energy_rel_diff": en["rel_diff"], "energy_z": en["z"]}
+        per_inc = per_side["brdf"]
         models = {}
         for mo in sorted({m for r in cr for m in r["models"]}):
             vals = [r["models"][mo] for r in cr if mo in r["models"]]
             models[mo] = {part: {k: float(np.mean([v[part][k] for v in vals])) for k in ("scalar", "polarized", "change")}
                           for part in ("internal", "total")} | {"materials": len(vals)}
         out[cat] = {"materials": len(cr), "incidents": per_inc, "models": models}
+        if per_side["btdf"]:
+            out[cat]["incidents_btdf"] = per_side["btdf"]
     return out
 
 
@@ -137,11 +158,26 @@ def polarization_markdown(sec: dict) -> str:
              f"polarized file's M[0, 0]) over the cells where both runs expect at least {sec['min_exits']} exits; "
              "differences are polarized minus scalar, relative to the scalar value, and in units of the two "
              "cells' combined standard error (z).", ""]
+    lines += [f"Per cell the noise dominates a single cell's relative difference (a cell of {sec['min_exits']} "
+              "exits has a relative standard error near 22 %), so the tables lead with what the cells vouch for: "
+              f"the largest difference resolved at {RESOLVED_Z:g} combined standard errors (|d| - "
+              f"{RESOLVED_Z:g} se, relative to the scalar value, with d's sign; 0 where no cell resolves one), "
+              f"the cells resolved beyond {RESOLVED_Z:g} se, the largest root-mean-square z of a material (1 where "
+              "the two runs agree), and the largest difference of the hemispherical energy (channel mean) with "
+              "its z. The single cell's largest relative difference follows for reference.", ""]
     for cat, c in sec["by_category"].items():
-        lines += [f"## {cat} ({c['materials']} materials)", "",
-                  "| incident | largest relative difference | its z | largest abs z |", "|---|---|---|---|"]
-        for th, v in c["incidents"].items():
-            lines.append(f"| {th}° | {100 * v['max_rel_diff']:+.2f} % | {v['z']:+.1f} | {v['max_abs_z']:.1f} |")
+        lines += [f"## {cat} ({c['materials']} materials)", ""]
+        for key, side, energy in (("incidents", "BRDF", "reflected"), ("incidents_btdf", "BTDF", "transmitted")):
+            if not c.get(key):
+                continue
+            lines += [f"| incident | {side}: largest difference resolved at {RESOLVED_Z:g} se | cells resolved | "
+                      f"largest rms z | {energy} energy: largest difference | its z | one cell's largest "
+                      "relative difference | its z |", "|---|---|---|---|---|---|---|---|"]
+            for th, v in c[key].items():
+                lines.append(f"| {th}° | {100 * v['resolved_rel_diff']:+.2f} % | {v['resolved_cells']} of "
+                             f"{v['cells']} | {v['max_rms_z']:.2f} | {100 * v['energy_rel_diff']:+.3f} % | "
+                             f"{v['energy_z']:.1f} | {100 * v['max_rel_diff']:+.2f} % | {v['z']:+.1f} |")
+            lines.append("")
         if c["models"]:
             lines += ["", "| model | materials | total RMSE vs scalar | vs polarized | change | internal vs scalar | "
                           "vs polarized | change |", "|---|---|---|---|---|---|---|---|"]
@@ -151,16 +187,18 @@ def polarization_markdown(sec: dict) -> str:
                              f"{t['change']:+.4f} | {i['scalar']:.4f} | {i['polarized']:.4f} | {i['change']:+.4f} |")
         lines.append("")
     lines += ["## Per material", "",
-              "| material | incident | cells | largest relative difference | its z | largest abs z | reflected energy "
-              "difference | its z |", "|---|---|---|---|---|---|---|---|"]
+              f"| material | incident | cells | BRDF resolved at {RESOLVED_Z:g} se | rms z | reflected energy "
+              "difference | its z | transmitted energy difference | its z | one cell's largest relative difference "
+              "| its z |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sec["materials"]:
         for row in r["incidents"]:
             b = row.get("brdf", {})
-            e = row["reflected"]
+            e, t = row["reflected"], row["transmitted"]
             if b.get("cells"):
-                lines.append(f"| {r['material']} | {row['theta']:g}° | {b['cells']} | {100 * b['max_rel_diff']:+.2f} % | "
-                             f"{b['z_at_max_rel']:+.1f} | {b['max_abs_z']:.1f} | {100 * e['rel_diff']:+.3f} % | "
-                             f"{e['z']:.1f} |")
+                lines.append(f"| {r['material']} | {row['theta']:g}° | {b['cells']} | "
+                             f"{100 * b['resolved_rel_diff']:+.2f} % | {b['rms_z']:.2f} | {100 * e['rel_diff']:+.3f} % | "
+                             f"{e['z']:.1f} | {100 * t['rel_diff']:+.3f} % | {t['z']:.1f} | "
+                             f"{100 * b['max_rel_diff']:+.2f} % | {b['z_at_max_rel']:+.1f} |")
     for key, label in (("only_scalar", "only in the scalar directory"), ("only_polarized", "only in the polarized "
                                                                                          "directory")):
         if sec[key]:

@@ -7,8 +7,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from goniometer.cli import main
 from goniometer.database import load_database, simulate_database
+from models.report.polarization import RESOLVED_Z, _cells
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "tests" / "data" / "tiny_database.toml"
@@ -34,3 +37,27 @@ def test_report_compares_a_polarized_database_with_its_scalar_twin(tmp_path, cap
     text = (out / "polarization.md").read_text()
     assert "# Polarized light" in text and "largest relative difference" in text and "| slab" in text
     assert not (out / "multiple-scattering.json").exists()
+
+
+def _run(value, stderr, rays=10**6):
+    n = value.shape[-1]
+    return {"rays": rays, "brdf": {"value": value[None, :, None], "stderr": stderr[None, :, None],
+                                   "proj_solid_angle": np.full((1, 1, n), 1e-3), "mask": np.ones((1, 1, n), bool)}}
+
+
+def test_the_cells_comparison_resolves_a_difference_and_not_noise():
+    """Two runs of the same intensity differ by noise only: no cell resolves a difference at
+    RESOLVED_Z and the rms z is 1; a 10 % difference with 1 % standard errors is resolved as
+    10 % - 5 x 1.4 %, and the single cell's largest difference exceeds it."""
+    rng = np.random.default_rng(3)
+    shape = (3, 20000)
+    truth = np.full(shape, 2.0)
+    se = 0.01 * truth
+    a = _run(truth + se * rng.standard_normal(shape), se)
+    same = _cells(a, _run(truth + se * rng.standard_normal(shape), se), "brdf", 0)
+    assert same["cells"] == truth.size and same["resolved_rel_diff"] == 0.0 and same["resolved_cells"] == 0
+    assert abs(same["rms_z"] - 1.0) < 0.02
+    differs = _cells(a, _run(1.1 * truth + se * rng.standard_normal(shape), se), "brdf", 0)
+    assert differs["resolved_cells"] > 0.9 * truth.size
+    assert 0.1 - RESOLVED_Z * 0.01 * 2 ** 0.5 < differs["resolved_rel_diff"] < 0.1
+    assert differs["max_rel_diff"] > differs["resolved_rel_diff"]
