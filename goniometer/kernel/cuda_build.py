@@ -15,11 +15,17 @@ answers that question with the target's while a compile runs. It changes no code
 generates: the PTX of the linked module is made for the target's architecture (``arch=sm_XX``).
 (numba-cuda compiles a device function once per process and argument types, for the first
 target asked; nothing the transport calls lowers differently for 8.0 and 9.0.)
+
+NVVM gives the same PTX for 8.0 and 9.0, but for the ``.target`` line and the names numba makes
+unique per compile (checked for every variant with numba-cuda 0.30.4; ``make test-slow`` checks one
+again): :func:`compile_ptx` compiles each variant once, for :data:`BASE_CC`, and gives it to the
+other architectures with their ``.target``, and ``ptxas`` assembles it for each.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import re
 import subprocess
 import tempfile
@@ -39,6 +45,8 @@ WARP = 32
 SHARED_PER_SM = {(8, 0): 164 * 1024, (9, 0): 228 * 1024}
 #: shared memory the CUDA runtime reserves per block (compute capability 8.0 and later)
 SHARED_RESERVED = 1024
+#: the compute capability each variant is compiled for by NVVM (module docstring)
+BASE_CC = (8, 0)
 #: an event cap for the launches compiled here (a value of the argument's type: any will do)
 _CAP = 10_000
 
@@ -126,8 +134,20 @@ def launch_signatures() -> list[tuple[tuple, tuple]]:
 
 def compile_ptx(cc: tuple[int, int], variant: tuple, signature: tuple) -> str:
     """The PTX of the CUDA kernel's ``variant`` (``(height_correlated, film)``) for argument types
-    ``signature`` and compute capability ``cc`` (NVVM through numba-cuda; no GPU needed). Raises
-    :class:`BuildError` if it does not compile."""
+    ``signature`` and compute capability ``cc``: :data:`BASE_CC`'s (compiled once a process) with
+    ``cc``'s ``.target`` (module docstring). Raises :class:`BuildError` if it does not compile."""
+    ptx = _compiled_ptx(BASE_CC, variant, signature)
+    base, target = f".target sm_{BASE_CC[0]}{BASE_CC[1]}", f".target sm_{cc[0]}{cc[1]}"
+    if base not in ptx:
+        raise BuildError(f"the PTX for sm_{BASE_CC[0]}{BASE_CC[1]} names no {base!r} to retarget to "
+                         f"sm_{cc[0]}{cc[1]}")
+    return ptx.replace(base, target, 1)
+
+
+@functools.lru_cache(maxsize=None)
+def _compiled_ptx(cc: tuple[int, int], variant: tuple, signature: tuple) -> str:
+    """The PTX NVVM gives for ``cc`` itself (no GPU needed); :func:`compile_ptx` uses it for
+    :data:`BASE_CC`, and the check that the other architectures' PTX is the same for the rest."""
     from numba import cuda
 
     from goniometer.kernel import cuda as kernel

@@ -81,3 +81,19 @@ def test_occupancy():
     assert occ(32, 304, (9, 0), 128) == 1.0        # 16 blocks: the thread limit
     assert occ(32, 100_000, (8, 0), 128) == 0.0625  # one block's shared memory fills an A100's
     assert occ(32, 100_000, (9, 0), 128) == 0.125   # two fit an H100's
+
+
+@needs_toolkit
+@pytest.mark.slow
+def test_nvvm_gives_each_architecture_the_same_ptx():
+    """What lets the check compile each variant once (``cuda_build`` module docstring): NVVM's PTX for
+    9.0 is the 8.0 PTX with its ``.target``, but for the names numba makes unique per compile."""
+    import re
+
+    def names_out(ptx: str) -> str:
+        return re.sub(r"_cudapy_smem_\d+", "S", re.sub(r"_Z\w+", "N", ptx))
+
+    (key, sig), = [(k, s) for k, s in cuda_build.launch_signatures() if k == (True, True)]
+    native = cuda_build._compiled_ptx((9, 0), key, sig)
+    assert ".target sm_90" in native
+    assert names_out(native) == names_out(cuda_build.compile_ptx((9, 0), key, sig))
