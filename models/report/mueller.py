@@ -51,6 +51,12 @@ def _side_text(side: str) -> str:
     return "BRDF seen from above" if side == "brdf" else "BTDF, lower hemisphere seen from above"
 
 
+def _wrapped(lines: list[str], width: int) -> str:
+    """A figure title: each line wrapped at ``width`` characters (the figure's width at its font)."""
+    import textwrap
+    return "\n".join(textwrap.fill(line, width) for line in lines)
+
+
 def _mueller_figure(sd: SliceData, side: str, m: int, theta: float, phi: float, title: str):
     from matplotlib import colors
     from matplotlib.cm import ScalarMappable
@@ -76,10 +82,10 @@ def _mueller_figure(sd: SliceData, side: str, m: int, theta: float, phi: float, 
                        ticks=[-1, -0.5, 0, 0.5, 1])
     bar.set_label("m_ij = M_ij / M00 (1: M_ij and M00 in sr⁻¹)", fontsize=7)
     bar.ax.tick_params(labelsize=7)
-    fig.suptitle(f"{title}: Mueller matrix normalized by M00, {_side_text(side)}, "
-                 f"θ_l = {theta:g}°, φ_l = {phi:g}°\n"
-                 f"white light; {FRAMES_TEXT}; +x (φ = 0°) right, +y up; ring: the light l\n"
-                 f"{SIGNAL_RULE}, or outside the comparison mask", fontsize=7.5, wrap=True)
+    fig.suptitle(_wrapped([f"{title}: Mueller matrix normalized by M00, {_side_text(side)}, "
+                           f"θ_l = {theta:g}°, φ_l = {phi:g}°",
+                           f"white light; {FRAMES_TEXT}; +x (φ = 0°) right, +y up; ring: the light l",
+                           f"{SIGNAL_RULE}, or outside the comparison mask"], 120), fontsize=7.5)
     return fig
 
 
@@ -106,10 +112,11 @@ def _dop_figure(sd: SliceData, side: str, m: int, theta: float, phi: float, titl
     bar = fig.colorbar(ScalarMappable(norm=colors.Normalize(0.0, 1.0), cmap=colormap(DOP_CMAP)), cax=cax)
     bar.set_label("DOP (1)", fontsize=7)
     bar.ax.tick_params(labelsize=7)
-    fig.suptitle(f"{title}: degree of polarization for unpolarized light\n"
-                 f"DOP = √(M10² + M20² + M30²) / M00, {_side_text(side)}, θ_l = {theta:g}°, φ_l = {phi:g}°\n"
-                 f"white light; ring: the light l; {SIGNAL_RULE}, or outside the comparison mask",
-                 fontsize=6.5, wrap=True)
+    fig.suptitle(_wrapped([f"{title}: degree of polarization for unpolarized light",
+                           f"DOP = √(M10² + M20² + M30²) / M00, {_side_text(side)}, θ_l = {theta:g}°, "
+                           f"φ_l = {phi:g}°",
+                           f"white light; ring: the light l; {SIGNAL_RULE}, or outside the comparison mask"], 80),
+                 fontsize=6.5)
     return fig
 
 
