@@ -29,7 +29,7 @@ $(STAMP): pyproject.toml examples/plugin-model/pyproject.toml
 
 setup: $(STAMP)
 
-# two workers, whole files per worker (module fixtures built once), each with its own numba cache
+# two workers, whole files per worker (module fixtures built once), sharing one numba cache
 # (tests/conftest.py): numba's compiles are single-threaded
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile
