@@ -181,19 +181,25 @@ class Model(ABC):
     def supports(self, stack: Stack) -> bool:
         return self.reason(stack) is None
 
-    def evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> ModelValue:
-        """f(l, v) split into top lobe and internal part; raises :class:`ModelError` if unsupported,
-        :class:`ModelFailure` if ``_evaluate`` raises or returns anything but a :class:`ModelValue`
-        whose ``top`` and ``internal`` have the shape ``v.shape[:-1] + (3,)``."""
+    def _checked(self, stack, l, v, side: str, reason: str | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(l, v)`` as float64 arrays, after the checks every evaluation makes: the side is one the
+        model has, ``reason`` (why it cannot evaluate ``stack``) is None, ``v`` has shape (..., 3);
+        raises :class:`ModelError` otherwise."""
         if side not in self.sides:
             raise ModelError(f"{self.name}: cannot evaluate the {side.upper()} (it models {', '.join(self.sides)})")
-        reason = self.reason(stack)
         if reason is not None:
             raise ModelError(f"{self.name}: {reason}")
         l = np.asarray(l, dtype=np.float64).reshape(3)
         v = np.asarray(v, dtype=np.float64)
         if v.shape[-1] != 3:
             raise ModelError(f"{self.name}: v must have shape (..., 3), got {v.shape}")
+        return l, v
+
+    def evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str = "brdf") -> ModelValue:
+        """f(l, v) split into top lobe and internal part; raises :class:`ModelError` if unsupported,
+        :class:`ModelFailure` if ``_evaluate`` raises or returns anything but a :class:`ModelValue`
+        whose ``top`` and ``internal`` have the shape ``v.shape[:-1] + (3,)``."""
+        l, v = self._checked(stack, l, v, side, self.reason(stack))
         try:
             value = self._evaluate(stack, l, v, side)
         except Exception as e:  # noqa: BLE001 -- any failure of the model's own code is its failure
@@ -237,17 +243,8 @@ class Model(ABC):
         Raises :class:`ModelError` when the model does not give them for ``stack``
         (:meth:`mueller_reason`) or cannot evaluate it, :class:`ModelFailure` when
         ``_evaluate_mueller`` raises or returns another shape or something else than real numbers."""
-        if side not in self.sides:
-            raise ModelError(f"{self.name}: cannot evaluate the {side.upper()} (it models {', '.join(self.sides)})")
-        reason = self.reason(stack)
-        if reason is None:
-            reason = self.mueller_reason(stack)
-        if reason is not None:
-            raise ModelError(f"{self.name}: {reason}")
-        l = np.asarray(l, dtype=np.float64).reshape(3)
-        v = np.asarray(v, dtype=np.float64)
-        if v.shape[-1] != 3:
-            raise ModelError(f"{self.name}: v must have shape (..., 3), got {v.shape}")
+        reason = self.reason(stack) if side in self.sides else None
+        l, v = self._checked(stack, l, v, side, reason if reason is not None else self.mueller_reason(stack))
         try:
             value = self._evaluate_mueller(stack, l, v, side)
             value = np.asarray(value)
