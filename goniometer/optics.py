@@ -474,43 +474,81 @@ def mueller_terms(x: complex, y: complex, factor: float):
     return 0.5 * factor * (xx + yy), 0.5 * factor * (xx - yy), factor * z.real, factor * z.imag
 
 
-@numba.njit(cache=True, error_model='numpy')
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def _terms_of(xr: float, xi: float, yr: float, yi: float):
+    """:func:`mueller_terms` of ``diag(x, y)`` given as real and imaginary parts (factor 1)."""
+    xx = xr * xr + xi * xi
+    yy = yr * yr + yi * yi
+    return 0.5 * (xx + yy), 0.5 * (xx - yy), xr * yr + xi * yi, xi * yr - xr * yi
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_dielectric_mueller(cos_i: float, eta: float):
     """The Fresnel event of a dielectric interface, relative index ``eta`` (far side / arrival side),
     light arriving at ``cos_i`` in (0, 1]: ``(ra, rb, rc, rs, ta, tb, tc, ts)``, the reflection's and
     the refraction's ``(a, b, c, s)`` (section comment). Beyond the critical angle the reflection
     keeps all the light with a retardance between s and p (``rs != 0``) and the refraction is 0.
-    ``ra`` equals :func:`fresnel_dielectric` (``cos_i``, ``eta``)."""
+    ``ra`` equals :func:`fresnel_dielectric` (``cos_i``, ``eta``). Real arithmetic and selects
+    (the lane kernel's event vectorises it)."""
     sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
-    if sin2_t >= 1.0:
-        # total internal reflection: cos_t = -i sqrt(sin^2_t - 1) (the decaying wave of exp(+i omega t))
-        cos_t = complex(0.0, -math.sqrt(sin2_t - 1.0))
-        rs, rp, _, _ = _verdet(cos_i, complex(eta, 0.0), cos_t)
-        ra, rb, rc, rs_ = mueller_terms(rs, rp, 1.0)
-        return ra, rb, rc, rs_, 0.0, 0.0, 0.0, 0.0
-    # below the critical angle every amplitude is real (the same formulas as _verdet's)
-    ct = math.sqrt(1.0 - sin2_t)
+    tir = sin2_t >= 1.0
+    # below the critical angle every amplitude is real (as _verdet's formulas give them)
+    ct = math.sqrt(max(1.0 - sin2_t, 0.0))
     ec = eta * ct
     rs = (cos_i - ec) / (cos_i + ec)
     rp = (eta * cos_i - ct) / (eta * cos_i + ct)
     ts = 2.0 * cos_i / (cos_i + ec)
     tp = 2.0 * cos_i / (eta * cos_i + ct)
     f = ec / cos_i
-    return (0.5 * (rs * rs + rp * rp), 0.5 * (rs * rs - rp * rp), rs * rp, 0.0,
-            0.5 * f * (ts * ts + tp * tp), 0.5 * f * (ts * ts - tp * tp), f * ts * tp, 0.0)
+    # total internal reflection: cos_t = -i q, q = sqrt(sin^2_t - 1) (the decaying wave of
+    # exp(+i omega t)); r_s = (c + i eta q) / (c - i eta q), r_p = (eta c + i q) / (eta c - i q), both
+    # of modulus 1: a = 1, b = 0, c + i s = r_s conj(r_p)
+    q = math.sqrt(max(sin2_t - 1.0, 0.0))
+    u = eta * q
+    ds = 1.0 / (cos_i * cos_i + u * u)
+    srr = (cos_i * cos_i - u * u) * ds
+    sri = 2.0 * cos_i * u * ds
+    v = eta * cos_i
+    dp = 1.0 / (v * v + q * q)
+    prr = (v * v - q * q) * dp
+    pri = 2.0 * v * q * dp
+    return (1.0 if tir else 0.5 * (rs * rs + rp * rp), 0.0 if tir else 0.5 * (rs * rs - rp * rp),
+            srr * prr + sri * pri if tir else rs * rp, sri * prr - srr * pri if tir else 0.0,
+            0.0 if tir else 0.5 * f * (ts * ts + tp * tp), 0.0 if tir else 0.5 * f * (ts * ts - tp * tp),
+            0.0 if tir else f * ts * tp, 0.0)
 
 
-@numba.njit(cache=True, error_model='numpy')
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_conductor_mueller(cos_i: float, eta: float, kappa: float):
     """The reflection ``(a, b, c, s)`` of a conductor of relative complex index ``eta + i kappa``
-    (the graphics convention, ``kappa >= 0``; the formulas use ``eta - i kappa``), light arriving at
-    ``cos_i`` in (0, 1]. ``a`` equals :func:`fresnel_conductor` (``cos_i``, ``eta``, ``kappa``)."""
-    n = complex(eta, -kappa)
-    ct = cmath.sqrt(1.0 - (1.0 - cos_i * cos_i) / (n * n))
-    if ct.imag > 0.0:        # the branch that decays into the metal (Im cos_t <= 0)
-        ct = ct.conjugate()
-    rs, rp, _, _ = _verdet(cos_i, n, ct)
-    return mueller_terms(rs, rp, 1.0)
+    (the graphics convention, ``kappa >= 0``; the formulas use ``n = eta - i kappa``), light arriving
+    at ``cos_i`` in (0, 1]. ``a`` equals :func:`fresnel_conductor` (``cos_i``, ``eta``, ``kappa``).
+    Real arithmetic without branches (the lane kernel's event vectorises it): ``cos_t =
+    sqrt(1 - sin^2 / n^2)`` on the branch that decays into the metal (``Im cos_t <= 0``), then
+    ``r_s = (c - n cos_t) / (c + n cos_t)``, ``r_p = (n c - cos_t) / (n c + cos_t)``."""
+    s2 = 1.0 - cos_i * cos_i
+    e2 = eta * eta - kappa * kappa          # n^2 = e2 - i m2
+    m2 = 2.0 * eta * kappa
+    inv = s2 / (e2 * e2 + m2 * m2)
+    zr = 1.0 - e2 * inv                     # z = 1 - sin^2 / n^2 = zr + i zi, zi <= 0
+    zi = -m2 * inv
+    mz = math.sqrt(zr * zr + zi * zi)
+    sr = math.sqrt(max(0.5 * (mz + zr), 0.0))
+    si = math.sqrt(max(0.5 * (mz - zr), 0.0))   # cos_t = sr - i si
+    # n cos_t = u - i w
+    u = eta * sr - kappa * si
+    w = eta * si + kappa * sr
+    # r_s = (c - u + i w) / (c + u - i w)
+    ar, ai, br, bi = cos_i - u, w, cos_i + u, -w
+    d = 1.0 / (br * br + bi * bi)
+    rsr = (ar * br + ai * bi) * d
+    rsi = (ai * br - ar * bi) * d
+    # r_p = (n c - cos_t) / (n c + cos_t), n c = eta c - i kappa c
+    ar, ai, br, bi = eta * cos_i - sr, si - kappa * cos_i, eta * cos_i + sr, -kappa * cos_i - si
+    d = 1.0 / (br * br + bi * bi)
+    rpr = (ar * br + ai * bi) * d
+    rpi = (ai * br - ar * bi) * d
+    return _terms_of(rsr, rsi, rpr, rpi)
 
 
 @numba.njit(cache=True, error_model='numpy')

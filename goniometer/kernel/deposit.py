@@ -111,3 +111,48 @@ def flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, c
             h[q + 3] += s0
             h[q + 4] += s1
             h[q + 5] += s2
+
+
+@numba.njit(cache=True, error_model='numpy', _nrt=False)
+def deposit_mueller(mh, i, j, pol):
+    """Add a polarized exit's Mueller matrices (``pol``, :mod:`goniometer.kernel.polarized`: rows 0-2
+    per channel, in its exit frames) to cell ``(i, j)`` of ``mh`` (n_theta, n_phi, 32, 3): rows 0-15
+    the elements, rows 16-31 their squares, per channel."""
+    for e in range(16):
+        for c in range(3):
+            v = pol[c, e]
+            mh[i, j, e, c] += v
+            mh[i, j, 16 + e, c] += v * v
+
+
+
+@numba.njit(cache=True, error_model='numpy', boundscheck=False)
+def flush_mueller(mbuf, xbuf, n_exit, cell, max_order, n_theta, n_phi, mbrdf, mbtdf):
+    """Add the Mueller matrices ``mbuf`` (BUFFER, 48: element ``e`` of channel ``c`` at column ``3 e
+    + c``, in the exits' frames) of the ``n_exit`` buffered exits of a polarized chunk to the cells
+    :func:`flush` found for them (``cell``, after its call on the same buffer; ``xbuf`` for their
+    order rows and sides): per channel the 16 elements' sums (rows 0-15 of a cell of ``mbrdf`` /
+    ``mbtdf``, (n_theta, n_phi, 32, 3)) and their squares' (rows 16-31), in buffer order. The cells'
+    cache lines are fetched a block of exits ahead of the additions."""
+    row = (max_order + 2) * 3
+    nb = n_theta * n_phi * row
+    hb = mbrdf.reshape(-1)
+    ht = mbtdf.reshape(-1)
+    for e0 in range(0, n_exit, 64):
+        e1 = min(n_exit, e0 + 64)
+        for e in range(e0, e1):
+            f = cell[e]
+            if f >= 0:
+                base = ((f - (nb if f >= nb else 0) - np.int64(xbuf[6, e]) * 3) // row) * 96
+                for q in range(0, 96, 8):
+                    prefetch(ht if f >= nb else hb, base + q)
+        for e in range(e0, e1):
+            f = cell[e]
+            if f < 0:
+                continue
+            h = ht if f >= nb else hb
+            base = ((f - (nb if f >= nb else 0) - np.int64(xbuf[6, e]) * 3) // row) * 96
+            for q in range(48):
+                v = mbuf[e, q]
+                h[base + q] += v
+                h[base + 48 + q] += v * v

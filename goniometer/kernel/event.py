@@ -27,13 +27,13 @@ import numpy as np
 from goniometer import optics
 from goniometer.kernel.codegen import prefer_wide_vectors, stack_block, u64_as_double, u64_bits
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, F_AB0, F_AB1, F_AB2,
-                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_HPOS, F_KEY, F_LX, F_LY, F_LZ, F_MK0,
-                                      F_MK1, F_MK2, F_MULTI, F_ORDER, F_PATH, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED,
-                                      F_STATUS, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, IF_STRIDE,
-                                      LANES, RG_STRIDE, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR,
+                                      F_BASED, F_CTR, F_DX, F_DY, F_DZ, F_EV, F_FRAME, F_HPOS, F_KEY, F_LX, F_LY, F_LZ,
+                                      F_EVENT, F_MK0, F_MK1, F_MK2, F_MUELLER, F_MULTI, F_ORDER, F_PATH, F_PNEW, F_Q0, F_Q1, F_Q2, F_REG, F_SEEDED, F_STATUS,
+                                      F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, IF_STRIDE, LANES,
+                                      RG_STRIDE, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_DONE, ST_REFLECTED, ST_SCALAR,
                                       ST_TRANSMITTED, T_ALB0, T_ALB1, T_ALB2, T_AX, T_AY, T_CHROM, T_ETA_DN, T_ETA_UP,
-                                      T_G, T_IEXT0, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT,
-                                      T_TAU0, T_TAU1, T_TAU2)
+                                      T_G, T_IEXT0, T_MATCHED, T_MS, T_RC, T_RS, T_SCAT, T_TAU0, T_TAU1, T_TAU2, N_EVENT)
+from goniometer.kernel import polarized
 from goniometer.kernel.rng import draw, path_key, uniform_pair
 from goniometer.kernel.packing import FILM_COLS, FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
 
@@ -51,16 +51,24 @@ _INV_2_53 = 2.0 ** -53
 HERO_DRAW = np.uint64(1 << 63)
 _THIRD = 1.0 / 3.0
 LN = LANES
+# the rows of a polarized lane's event, from F_EVENT (goniometer.kernel.layout)
+K_EVENT = 0
+K_TRAVERSAL = 18
+K_C2, K_S2, K_G, K_BOOST, K_GO, K_NEW = 21, 22, 23, 24, 25, 26
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
-def renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new):
+def renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new, polar):
     """Stage A of :func:`step`: for every lane of ``S``, add the path it ended at the previous step
     (reflected, transmitted, absorbed by roulette or capped; the per-lane pass has deposited its
     exit) to the lane's sums, and give the lane its next path (lane ``i`` traces paths ``i, i +
     LANES, ...`` of the chunk), whose first region and event count are ``r_new``, ``e_new``.
     ``tabulate`` None: a new path starts along ``-l``; True: it draws its light direction
-    (cosine-weighted, its draw 0). A loop LLVM vectorises, as stage B's."""
+    (cosine-weighted, its draw 0). ``polar``: None, or a polarized run's initial path state
+    (:func:`goniometer.kernel.polarized.initial_state`): a new path's frame ``F_FRAME`` .. is the
+    incident beam's (a tabulation's: its own, as :func:`~goniometer.kernel.polarized.start` sets it),
+    and ``F_PNEW`` marks the lane, whose Mueller matrices stage B then reads as the identity. A loop
+    LLVM vectorises, as stage B's."""
     prefer_wide_vectors()
     for i in range(LN):
         st = np.int64(S[F_STATUS * LN + i])
@@ -205,15 +213,32 @@ def renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new):
         S[F_SEEDED * LN + i] = 0.0 if ended else S[F_SEEDED * LN + i]
         S[F_WK * LN + i] = 0.0 if ended else S[F_WK * LN + i]
         S[F_MULTI * LN + i] = 0.0 if ended else S[F_MULTI * LN + i]
+        if polar is not None:
+            if tabulate is None:
+                qx = polar[3, 0]
+                qy = polar[3, 1]
+                qz = polar[3, 2]
+            else:
+                qx, qy, qz = polarized.lane_frame(x, y, z)
+            S[F_FRAME * LN + i] = qx if ended else S[F_FRAME * LN + i]
+            S[(F_FRAME + 1) * LN + i] = qy if ended else S[(F_FRAME + 1) * LN + i]
+            S[(F_FRAME + 2) * LN + i] = qz if ended else S[(F_FRAME + 2) * LN + i]
+            S[F_PNEW * LN + i] = 1.0 if ended else 0.0
 
 
 @numba.njit(cache=True, error_model='numpy', boundscheck=False)
 def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
          lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g,
-         aniso, ms, film):
+         aniso, ms, film, polar):
     """One step for all lanes of ``S`` (see the module docstring).
 
-    The last ten arguments are None or True and select what is compiled (numba compiles a None
+    ``polar``: None (scalar light), or a polarized run's initial path state
+    (:func:`goniometer.kernel.polarized.initial_state`): each lane then carries its path's Mueller
+    matrices and frame in the fields ``F_MUELLER`` .. ``F_FRAME + 2`` (``S`` has
+    ``N_FIELDS_POLARIZED`` rows), which the event changes as :mod:`goniometer.kernel.polarized` does
+    for a path (``docs/polarization.md``); the weights are the matrices' ``[0, 0]``.
+
+    The ten arguments before are None or True and select what is compiled (numba compiles a None
     argument's specialisation without the other branch; LLVM vectorises the loops of every
     specialisation):
 
@@ -256,7 +281,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
     for q in range(table.shape[0]):
         T[q] = table[q]
     # ---------------- stage A: book the path each lane ended, give the lane its next path
-    renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new)
+    renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new, polar)
     for i in range(LN):
         # ---------------- stage B: the event of the lanes whose next action it is
         st = np.int64(S[F_STATUS * LN + i])
@@ -496,6 +521,82 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             h0 = rho0 if lamb else (j0 if fp else (f0 if (is_cond and plain) else 1.0))
             h1 = rho1 if lamb else (j1 if fp else (f1 if (is_cond and plain) else 1.0))
             h2 = rho2 if lamb else (j2 if fp else (f2 if (is_cond and plain) else 1.0))
+        if polar is not None:
+            # ---- polarized light (docs/polarization.md; as goniometer.kernel.polarized does for a
+            # path): after the traversal's factors, the frame turns to the plane of incidence on the
+            # microfacet (world frame) and the event's matrix applies per channel -- a Fresnel event
+            # divided by the probability of its choice, the base's or a collision's
+            # depolarization, or nothing (an index-matched interface); the weights become the
+            # matrices' [0, 0], their change booked as absorbed (signed). The matrices themselves
+            # are updated with masking and roulette below
+            fresnel = plain
+            if aniso is None:
+                gmx = mx
+                gmy = my
+            else:
+                gmx = rc * mx - rs * my
+                gmy = rs * mx + rc * my
+            gmz = mz if from_above else -mz
+            pfx = S[F_FRAME * LN + i]
+            pfy = S[(F_FRAME + 1) * LN + i]
+            pfz = S[(F_FRAME + 2) * LN + i]
+            pc2, ps2, psx, psy, psz = polarized.lane_plane(x, y, z, pfx, pfy, pfz, gmx, gmy, gmz)
+            pc2 = pc2 if fresnel else 1.0
+            ps2 = ps2 if fresnel else 0.0
+            # the Fresnel event per channel: a dielectric's (every channel the same), a conductor's,
+            # a film's
+            dra, drb, drc, drs, dta, dtb, dtc, dts = optics.fresnel_dielectric_mueller(wm, eta)
+            dF = 1.0 / fd if refl_ else 1.0 / (1.0 - fd)
+            ev0 = (dra, drb, drc, drs, dF) if refl_ else (dta, dtb, dtc, dts, dF)
+            ev1 = ev0
+            ev2 = ev0
+            if conductor is not None:
+                ca0, cb0, cc0, cs0 = optics.fresnel_conductor_mueller(wm, ce0, ck0)
+                cv0 = (ca0, cb0, cc0, cs0, 1.0)
+                if g_is_r is None:
+                    ca1, cb1, cc1, cs1 = optics.fresnel_conductor_mueller(wm, ce1, ck1)
+                    cv1 = (ca1, cb1, cc1, cs1, 1.0)
+                else:
+                    cv1 = cv0
+                if b_is_g is None:
+                    ca2, cb2, cc2, cs2 = optics.fresnel_conductor_mueller(wm, ce2, ck2)
+                    cv2 = (ca2, cb2, cc2, cs2, 1.0)
+                else:
+                    cv2 = cv1
+                ev0 = cv0 if is_cond else ev0
+                ev1 = cv1 if is_cond else ev1
+                ev2 = cv2 if is_cond else ev2
+            if film is not None:
+                fv0 = polarized.lane_film(wm, fn_in, T[fo + FL_N0], T[fo + FL_K0], xr0, xi0, T[fo + FL_DL0], refl_,
+                                          q_f)
+                fv1 = polarized.lane_film(wm, fn_in, T[fo + FL_N0 + 1], T[fo + FL_K0 + 1], xr1, xi1,
+                                          T[fo + FL_DL0 + 1], refl_, q_f)
+                fv2 = polarized.lane_film(wm, fn_in, T[fo + FL_N0 + 2], T[fo + FL_K0 + 2], xr2, xi2,
+                                          T[fo + FL_DL0 + 2], refl_, q_f)
+                ev0 = fv0 if fon else ev0
+                ev1 = fv1 if fon else ev1
+                ev2 = fv2 if fon else ev2
+            pk0 = polarized.lane_coefficients(lamb, coll, fresnel, rho0, ev0[0], ev0[1], ev0[2], ev0[3], ev0[4])
+            pk1 = polarized.lane_coefficients(lamb, coll, fresnel, rho1, ev1[0], ev1[1], ev1[2], ev1[3], ev1[4])
+            pk2 = polarized.lane_coefficients(lamb, coll, fresnel, rho2, ev2[0], ev2[1], ev2[2], ev2[3], ev2[4])
+            # (a lane that took a new path at this step: its matrices are the identity)
+            nw = S[F_PNEW * LN + i] != 0.0
+            w0n = polarized.lane_m00((1.0 if nw else S[F_MUELLER * LN + i]) * a0,
+                                     (0.0 if nw else S[(F_MUELLER + 4) * LN + i]) * a0,
+                                     (0.0 if nw else S[(F_MUELLER + 8) * LN + i]) * a0, pc2, ps2, pk0)
+            w1n = polarized.lane_m00((1.0 if nw else S[(F_MUELLER + 16) * LN + i]) * a1,
+                                     (0.0 if nw else S[(F_MUELLER + 20) * LN + i]) * a1,
+                                     (0.0 if nw else S[(F_MUELLER + 24) * LN + i]) * a1, pc2, ps2, pk1)
+            w2n = polarized.lane_m00((1.0 if nw else S[(F_MUELLER + 32) * LN + i]) * a2,
+                                     (0.0 if nw else S[(F_MUELLER + 36) * LN + i]) * a2,
+                                     (0.0 if nw else S[(F_MUELLER + 40) * LN + i]) * a2, pc2, ps2, pk2)
+            nb0 += nv0 - w0n
+            nb1 += nv1 - w1n
+            nb2 += nv2 - w2n
+            nv0 = w0n
+            nv1 = w1n
+            nv2 = w2n
+            h0 = h1 = h2 = 1.0
         nb0 += nv0 * (1.0 - h0)
         nb1 += nv1 * (1.0 - h1)
         nb2 += nv2 * (1.0 - h2)
@@ -547,6 +648,42 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
         nst = ST_DONE if p >= n_rays else ST_DEAD if killed else (ST_REFLECTED if (nr == 0 and nz > 0.0) else (
             ST_TRANSMITTED if (transmit_base and nr == n_if and nz < 0.0) else (
                 ST_CAPPED if ne >= event_cap else (ST_SCALAR if cont else ST_ALIVE))))
+        if polar is not None:
+            # the numbers of the pass over the matrices that follows this loop (mueller_pass)
+            S[(F_EVENT + K_EVENT) * LN + i] = pk0[0]
+            S[(F_EVENT + K_EVENT + 1) * LN + i] = pk0[1]
+            S[(F_EVENT + K_EVENT + 2) * LN + i] = pk0[2]
+            S[(F_EVENT + K_EVENT + 3) * LN + i] = pk0[3]
+            S[(F_EVENT + K_EVENT + 4) * LN + i] = pk0[4]
+            S[(F_EVENT + K_EVENT + 5) * LN + i] = pk0[5]
+            S[(F_EVENT + K_EVENT + 6) * LN + i] = pk1[0]
+            S[(F_EVENT + K_EVENT + 7) * LN + i] = pk1[1]
+            S[(F_EVENT + K_EVENT + 8) * LN + i] = pk1[2]
+            S[(F_EVENT + K_EVENT + 9) * LN + i] = pk1[3]
+            S[(F_EVENT + K_EVENT + 10) * LN + i] = pk1[4]
+            S[(F_EVENT + K_EVENT + 11) * LN + i] = pk1[5]
+            S[(F_EVENT + K_EVENT + 12) * LN + i] = pk2[0]
+            S[(F_EVENT + K_EVENT + 13) * LN + i] = pk2[1]
+            S[(F_EVENT + K_EVENT + 14) * LN + i] = pk2[2]
+            S[(F_EVENT + K_EVENT + 15) * LN + i] = pk2[3]
+            S[(F_EVENT + K_EVENT + 16) * LN + i] = pk2[4]
+            S[(F_EVENT + K_EVENT + 17) * LN + i] = pk2[5]
+            S[(F_EVENT + K_TRAVERSAL) * LN + i] = a0
+            S[(F_EVENT + K_TRAVERSAL + 1) * LN + i] = a1
+            S[(F_EVENT + K_TRAVERSAL + 2) * LN + i] = a2
+            S[(F_EVENT + K_C2) * LN + i] = pc2
+            S[(F_EVENT + K_S2) * LN + i] = ps2
+            S[(F_EVENT + K_G) * LN + i] = g
+            S[(F_EVENT + K_BOOST) * LN + i] = boost
+            S[(F_EVENT + K_GO) * LN + i] = 1.0 if go else 0.0
+            S[(F_EVENT + K_NEW) * LN + i] = 1.0 if nw else 0.0
+            # the frame: the plane of incidence's s after a Fresnel event, a new one after a
+            # depolarization, else unchanged
+            dpx, dpy, dpz = polarized.lane_frame(nx, ny, nz)
+            dep = lamb or coll
+            S[F_FRAME * LN + i] = (dpx if dep else (psx if fresnel else pfx)) if go else pfx
+            S[(F_FRAME + 1) * LN + i] = (dpy if dep else (psy if fresnel else pfy)) if go else pfy
+            S[(F_FRAME + 2) * LN + i] = (dpz if dep else (psz if fresnel else pfz)) if go else pfz
         S[(A_RL + 0) * LN + i] -= nv0 * (boost - 1.0) if booked else 0.0
         S[(A_RL + 1) * LN + i] -= nv1 * (boost - 1.0) if booked else 0.0
         S[(A_RL + 2) * LN + i] -= nv2 * (boost - 1.0) if booked else 0.0
@@ -585,3 +722,54 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             S[F_WIN * LN + i] = (0.0 if refl_ else 1.0) if pend else S[F_WIN * LN + i]
             # a walk of one bounce on the top interface (its steps mark a longer one)
             S[F_MULTI * LN + i] = 0.0 if (go and walked and k == 0) else S[F_MULTI * LN + i]
+    if polar is not None:
+        mueller_pass(S)
+
+
+@numba.njit(cache=True, error_model='numpy', boundscheck=False)
+def mueller_pass(S):
+    """The lanes' Mueller matrices after stage B of a polarized step (:func:`step`), per element with
+    the lanes innermost (it vectorises): the traversal, the frame's rotation, the event's matrix (the
+    same arithmetic as stage B's for their ``[0, 0]``, the weights), masking and roulette, from the
+    numbers stage B left at ``F_EVENT`` (copied to this function's stack: reads that provably do
+    not alias the matrices); a lane that took a new path at this step starts from the identity."""
+    prefer_wide_vectors()
+    K = stack_block()
+    for q in range(N_EVENT * LN):
+        K[q] = S[F_EVENT * LN + q]
+    for ch in range(3):
+        for j in range(4):
+            for i in range(LN):
+                q = (F_MUELLER + 16 * ch + j) * LN + i
+                kb = (K_EVENT + 6 * ch) * LN + i
+                pa = K[(K_TRAVERSAL + ch) * LN + i]
+                c2 = K[K_C2 * LN + i]
+                s2 = K[K_S2 * LN + i]
+                kA0 = K[kb]
+                kA1 = K[kb + LN]
+                kB = K[kb + 2 * LN]
+                kC = K[kb + 3 * LN]
+                kS = K[kb + 4 * LN]
+                kF = K[kb + 5 * LN]
+                g = K[K_G * LN + i]
+                boost = K[K_BOOST * LN + i]
+                go = K[K_GO * LN + i] != 0.0
+                nw = K[K_NEW * LN + i] != 0.0
+                r0 = ((1.0 if j == 0 else 0.0) if nw else S[q]) * pa
+                r1 = ((1.0 if j == 1 else 0.0) if nw else S[q + 4 * LN]) * pa
+                r2 = ((1.0 if j == 2 else 0.0) if nw else S[q + 8 * LN]) * pa
+                r3 = ((1.0 if j == 3 else 0.0) if nw else S[q + 12 * LN]) * pa
+                t1 = c2 * r1 + s2 * r2
+                t2 = c2 * r2 - s2 * r1
+                m0 = kF * (kA0 * r0 + kB * t1)
+                m1 = kF * (kB * r0 + kA1 * t1)
+                m2 = kF * (kC * t2 + kS * r3)
+                m3 = kF * (kC * r3 - kS * t2)
+                m0 *= g
+                m1 *= g
+                m2 *= g
+                m3 *= g
+                S[q] = m0 * boost if go else S[q]
+                S[q + 4 * LN] = m1 * boost if go else S[q + 4 * LN]
+                S[q + 8 * LN] = m2 * boost if go else S[q + 8 * LN]
+                S[q + 12 * LN] = m3 * boost if go else S[q + 12 * LN]

@@ -80,6 +80,21 @@ A_CP = 72       # capped weight (3)
 A_NCAP = 75     # capped paths
 A_NEV = 76      # events
 N_FIELDS = 77
+# ---- a polarized run's fields after those (its state array has N_FIELDS_POLARIZED rows): the path's
+# state of goniometer.kernel.polarized per lane, element e (row-major 4 x 4) of channel c's Mueller
+# matrix at row F_MUELLER + 16 c + e, the Stokes frame's x axis at F_FRAME .. F_FRAME + 2
+F_MUELLER = 77
+F_FRAME = 125
+# and 1 where renew gave the lane a new path at this step (whose matrices stage B reads as the identity)
+F_PNEW = 128
+#: and the rows where stage B leaves a polarized lane's event for the pass over its matrices
+#: (goniometer.kernel.event.mueller_pass): per channel c the six numbers (A0, A1, B, C, S, F) of the
+#: event's matrix at F_EVENT + 6 c (goniometer.kernel.polarized.lane_coefficients), the traversal's
+#: factors at F_EVENT + 18 + c; the frame's rotation (cos 2 theta, sin 2 theta), the masking factor,
+#: roulette's boost, 1 where the lane took the event, 1 where its path is new, at F_EVENT + 21 ..
+F_EVENT = 129
+N_EVENT = 27
+N_FIELDS_POLARIZED = 156
 
 # ---- lane status after a step
 # (an ended path -- ST_REFLECTED .. ST_CAPPED -- is booked, and its lane given the next path, at the

@@ -22,6 +22,7 @@ from goniometer.grids.halfdiff import halfdiff_angles
 from goniometer.grids.slice_grid import cell_index_fast
 from goniometer.kernel import polarized
 from goniometer.kernel.codegen import prefetch
+from goniometer.kernel.deposit import deposit_mueller
 from goniometer.kernel.layout import C_CAPPED, C_EVENTS, N_ENERGY, N_ENERGY_SQ, P_TABULATE
 from goniometer.kernel.onepath import (N_RECORD, X_CAPPED, X_REFLECTED, X_TRANSMITTED, new_record, path_energy,
                                        path_light, trace_path)
@@ -57,17 +58,6 @@ def _deposit(h, base, o, max_order, w0, w1, w2):
         h[s + 3] += q0
         h[s + 4] += q1
         h[s + 5] += q2
-
-
-@numba.njit(cache=True, error_model='numpy', _nrt=False)
-def _deposit_mueller(mh, i, j, pol):
-    """Add a polarized exit's Mueller matrices to cell ``(i, j)`` of ``mh`` (n_theta, n_phi, 32, 3):
-    rows 0-15 the elements, rows 16-31 their squares, per channel."""
-    for e in range(16):
-        for c in range(3):
-            v = pol[c, e]
-            mh[i, j, e, c] += v
-            mh[i, j, 16 + e, c] += v * v
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -151,7 +141,7 @@ def trace_paths(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, 
                     _deposit(ht, pbase, po, max_order, pw0, pw1, pw2)
                 pend, pbase, po, pw0, pw1, pw2 = 2 if trans else 1, base, o, w0, w1, w2
                 if polar is not None:
-                    _deposit_mueller(mbtdf if trans else mbrdf, i, j, pol)
+                    deposit_mueller(mbtdf if trans else mbrdf, i, j, pol)
         for e in range(N_ENERGY):
             x0, x1, x2 = path_energy(kind, based, w0, w1, w2, rec, e)
             energy[e, 0] += x0

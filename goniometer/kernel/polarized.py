@@ -207,3 +207,109 @@ def tabulated_exit(pol, lx, ly, lz, vx, vy, vz, folded, out) -> None:
                     out[4 * i + j, ch] = sign * pol[ch, 4 * j + i]
                 else:
                     out[4 * i + j, ch] = pol[ch, 4 * i + j]
+
+
+# ---- the lane kernel's event (goniometer.kernel.event.step): functions of numbers, inlined into its
+# vectorised loop, which keeps each lane's state in its fields F_MUELLER .. F_FRAME + 2
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def lane_frame(dx, dy, dz):
+    """The s/p frame's ``x`` of a beam along ``d`` (:func:`goniometer.optics.normal_frame`, its
+    horizontal part as the limit along the normal; ``(1, 0)`` straight up or down): where a
+    depolarizing event leaves the frame, as :func:`depolarize`."""
+    n = math.sqrt(dx * dx + dy * dy)
+    hx = dx / n if n > 0.0 else 1.0
+    hy = dy / n if n > 0.0 else 0.0
+    return optics.normal_frame(dx, dy, dz, hx, hy)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def lane_plane(kx, ky, kz, fx, fy, fz, mx, my, mz):
+    """``(c2, s2, sx, sy, sz)``: the rotation (:func:`goniometer.optics.stokes_rotation`) that turns
+    the frame ``f`` of a beam along ``k`` to the ``s = normalize(m x k)`` of its plane of incidence on
+    the microfacet ``m`` (stack's frame), and ``s``; at normal incidence on the microfacet the
+    identity and ``f`` (as :func:`to_plane`)."""
+    sx = my * kz - mz * ky
+    sy = mz * kx - mx * kz
+    sz = mx * ky - my * kx
+    n2 = sx * sx + sy * sy + sz * sz
+    ok = n2 >= 1e-28
+    inv = 1.0 / math.sqrt(max(n2, 1e-300))
+    sx = sx * inv if ok else fx
+    sy = sy * inv if ok else fy
+    sz = sz * inv if ok else fz
+    c2, s2 = optics.stokes_rotation(kx, ky, kz, fx, fy, fz, sx, sy, sz)
+    return (c2 if ok else 1.0), (s2 if ok else 0.0), sx, sy, sz
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def lane_coefficients(lamb, coll, fresnel, rho, a, b, c, s, f):
+    """One channel's event as the six numbers ``(A0, A1, B, C, S, F)`` of the matrix ``F [[A0, B, 0,
+    0], [B, A1, 0, 0], [0, 0, C, S], [0, 0, -S, C]]``: the Lambertian base (albedo ``rho``) and a
+    Henyey-Greenstein collision depolarize (``A0`` the albedo, the rest 0), a Fresnel event
+    ``(a, b, c, s)`` divided by its choice's probability (``f`` = 1 / probability), otherwise (an
+    index-matched interface) the identity."""
+    d = lamb or coll
+    return ((rho if lamb else (1.0 if coll else (a if fresnel else 1.0))), (0.0 if d else (a if fresnel else 1.0)),
+            (b if fresnel else 0.0), (0.0 if d else (c if fresnel else 1.0)), (s if fresnel else 0.0),
+            (f if fresnel else 1.0))
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def lane_m00(r0, r1, r2, c2, s2, k):
+    """The new ``M[0, 0]`` of a channel (its weight) from its column 0's rows 0 to 2 (after the
+    traversal), the frame's rotation and the event ``k`` (:func:`lane_coefficients`): the same
+    arithmetic as the event's pass over the matrix gives that element."""
+    t1 = c2 * r1 + s2 * r2
+    return k[5] * (k[0] * r0 + k[2] * t1)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lane_load(S, i, ln, f_mueller, f_frame, pol) -> None:
+    """Lane ``i``'s state (fields of ``S``, ``ln`` lanes) into a path state ``pol`` (4, 16)."""
+    for c in range(3):
+        for e in range(16):
+            pol[c, e] = S[(f_mueller + 16 * c + e) * ln + i]
+    for q in range(3):
+        pol[P_FRAME, q] = S[(f_frame + q) * ln + i]
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lane_store(S, i, ln, f_mueller, f_frame, pol) -> None:
+    """A path state ``pol`` back into lane ``i``'s fields (:func:`lane_load`)."""
+    for c in range(3):
+        for e in range(16):
+            S[(f_mueller + 16 * c + e) * ln + i] = pol[c, e]
+    for q in range(3):
+        S[(f_frame + q) * ln + i] = pol[P_FRAME, q]
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
+def lane_film(cos_i, n_in, nf, kf, n3, k3, d_lam, reflected, f):
+    """One channel's thin-film event ``(a, b, c, s, f)`` for :func:`lane_coefficients`: the
+    reflection's or the refraction's terms (:func:`goniometer.optics.film_mueller`, the film seen
+    from the side the light arrives from, as :func:`film` takes it) and ``f``, 1 / the probability of
+    the choice (1 for a filmed conductor)."""
+    ra, rb, rc, rs, ta, tb, tc, ts = optics.film_mueller(cos_i, n_in, nf, kf, n3, k3, d_lam)
+    return (ra, rb, rc, rs, f) if reflected else (ta, tb, tc, ts, f)
+
+
+@numba.njit(cache=True, error_model='numpy', boundscheck=False)
+def lane_exit(S, i, ln, f_mueller, f_frame, dx, dy, dz, out, n) -> None:
+    """Lane ``i``'s Mueller matrices (fields of ``S``, ``ln`` lanes) for its exit along ``d``, turned
+    to the exit beam's s/p frame (as :func:`to_exit` turns a path's), into row ``n`` of ``out``
+    (element ``e`` of channel ``c`` at column ``3 e + c``)."""
+    n2 = dx * dx + dy * dy
+    hx = dx / math.sqrt(n2) if n2 > 0.0 else 1.0
+    hy = dy / math.sqrt(n2) if n2 > 0.0 else 0.0
+    sx, sy, sz = optics.normal_frame(dx, dy, dz, hx, hy)
+    c2, s2 = optics.stokes_rotation(dx, dy, dz, S[f_frame * ln + i], S[(f_frame + 1) * ln + i],
+                                    S[(f_frame + 2) * ln + i], sx, sy, sz)
+    for c in range(3):
+        for j in range(4):
+            r1 = S[(f_mueller + 16 * c + 4 + j) * ln + i]
+            r2 = S[(f_mueller + 16 * c + 8 + j) * ln + i]
+            out[n, 3 * j + c] = S[(f_mueller + 16 * c + j) * ln + i]
+            out[n, 3 * (4 + j) + c] = c2 * r1 + s2 * r2
+            out[n, 3 * (8 + j) + c] = c2 * r2 - s2 * r1
+            out[n, 3 * (12 + j) + c] = S[(f_mueller + 16 * c + 12 + j) * ln + i]

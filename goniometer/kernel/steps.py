@@ -19,9 +19,10 @@ import numpy as np
 from goniometer import optics
 from goniometer.kernel.codegen import u64_as_double, u64_bits
 from goniometer.kernel.event import RR_START, RR_THRESHOLD
-from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_DZ, F_EV, F_HPOS, F_KEY, F_MULTI, F_REG,
-                                      F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX, F_WVY, F_WVZ, F_X0, LANES,
-                                      ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED, ST_TRANSMITTED)
+from goniometer.kernel.layout import (A_RL, F_AB0, F_AB1, F_AB2, F_DX, F_DY, F_DZ, F_EV, F_FRAME, F_HPOS, F_KEY,
+                                      F_MUELLER, F_MULTI, F_REG, F_SEEDED, F_W0, F_W1, F_W2, F_WC, F_WIN, F_WK, F_WVX,
+                                      F_WVY, F_WVZ, F_X0, LANES, ST_ALIVE, ST_CAPPED, ST_DEAD, ST_REFLECTED,
+                                      ST_TRANSMITTED)
 from goniometer.kernel.rng import next_disk, next_float, seed_state
 from goniometer.kernel import polarized
 from goniometer.kernel.packing import FL_DL0, FL_K0, FL_KB0, FL_N0, FL_NA, FL_NB0, FL_ON
@@ -288,7 +289,7 @@ def walk_from(vx, vy, vz, c, inside, n, hit, ax, ay, conductor, cond, g_is_r, b_
 
 @numba.njit(cache=True, error_model='numpy')
 def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is_g, n_if, transmit_base,
-                  conductor_base, event_cap, film, if_film):
+                  conductor_base, event_cap, film, if_film, pol=None):
     """Continue, in lane ``i`` of the state ``S``, the microsurface walk whose first bounce the
     vectorised event made (fields ``F_WK`` .. ``F_WIN``: the walk's interface, the ray's direction
     of travel and next hit, the side) until the ray leaves the microsurface, then play Russian
@@ -297,7 +298,10 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
     walk, traversed the region and did its bookkeeping; each further bounce counts toward the cap.
     ``xs`` is scratch ``uint64[4]``; roulette's boosts go straight to the lane's sum ``A_RL``.
     ``film`` None or True (the kernel's film variant); ``if_film`` the packed films
-    (:attr:`goniometer.kernel.packing.PackedStack.if_film`)."""
+    (:attr:`goniometer.kernel.packing.PackedStack.if_film`). ``pol``: None (scalar light), or
+    scratch (4, 16) for a polarized lane: its state (fields ``F_MUELLER`` ..) goes through the walk's
+    bounces there and back, the weights becoming the matrices' ``[0, 0]`` (their change booked as
+    absorbed, signed, as the event books it)."""
     dx = S[F_DX * LN + i]
     dy = S[F_DY * LN + i]
     dz = S[F_DZ * LN + i]
@@ -316,15 +320,23 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
             xs[j] = u64_bits(S[(F_X0 + j) * LN + i])
     k = np.int64(S[F_WK * LN + i]) - 1
     from_above = dz < 0.0
+    if pol is not None:
+        polarized.lane_load(S, i, LN, F_MUELLER, F_FRAME, pol)
     is_cond = conductor_base and k == n_if - 1
     eta = eta_dn[k] if from_above else eta_up[k]
     inv_eta = eta_up[k] if from_above else eta_dn[k]
     ox, oy, oz, f0, f1, f2, nb, transmitted = walk_from(
         S[F_WVX * LN + i], S[F_WVY * LN + i], S[F_WVZ * LN + i], S[F_WC * LN + i], S[F_WIN * LN + i] != 0.0, 1, True,
         if_alpha[k, 0], if_alpha[k, 1], is_cond, cond, g_is_r, b_is_g, eta, inv_eta, max(1, event_cap - events + 1), xs,
-        film, if_film[k], from_above, None, 1.0, 0.0)
+        film, if_film[k], from_above, pol, if_rot[k, 0], if_rot[k, 1])
     st = ST_ALIVE
-    if is_cond or (False if film is None else if_film[k, FL_ON] != 0.0):
+    if pol is not None:
+        v0, v1, v2 = polarized.weights(pol)
+        ab0 += w0 - v0
+        ab1 += w1 - v1
+        ab2 += w2 - v2
+        w0, w1, w2 = v0, v1, v2
+    elif is_cond or (False if film is None else if_film[k, FL_ON] != 0.0):
         w0, w1, w2, ab0, ab1, ab2 = _attenuate(w0, w1, w2, ab0, ab1, ab2, f0, f1, f2)
     if nb == 0:
         # still on the microsurface at the cap
@@ -357,6 +369,8 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
                     w0 *= boost
                     w1 *= boost
                     w2 *= boost
+                    if pol is not None:
+                        polarized.scale(pol, boost, boost, boost)
         if st == ST_ALIVE:
             if region == 0 and dz > 0.0:
                 st = ST_REFLECTED
@@ -380,4 +394,6 @@ def continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond, g_is_r, b_is
     S[F_WK * LN + i] = 0.0
     for j in range(4):
         S[(F_X0 + j) * LN + i] = u64_as_double(xs[j])
+    if pol is not None:
+        polarized.lane_store(S, i, LN, F_MUELLER, F_FRAME, pol)
     return st

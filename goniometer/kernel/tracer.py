@@ -28,14 +28,16 @@ import numba
 import numpy as np
 
 from goniometer.grids.halfdiff import cell_of as halfdiff_cell
+from goniometer.grids.halfdiff import halfdiff_angles
 from goniometer.kernel.codegen import STACK_BLOCK
-from goniometer.kernel.deposit import BUFFER, X_COLS, flush
+from goniometer.kernel import polarized
+from goniometer.kernel.deposit import BUFFER, X_COLS, flush, flush_mueller
 from goniometer.kernel.event import RR_START, RR_THRESHOLD, step
 from goniometer.kernel.layout import (A_AB, A_CP, A_MK, A_NCAP, A_NEV, A_RB, A_RE, A_RL, A_TR, C_CAPPED, C_EVENTS,
                                       E_ABSORBED, E_CAPPED, E_MASKING, E_REFLECTED, E_REFLECTED_WITHOUT_BASE,
-                                      E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_LX, F_LY, F_LZ, F_MULTI, F_ORDER,
-                                      F_PATH, F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY, N_ENERGY_SQ,
-                                      N_FIELDS, P_TABULATE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
+                                      E_ROULETTE, E_TRANSMITTED, F_DX, F_DY, F_DZ, F_FRAME, F_LX, F_LY, F_LZ, F_MULTI, F_ORDER,
+                                      F_MUELLER, F_PATH, F_STATUS, F_W0, F_W1, F_W2, LANES, N_COUNTS, N_ENERGY,
+                                      N_ENERGY_SQ, N_FIELDS, N_FIELDS_POLARIZED, P_TABULATE, ST_DEAD, ST_REFLECTED, ST_SCALAR, ST_TRANSMITTED,
                                       stack_table)
 from goniometer.kernel.packing import PackedStack
 from goniometer.kernel.paths import trace_paths
@@ -175,15 +177,13 @@ def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int,
     arguments worked out once. ``device``: ``"cpu"`` or ``"cuda"`` (:mod:`goniometer.kernel.cuda`,
     one kernel for every stack; ``kernel`` then must be ``KERNEL_AUTO``). ``polarized``: trace
     polarized light (``docs/polarization.md``), the incident beam's s/p frame taking its limit along
-    the azimuth ``phi_deg`` at the normal (a tabulation's paths take their own); on the CPU the
-    per-path kernel traces it (the lane kernel's vectorised event carries no Mueller matrices)."""
+    the azimuth ``phi_deg`` at the normal (a tabulation's paths take their own), in either CPU
+    kernel (the lane kernel by default)."""
     if device not in ("cpu", "cuda"):
         raise ValueError(f"device: {device!r}: the kernels trace on cpu or cuda")
     if device != "cpu" and kernel != KERNEL_AUTO:
         raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
     facts = stack_facts(packed)
-    if polarized and device == "cpu":
-        kernel = KERNEL_PATHS
     variant = variant_flags(facts, height_correlated, tabulate, kernel)
     polar = None
     if polarized:
@@ -234,7 +234,8 @@ def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = Non
 
 @numba.njit(cache=True, error_model='numpy')
 def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
-                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, outs):
+                height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, outs,
+                polar=None):
     """Trace the ``n_rays`` paths of the chunk keyed ``ckey`` (:func:`goniometer.kernel.rng.chunk_key`)
     for light direction ``l`` and accumulate into the given arrays: the lane kernel.
 
@@ -257,6 +258,12 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
     variant (:func:`kernel_flags`, :func:`goniometer.kernel.event.step`); ``tabulate`` True goes
     with ``param`` = :data:`P_TABULATE`.
 
+    ``polar``: None (scalar light), or a polarized run's initial path state
+    (:func:`goniometer.kernel.polarized.initial_state`): the lanes then carry Mueller matrices
+    (:func:`goniometer.kernel.event.step`) and ``outs`` has two more, ``mbrdf``/``mbtdf``, which
+    take each exit's matrices in its exit frames as :func:`goniometer.kernel.paths.trace_paths`
+    describes (a tabulation's reflected exit: ``mbrdf[r, 0]``, the "plane" frames of its MERL cell).
+
     Lane ``i`` traces paths ``i, i + LANES, ...``; its sums are kept per lane and added in lane
     order at the end, exits are deposited in the order they happen: the same bits for any
     number of threads.
@@ -266,10 +273,12 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
     table, off, n_if, base_k = stack.table, stack.off, stack.n_if, stack.base_k
     transmit_base, conductor_base = stack.transmit_base, stack.conductor_base
     row_cos, col_cos, col_sin = tables
-    brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w = outs
+    brdf, btdf, energy, energy_sq, counts, exit_cell, exit_w, mbrdf, mbtdf = outs
     # every lane starts as if it had just ended a path of nothing (index i - LANES): the first step
     # books zeros and gives it path i
-    S = np.zeros(N_FIELDS * LANES)
+    S = np.zeros((N_FIELDS if polar is None else N_FIELDS_POLARIZED) * LANES)
+    pw = np.zeros((4, 16)) if polar is not None else None
+    mbuf = np.empty((BUFFER, 48)) if polar is not None else None
     for i in range(LANES):
         S[F_STATUS * LANES + i] = ST_DEAD
         S[F_PATH * LANES + i] = i - LANES
@@ -285,7 +294,7 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
         # ---- one vectorised step for every lane (book ended paths, start new ones, one event)
         step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck2, rho0, rho1, rho2, event_cap,
              lx, ly, lz, ckey, n_rays, max_order, height_correlated, tabulate, media, lambertian,
-             conductor, g_is_r, b_is_g, aniso, ms, film)
+             conductor, g_is_r, b_is_g, aniso, ms, film, polar)
         # ---- per-lane pass: the walks that go on, then the exits of the paths that left the stack
         # at this step (lanes listed without branches, then visited; booked at the next step)
         if ms is not None:
@@ -293,7 +302,7 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
                 if S[F_STATUS * LANES + i] == ST_SCALAR:
                     S[F_STATUS * LANES + i] = continue_walk(S, i, xs, if_alpha, if_rot, eta_dn, eta_up, cond,
                                                             stack.g_is_r, stack.b_is_g, n_if, transmit_base,
-                                                            conductor_base, event_cap, film, if_film)
+                                                            conductor_base, event_cap, film, if_film, pw)
         live = 0
         n_x = 0
         for i in range(LANES):
@@ -304,14 +313,26 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
         for q in range(n_x):
             i = xi[q]
             trans = S[F_STATUS * LANES + i] == ST_TRANSMITTED
+            if polar is not None and tabulate is not None:
+                # the exit's Mueller matrices in its exit frames (docs/polarization.md section 2)
+                polarized.lane_load(S, i, LANES, F_MUELLER, F_FRAME, pw)
+                polarized.to_exit(pw, S[F_DX * LANES + i], S[F_DY * LANES + i], S[F_DZ * LANES + i])
             if tabulate is not None:
                 if not trans:
                     path = int(S[F_PATH * LANES + i])
-                    exit_cell[path] = halfdiff_cell(S[F_LX * LANES + i], S[F_LY * LANES + i], S[F_LZ * LANES + i],
-                                                    S[F_DX * LANES + i], S[F_DY * LANES + i], S[F_DZ * LANES + i])
+                    plx = S[F_LX * LANES + i]
+                    ply = S[F_LY * LANES + i]
+                    plz = S[F_LZ * LANES + i]
+                    dx = S[F_DX * LANES + i]
+                    dy = S[F_DY * LANES + i]
+                    dz = S[F_DZ * LANES + i]
+                    exit_cell[path] = halfdiff_cell(plx, ply, plz, dx, dy, dz)
                     exit_w[path, 0] = S[F_W0 * LANES + i]
                     exit_w[path, 1] = S[F_W1 * LANES + i]
                     exit_w[path, 2] = S[F_W2 * LANES + i]
+                    if polar is not None:
+                        polarized.tabulated_exit(pw, plx, ply, plz, dx, dy, dz,
+                                                 halfdiff_angles(plx, ply, plz, dx, dy, dz)[2] < 0.0, mbrdf[path, 0])
             elif not (skip_first and not trans and S[F_ORDER * LANES + i] == 1.0 and S[F_MULTI * LANES + i] == 0.0):
                 xbuf[0, n_exit] = S[F_DX * LANES + i]
                 xbuf[1, n_exit] = S[F_DY * LANES + i]
@@ -321,10 +342,17 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
                 xbuf[5, n_exit] = S[F_W2 * LANES + i]
                 xbuf[6, n_exit] = min(S[F_ORDER * LANES + i], max_order) - 1.0
                 xbuf[7, n_exit] = 1.0 if trans else 0.0
+                if polar is not None:
+                    # its Mueller matrices in its exit frames (docs/polarization.md section 2), added
+                    # where flush() puts its intensity (flush_mueller)
+                    polarized.lane_exit(S, i, LANES, F_MUELLER, F_FRAME, S[F_DX * LANES + i], S[F_DY * LANES + i],
+                                        S[F_DZ * LANES + i], mbuf, n_exit)
                 n_exit += 1
                 if n_exit == BUFFER:
                     flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin,
                           max_order, brdf, btdf)
+                    if polar is not None:
+                        flush_mueller(mbuf, xbuf, n_exit, cell, max_order, n_theta, n_phi, mbrdf, mbtdf)
                     n_exit = 0
         # (a lane whose path ended in its walk is booked at the next step; a lane is without paths
         # once its path index is past the chunk's)
@@ -333,6 +361,8 @@ def _trace_chunk(stack, lx, ly, lz, n_rays, ckey, param, n_theta, n_phi, tables,
     if n_exit > 0:
         flush(xbuf, n_exit, cell, sqo, param, lx, ly, lz, n_theta, n_phi, row_cos, col_cos, col_sin, max_order,
               brdf, btdf)
+        if polar is not None:
+            flush_mueller(mbuf, xbuf, n_exit, cell, max_order, n_theta, n_phi, mbrdf, mbtdf)
     # ---- the lanes' sums, in lane order
     for i in range(LANES):
         for c in range(3):
@@ -389,7 +419,8 @@ def _trace_slot(b, stack, run, tables, sizes, lanes, height_correlated, tabulate
                     event_cap, skip_first, slot + (outs[7][b], outs[8][b]), polar)
     else:
         _trace_chunk(stack, lx, ly, lz, n, ckey, param, n_theta, n_phi, tables, max_order, event_cap, skip_first,
-                     height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film, slot)
+                     height_correlated, tabulate, media, lambertian, conductor, g_is_r, b_is_g, aniso, ms, film,
+                     slot + (outs[7][b], outs[8][b]), polar)
 
 
 @numba.njit(parallel=True, cache=True, error_model='numpy')
