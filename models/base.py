@@ -22,7 +22,7 @@ Conventions (same as :mod:`goniometer.optics` and ``docs/slices-format.md``):
   files' s/p frames; ``docs/polarization.md`` §1-2 and "Models on polarized files").
   ``M[..., 0, 0]`` is the intensity ``top + internal``.
 * A model whose BSDF has Dirac lobes (a smooth interface's mirror reflection or refraction) gives
-  them as :class:`DeltaLobe`\ s (:meth:`Model.delta_lobes`, :meth:`Model.delta_lobes_mueller`) beside
+  them as :class:`DeltaLobe` objects (:meth:`Model.delta_lobes`, :meth:`Model.delta_lobes_mueller`) beside
   the finite part ``evaluate`` returns (where a Dirac lobe is 0, ``docs/models.md`` §1); the
   harness deposits each in the cell that holds its direction (``docs/models.md`` §3, "Delta lobes").
 

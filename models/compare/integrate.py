@@ -106,7 +106,8 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
     return out[0], out[1], out[2], out[3]
 
 
-#: how far from 1 the length of a delta lobe's direction may be (it is then normalised)
+#: how far from 1 the length of a delta lobe's direction may be (it is binned as given, not normalised:
+#: normalising would move an exact mirror direction off a cell border by rounding)
 UNIT_TOLERANCE = 1e-6
 
 
@@ -140,7 +141,8 @@ def delta_cells(model: Model, grid: SliceGrid, light: np.ndarray, method: str, s
 
 
 def _checked_lobe(name: str, method: str, lobe: object, shape: tuple[int, ...]) -> DeltaLobe:
-    """``lobe`` with its direction a float64 unit vector and its value a float64 array of ``shape``;
+    """``lobe`` with its direction a float64 vector of unit length (to :data:`UNIT_TOLERANCE`) and its
+    value a float64 array of ``shape``;
     :class:`ModelFailure` (one line naming ``method``) otherwise."""
     if not isinstance(lobe, DeltaLobe):
         raise ModelFailure(name, f"{method} returned a {type(lobe).__name__}, not a DeltaLobe")
@@ -156,7 +158,7 @@ def _checked_lobe(name: str, method: str, lobe: object, shape: tuple[int, ...]) 
                                  f"{bool(np.all(np.isfinite(value)))}); expected finite values of shape {shape}")
     if lobe.part not in ("top", "internal"):
         raise ModelFailure(name, f"{method} returned a lobe of part {lobe.part!r}, not 'top' or 'internal'")
-    return DeltaLobe(v / np.linalg.norm(v) + 0.0, value, lobe.part)
+    return DeltaLobe(v + 0.0, value, lobe.part)      # binned as given (-0.0 as 0.0: the pole's azimuth is 0)
 
 
 def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None
