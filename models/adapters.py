@@ -25,9 +25,10 @@
   with the vectorised variant; with ``scalar_rgb`` one Python-level call per direction, about
   5 us each (a 90 x 360 slice at 5 x 5 sub-cells: about 4 s per incident direction).
 
-  Dirac lobes (the components whose flags hold ``DeltaReflection`` or ``DeltaTransmission``: the
-  smooth ``conductor`` and ``dielectric``, ``plastic``'s specular lobe, ``thindielectric``), to
-  which ``eval`` gives no value, are the model's delta lobes
+  Dirac lobes (the components whose flags hold ``DeltaReflection``, ``DeltaTransmission`` or
+  ``Null``: the smooth ``conductor`` and ``dielectric``, ``plastic``'s specular lobe,
+  ``thindielectric``'s reflection and its straight-through transmission), to which ``eval`` gives
+  no value, are the model's delta lobes
   (:meth:`MitsubaFileModel.delta_lobes`): Mitsuba's ``sample`` restricted to each such component
   gives its direction and its weight (the lobe's reflectance or flux-based transmittance), and the
   harness puts it whole in the cell that holds the direction (``docs/models.md`` §3, "Delta

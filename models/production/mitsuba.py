@@ -284,10 +284,12 @@ class MitsubaBSDF:
 
     def delta_components(self, side: str = "brdf") -> list[int]:
         """The components of the BSDF that are Dirac lobes on ``side``: those whose flags hold
-        ``DeltaReflection`` (``"brdf"``) or ``DeltaTransmission`` (``"btdf"``); ``eval`` gives them no
+        ``DeltaReflection`` (``"brdf"``), or ``DeltaTransmission`` or ``Null`` (``"btdf"``: light
+        that passes straight through, ``thindielectric``'s transmission); ``eval`` gives them no
         value (:meth:`delta_lobes`)."""
         mi = mitsuba_module()
-        flag = int(mi.BSDFFlags.DeltaReflection if side == "brdf" else mi.BSDFFlags.DeltaTransmission)
+        flag = (int(mi.BSDFFlags.DeltaReflection) if side == "brdf"
+                else int(mi.BSDFFlags.DeltaTransmission) | int(mi.BSDFFlags.Null))
         return [c for c in range(self.bsdf.component_count()) if int(self.bsdf.flags(c)) & flag]
 
     def delta_lobes(self, l: np.ndarray, side: str = "brdf") -> list[tuple[np.ndarray, np.ndarray]]:
@@ -357,7 +359,8 @@ SINGLE_PRECISION = 1e-5
 def exact_direction(l: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """The double-precision direction a smooth interface's lobe ``wo`` (single precision, from
     Mitsuba) stands for, for the light ``l``: the mirror ``(-l_x, -l_y, l_z)`` when ``wo`` is it to
-    :data:`SINGLE_PRECISION` (the direction our tracer gives a smooth reflection, bit for bit); a
+    :data:`SINGLE_PRECISION` (the direction our tracer gives a smooth reflection, bit for bit), ``-l``
+    when ``wo`` is that (light passing straight through, ``thindielectric``'s transmission); a
     lobe in the plane of incidence on the far side of the normal (a refraction) gets the azimuth
     opposite ``l``'s exactly, ``v_xy = -l_xy |wo_xy| / |l_xy|``, and its own ``|v_z|``; a lobe along
     the normal is ``(0, 0, +-1)``; any other is ``wo`` normalised. On a cell border, the double-
@@ -368,6 +371,8 @@ def exact_direction(l: np.ndarray, wo: np.ndarray) -> np.ndarray:
     mirror = np.array([-l[0], -l[1], l[2]])
     if np.max(np.abs(wo - mirror)) <= SINGLE_PRECISION:
         return mirror + 0.0
+    if np.max(np.abs(wo + l)) <= SINGLE_PRECISION:
+        return -l + 0.0
     q, r = math.hypot(wo[0], wo[1]), math.hypot(l[0], l[1])
     if q <= SINGLE_PRECISION:
         return np.array([0.0, 0.0, math.copysign(1.0, wo[2])])

@@ -30,6 +30,8 @@ ETA, K = (0.2, 0.5, 1.3), (3.5, 2.5, 1.8)
 GOLDISH = Stack("goldish", (Interface(0.0, ETA, K),), "metal")
 GREY = Stack("grey", (Interface(0.0, (0.9,) * 3, (2.5,) * 3),), "metal")
 GLASS = Stack("glass", (Interface(0.0, (1.5,) * 3),), "slab")
+#: a glass plate in air: every exit leaves along the mirror or along -l (Mitsuba's thindielectric)
+PLATE = Stack("plate", (Interface(0.0, (1.5,) * 3), Interface(0.0, (1.0,) * 3)), "slab")
 
 
 def _rgb(x) -> dict:
@@ -45,7 +47,8 @@ def files(tmp_path_factory):
     for name, spec in (("conductor", {"type": "conductor", "eta": _rgb(ETA), "k": _rgb(K)}),
                        ("grey", {"type": "conductor", "eta": 0.9, "k": 2.5}),
                        ("dielectric", {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}),
-                       ("wrong", {"type": "dielectric", "int_ior": 1.4, "ext_ior": 1.0})):
+                       ("wrong", {"type": "dielectric", "int_ior": 1.4, "ext_ior": 1.0}),
+                       ("thin", {"type": "thindielectric", "int_ior": 1.5, "ext_ior": 1.0})):
         (d / f"{name}.json").write_text(json.dumps(spec))
         out[name] = f"mitsuba:{d / f'{name}.json'}"
 
@@ -58,6 +61,7 @@ def files(tmp_path_factory):
     out["grey_run"] = run(GREY, 500, True, incident=((40.0, 30.0), (0.0, 0.0)))
     out["glass"] = run(GLASS, 20_000, True, incident=((60.0, 0.0), (35.0, 120.0)))
     out["glass_file"] = store.write(d / "glass.h5", out["glass"])
+    out["plate"] = run(PLATE, 20_000, False)
     out["glass_half"] = run(GLASS, 20_000, False, "half", incident=((60.0, 0.0), (35.0, 120.0)))
     # every mirror direction on a cell border in theta and phi: 8 rows of 11.25 deg, 8 columns of 45 deg
     out["border"] = run(GOLDISH, 500, False, resolution=(8, 8), incident=((22.5, 0.0), (45.0, 45.0), (0.0, 0.0)))
@@ -70,12 +74,11 @@ def _sides(result):
 
 def _delta_cos(result, side: str) -> np.ndarray:
     """|cos theta_v| of the delta cell's direction per incident direction, (M, 1, 1, 1) (the cosine a
-    wrong measure would add or drop): the mirror's, or the refracted one's (index 1.5)."""
+    wrong measure would add or drop): the mirror's, the refracted one's (the stack's last index), or
+    -l's (a plate)."""
     cos_l = np.cos(np.radians(result.theta_deg))
-    if side == "brdf":
-        c = cos_l
-    else:
-        c = np.sqrt(1.0 - (1.0 - cos_l ** 2) / 1.5 ** 2)
+    n = result.stack.layers[-1].ior[0]
+    c = cos_l if side == "brdf" else np.sqrt(1.0 - (1.0 - cos_l ** 2) / n ** 2)
     return c[:, None, None, None]
 
 
@@ -85,7 +88,8 @@ def _assert_cells(ref, stderr, model) -> None:
     assert_z_close(ref, stderr, model, 0.0, extra)
 
 
-@pytest.mark.parametrize("key, spec", [("goldish", "conductor"), ("glass", "dielectric"), ("glass_half", "dielectric")])
+@pytest.mark.parametrize("key, spec", [("goldish", "conductor"), ("glass", "dielectric"), ("glass_half", "dielectric"),
+                                       ("plate", "thin")])
 def test_smooth_plugins_agree_with_smooth_stacks_cell_by_cell(files, key, spec):
     """The delta cell of each side holds the tracer's value within its standard errors (the
     conductor's to single precision: every path carries F), every other cell 0 on both; a value
@@ -160,6 +164,7 @@ def test_exact_direction_takes_single_precision_to_the_tracers_directions():
     assert abs(np.linalg.norm(got) - 1.0) < 1e-12 and got[2] < 0 and abs(got[2] - t[2]) < 1e-6
     assert np.array_equal(exact_direction(np.array([0.0, 0.0, 1.0]), np.array([-0.0, -0.0, 1.0], np.float32)),
                           np.array([0.0, 0.0, 1.0]))
+    assert np.array_equal(exact_direction(l, (-l).astype(np.float32)), -l)     # straight through
     other = np.array([0.3, 0.2, 0.5])
     np.testing.assert_allclose(exact_direction(l, other), other / np.linalg.norm(other), rtol=0, atol=1e-15)
 
