@@ -142,8 +142,7 @@ def delta_cells(model: Model, grid: SliceGrid, light: np.ndarray, method: str, s
 
 def _checked_lobe(name: str, method: str, lobe: object, shape: tuple[int, ...]) -> DeltaLobe:
     """``lobe`` with its direction a float64 vector of unit length (to :data:`UNIT_TOLERANCE`) and its
-    value a float64 array of ``shape``;
-    :class:`ModelFailure` (one line naming ``method``) otherwise."""
+    value a float64 array of ``shape``; :class:`ModelFailure` (one line naming ``method``) otherwise."""
     if not isinstance(lobe, DeltaLobe):
         raise ModelFailure(name, f"{method} returned a {type(lobe).__name__}, not a DeltaLobe")
     try:
@@ -152,13 +151,16 @@ def _checked_lobe(name: str, method: str, lobe: object, shape: tuple[int, ...]) 
     except (TypeError, ValueError):
         raise ModelFailure(name, f"{method} returned a lobe whose direction or value is not real numbers") from None
     if v.shape != (3,) or not np.all(np.isfinite(v)) or abs(float(np.linalg.norm(v)) - 1.0) > UNIT_TOLERANCE:
-        raise ModelFailure(name, f"{method} returned a lobe direction {np.round(v, 6).tolist()}, not a unit vector (3,)")
+        raise ModelFailure(name, f"{method} returned a lobe direction {np.round(v, 6).tolist()}, "
+                                 f"not a unit vector (3,)")
     if value.shape != shape or not np.all(np.isfinite(value)):
         raise ModelFailure(name, f"{method} returned a lobe value of shape {value.shape} (finite: "
                                  f"{bool(np.all(np.isfinite(value)))}); expected finite values of shape {shape}")
     if lobe.part not in ("top", "internal"):
         raise ModelFailure(name, f"{method} returned a lobe of part {lobe.part!r}, not 'top' or 'internal'")
-    return DeltaLobe(v + 0.0, value, lobe.part)      # binned as given (-0.0 as 0.0: the pole's azimuth is 0)
+    # binned as given; + 0.0 turns -0.0 into 0.0, so that a lobe at the pole has the azimuth 0 in the
+    # frames' conversion too (as in the binning, goniometer.grids.slice_grid.cell_index)
+    return DeltaLobe(v + 0.0, value, lobe.part)
 
 
 def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None
