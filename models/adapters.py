@@ -25,6 +25,16 @@
   with the vectorised variant; with ``scalar_rgb`` one Python-level call per direction, about
   5 us each (a 90 x 360 slice at 5 x 5 sub-cells: about 4 s per incident direction).
 
+  Dirac lobes (the components whose flags hold ``DeltaReflection``, ``DeltaTransmission`` or
+  ``Null``: the smooth ``conductor`` and ``dielectric``, ``plastic``'s specular lobe,
+  ``thindielectric``'s reflection and its straight-through transmission), to which ``eval`` gives
+  no value, are the model's delta lobes
+  (:meth:`MitsubaFileModel.delta_lobes`): Mitsuba's ``sample`` restricted to each such component
+  gives its direction and its weight (the lobe's reflectance or flux-based transmittance), and the
+  harness puts it whole in the cell that holds the direction (``docs/models.md`` §3, "Delta
+  lobes"). ``roughconductor`` and ``roughdielectric`` with ``alpha = 0`` are no delta lobes to
+  Mitsuba (it clamps alpha to 1e-4 and flags them glossy): they are evaluated like any other.
+
   On a polarized file (``docs/polarization.md``, "Models on polarized files") a file whose BSDF is
   one of the plugins that carry polarization (:data:`models.production.mitsuba.POLARIZING_PLUGINS`: ``conductor``,
   ``roughconductor``, ``dielectric``, ``pplastic``) is a polarized model: the same file is loaded a
@@ -32,7 +42,8 @@
   and its Mueller matrices (:meth:`models.production.mitsuba.MitsubaBSDF.eval_mueller`, channel
   ``c`` at :func:`models.production.mitsuba.channel_wavelengths`) are judged element by element,
   taken from Mitsuba's ``stokes_basis`` frames to the file's s/p frames (``mueller_frames =
-  "mitsuba"``). Any other plugin is judged on the intensity only, and the evaluation says why.
+  "mitsuba"``), their delta lobes' matrices too. Any other plugin is judged on the intensity only, and
+  the evaluation says why.
 
 Every failure is a :class:`models.base.ModelError` whose message is one line starting with the spec:
 a malformed spec, a module that does not import, a missing attribute, something that is neither a
@@ -54,7 +65,7 @@ from typing import Any, Callable
 import numpy as np
 
 from goniometer.stack import Stack
-from models.base import SIDES, Model, ModelError, ModelValue
+from models.base import SIDES, DeltaLobe, Model, ModelError, ModelValue
 
 PYTHON = "python:"
 MITSUBA = "mitsuba:"
@@ -265,8 +276,11 @@ class MitsubaFileModel(Model):
         self.polarized = self.plugin in POLARIZING_PLUGINS
         self._polarized_bsdf: Any = None
         self.description = f"{spec}: a fixed Mitsuba BSDF; it does not read the stack"
+        deltas = bsdf.delta_components("brdf") + bsdf.delta_components("btdf")
+        delta = (f"; its delta lobes (components {', '.join(str(c) for c in sorted(set(deltas)))}) are sampled by "
+                 f"Mitsuba and put whole in the cells that hold their directions" if deltas else "")
         self.approximation = (f"a fixed Mitsuba BSDF ({spec[len(MITSUBA):]}, variant {bsdf.variant}); "
-                              f"it does not read the stack; {NO_SPLIT}")
+                              f"it does not read the stack; {NO_SPLIT}{delta}")
 
     def support_reason(self, stack: Stack) -> str | None:
         return None
@@ -274,6 +288,18 @@ class MitsubaFileModel(Model):
     def _evaluate(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> ModelValue:
         internal = self.bsdf.eval(l, v, side=side)
         return ModelValue(np.zeros_like(internal), internal)
+
+    def delta_lobes(self, stack: Stack, l: np.ndarray, side: str) -> list[DeltaLobe]:
+        """The BSDF's Dirac lobes (its components flagged ``DeltaReflection`` or ``DeltaTransmission``:
+        the smooth ``conductor``, ``dielectric``, ``plastic``, ...), sampled by Mitsuba
+        (:meth:`models.production.mitsuba.MitsubaBSDF.delta_lobes`); ``internal`` as the rest."""
+        return [DeltaLobe(v, w) for v, w in self.bsdf.delta_lobes(l, side=side)]
+
+    def delta_lobes_mueller(self, stack: Stack, l: np.ndarray, side: str) -> list[DeltaLobe]:
+        """The Dirac lobes' Mueller matrices in the polarized variant, in ``stokes_basis`` frames."""
+        from models.production.mitsuba import channel_wavelengths
+        return [DeltaLobe(v, m) for v, m in
+                self.polarized_bsdf().delta_lobes_mueller(l, channel_wavelengths(stack), side=side)]
 
     def mueller_reason(self, stack: Stack) -> str | None:
         """Why this file gives no Mueller matrices: a plugin that depolarizes (None for the
@@ -294,8 +320,8 @@ class MitsubaFileModel(Model):
     def mueller_note(self, stack: Stack) -> str | None:
         from models.production.mitsuba import channel_wavelengths, mitsuba_polarized_variant
         nm = ", ".join(f"{x:g}" for x in channel_wavelengths(stack))
-        smooth = ("; a smooth plugin: eval gives its delta lobes no value, so it predicts no light in any cell"
-                  if self.plugin in ("conductor", "dielectric") else "")
+        smooth = ("; its delta lobes sampled by Mitsuba and put whole in the cells that hold their directions"
+                  if self.bsdf.delta_components("brdf") or self.bsdf.delta_components("btdf") else "")
         return (f"Mitsuba's {self.plugin} in {mitsuba_polarized_variant()}, R G B at {nm} nm, from its stokes_basis "
                 f"frames to the file's s/p frames{smooth}")
 

@@ -21,6 +21,10 @@ Conventions (same as :mod:`goniometer.optics` and ``docs/slices-format.md``):
   the light leaving along ``v``, in the frames ``mueller_frames`` names (default ``"sp"``, the
   files' s/p frames; ``docs/polarization.md`` §1-2 and "Models on polarized files").
   ``M[..., 0, 0]`` is the intensity ``top + internal``.
+* A model whose BSDF has Dirac lobes (a smooth interface's mirror reflection or refraction) gives
+  them as :class:`DeltaLobe` objects (:meth:`Model.delta_lobes`, :meth:`Model.delta_lobes_mueller`) beside
+  the finite part ``evaluate`` returns (where a Dirac lobe is 0, ``docs/models.md`` §1); the
+  harness deposits each in the cell that holds its direction (``docs/models.md`` §3, "Delta lobes").
 
 Writing a model, in a plugin package or behind ``--model python:MODULE:NAME``: ``docs/models.md``,
 "Writing a model (plugins)".
@@ -104,6 +108,22 @@ class ModelValue:
         top = 0.0 if self.stderr_top is None else np.asarray(self.stderr_top)
         internal = 0.0 if self.stderr_internal is None else np.asarray(self.stderr_internal)
         return np.sqrt(np.square(top) + np.square(internal)) * np.ones_like(self.top)
+
+
+@dataclass(frozen=True)
+class DeltaLobe:
+    """A Dirac lobe of a BSDF for one light direction: all its light leaves along the unit
+    direction ``v`` (3,). ``value`` is the fraction of the incident flux it carries, the integral
+    ``Int f |cos theta_v| dw`` over the lobe (Mitsuba's ``sample`` weight ``f |cos| / pdf`` of a
+    delta component in importance mode): (3,) RGB for :meth:`Model.delta_lobes`, (3, 4, 4)
+    (channel, row, column) Mueller matrices in the model's ``mueller_frames`` for
+    :meth:`Model.delta_lobes_mueller`. ``part``: ``"top"`` (the reflection off the top interface)
+    or ``"internal"``; Mueller lobes ignore it. A cell holding ``v`` then has the cell mean
+    ``value / Omega(cell)`` (``docs/slices-format.md`` §4)."""
+
+    v: np.ndarray
+    value: np.ndarray
+    part: str = "internal"
 
 
 class Model(ABC):
@@ -261,6 +281,17 @@ class Model(ABC):
     def _evaluate_mueller(self, stack: Stack, l: np.ndarray, v: np.ndarray, side: str) -> np.ndarray:
         """A polarized model's Mueller matrices (:meth:`evaluate_mueller`; inputs already checked)."""
         raise ModelError(f"{self.name}: polarized = True but _evaluate_mueller is not implemented")
+
+    def delta_lobes(self, stack: Stack, l: np.ndarray, side: str) -> list[DeltaLobe]:
+        """The Dirac lobes of the BSDF lit from ``l`` that leave on ``side``, RGB values
+        (:class:`DeltaLobe`); none by default. Called by the harness (:mod:`models.compare.integrate`)
+        for a supported stack and side, beside :meth:`evaluate`, which leaves them out."""
+        return []
+
+    def delta_lobes_mueller(self, stack: Stack, l: np.ndarray, side: str) -> list[DeltaLobe]:
+        """:meth:`delta_lobes` as Mueller matrices (3, 4, 4) in :attr:`mueller_frames`, for a model
+        that gives Mueller matrices for ``stack``; none by default."""
+        return []
 
 
 def _check_value(name: str, value: object, want: tuple[int, ...]) -> None:

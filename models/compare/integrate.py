@@ -7,6 +7,17 @@ evaluated at the sub-cell centres and weighted by each sub-cell's projected soli
 incident directions) comes from the reference; masks and projected solid angles for the errors
 are the reference file's. The sub-cells of a (grid, light) are computed once and shared by every
 model and material (:mod:`models.compare.cells`); a model reads them read-only.
+
+Delta lobes (``docs/models.md`` §3, "Delta lobes"): a model's Dirac lobes
+(:meth:`models.base.Model.delta_lobes`, :class:`models.base.DeltaLobe`) are no function the
+sub-cells can sample; each is added whole to the cell that holds its direction, as
+``value / Omega`` with ``Omega`` the cell's exact projected solid angle
+(:meth:`~goniometer.grids.slice_grid.SliceGrid.proj_solid_angle`, what the simulator divides by):
+the exact cell mean ``Int_cell f |cos theta_v| dw / Omega`` of the lobe. The cell is found by the
+tracer's own binning (:func:`~goniometer.grids.slice_grid.cell_index_fast` against
+:func:`~goniometer.grids.slice_grid.boundary_tables`, as the simulator's integrated first order
+bins a smooth mirror), so a direction on a cell border goes where the tracer puts the same
+direction. A lobe on the other side of the surface (or exactly at the horizon) adds nothing.
 """
 
 from __future__ import annotations
@@ -16,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from goniometer.run.results import SimulationResult, SliceData
-from goniometer.grids.slice_grid import SliceGrid, light_direction
+from goniometer.grids.slice_grid import SliceGrid, boundary_tables, cell_index_fast, light_direction
 from goniometer.stack import Stack
-from models.base import Model, ModelError, ModelFailure
+from models.base import DeltaLobe, Model, ModelError, ModelFailure, failure
 from models.compare.cells import cell_geometry
 
 SIDE_OF_GRID = {"reflection": "brdf", "transmission": "btdf"}
@@ -81,6 +92,8 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
             raise ModelFailure(model.name, f"produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
         cells = np.einsum("ijabc,ijab->cij", f, w, optimize=True) * inv
         out.append(cells)
+    for lobe, i, j, omega in delta_cells(model, grid, light, "delta_lobes", stack, (3,)):
+        out[0 if lobe.part == "top" else 1][:, i, j] += lobe.value / omega
     for se in (value.stderr_top, value.stderr_internal):
         if se is None:
             out.append(None)
@@ -91,6 +104,63 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
                                            f"l = {np.round(light, 6).tolist()}")
         out.append(np.sqrt(np.einsum("ijabc,ijab->cij", e**2, w**2, optimize=True)) * inv)
     return out[0], out[1], out[2], out[3]
+
+
+#: how far from 1 the length of a delta lobe's direction may be (it is binned as given, not normalised:
+#: normalising would move an exact mirror direction off a cell border by rounding)
+UNIT_TOLERANCE = 1e-6
+
+
+def delta_cells(model: Model, grid: SliceGrid, light: np.ndarray, method: str, stack: Stack,
+                shape: tuple[int, ...]) -> list[tuple[DeltaLobe, int, int, float]]:
+    """``model``'s delta lobes on ``grid``'s side for the light ``light`` (``method``:
+    ``"delta_lobes"`` or ``"delta_lobes_mueller"``, values of ``shape``), each with the cell
+    ``(i, j)`` that holds its direction and that cell's projected solid angle ``Omega > 0`` (module
+    docstring); lobes on the other side, at the horizon or in a cell of no projected solid angle
+    are left out. A hook that raises or returns something else than a list of :class:`DeltaLobe`
+    of unit, finite directions and finite real values of ``shape`` and a part ``"top"`` or
+    ``"internal"`` is the model's failure (:class:`ModelFailure`)."""
+    side = SIDE_OF_GRID[grid.side]
+    try:
+        lobes = list(getattr(model, method)(stack, light, side))
+    except Exception as e:  # noqa: BLE001 -- any failure of the model's own code is its failure
+        raise failure(model.name, method, e) from None
+    if not lobes:
+        return []
+    row_cos, col_cos, col_sin = boundary_tables(grid.parametrization, grid.n_theta, grid.n_phi)
+    omega = grid.proj_solid_angle(light)
+    out = []
+    for lobe in lobes:
+        lobe = _checked_lobe(model.name, method, lobe, shape)
+        v = lobe.v
+        i, j = cell_index_fast(grid.code, grid.transmission, light[0], light[1], light[2], v[0], v[1], v[2],
+                               grid.n_theta, grid.n_phi, row_cos, col_cos, col_sin)
+        if i >= 0 and omega[i, j] > 0.0:
+            out.append((lobe, int(i), int(j), float(omega[i, j])))
+    return out
+
+
+def _checked_lobe(name: str, method: str, lobe: object, shape: tuple[int, ...]) -> DeltaLobe:
+    """``lobe`` with its direction a float64 vector of unit length (to :data:`UNIT_TOLERANCE`) and its
+    value a float64 array of ``shape``; :class:`ModelFailure` (one line naming ``method``) otherwise."""
+    if not isinstance(lobe, DeltaLobe):
+        raise ModelFailure(name, f"{method} returned a {type(lobe).__name__}, not a DeltaLobe")
+    try:
+        v = np.asarray(lobe.v, dtype=np.float64)
+        value = np.asarray(lobe.value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelFailure(name, f"{method} returned a lobe whose direction or value is not real numbers") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or abs(float(np.linalg.norm(v)) - 1.0) > UNIT_TOLERANCE:
+        raise ModelFailure(name, f"{method} returned a lobe direction {np.round(v, 6).tolist()}, "
+                                 f"not a unit vector (3,)")
+    if value.shape != shape or not np.all(np.isfinite(value)):
+        raise ModelFailure(name, f"{method} returned a lobe value of shape {value.shape} (finite: "
+                                 f"{bool(np.all(np.isfinite(value)))}); expected finite values of shape {shape}")
+    if lobe.part not in ("top", "internal"):
+        raise ModelFailure(name, f"{method} returned a lobe of part {lobe.part!r}, not 'top' or 'internal'")
+    # binned as given; + 0.0 turns -0.0 into 0.0, so that a lobe at the pole has the azimuth 0 in the
+    # frames' conversion too (as in the binning, goniometer.grids.slice_grid.cell_index)
+    return DeltaLobe(v + 0.0, value, lobe.part)
 
 
 def integrate(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None
@@ -169,7 +239,15 @@ def integrate_mueller_slice(model: Model, stack: Stack, grid: SliceGrid, light: 
         raise ModelFailure(model.name, f"its {model.mueller_frames!r} frames are undefined at some sub-cell direction "
                                        f"for l = {np.round(light, 6).tolist()} (v parallel to l)")
     f = sp.reshape(w.shape + (3, 4, 4))
-    return np.einsum("ijabcxy,ijab->cijxy", f, w, optimize=True) * inv[None, :, :, None, None]
+    out = np.einsum("ijabcxy,ijab->cijxy", f, w, optimize=True) * inv[None, :, :, None, None]
+    for lobe, i, j, omega in delta_cells(model, grid, light, "delta_lobes_mueller", stack, (3, 4, 4)):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = to_file_frames(lobe.value[None], model.mueller_frames, light, lobe.v[None], phi_l_deg)[0]
+        if not np.all(np.isfinite(m)):
+            raise ModelFailure(model.name, f"its {model.mueller_frames!r} frames are undefined at the delta lobe "
+                                           f"{np.round(lobe.v, 6).tolist()} for l = {np.round(light, 6).tolist()}")
+        out[:, i, j] += m / omega
+    return out
 
 
 def integrate_mueller(model: Model, reference: SimulationResult, side: str, s: int = 5, stack: Stack | None = None

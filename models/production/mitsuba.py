@@ -282,6 +282,106 @@ class MitsubaBSDF:
         return out.reshape(shape + (3, 4, 4))
 
 
+    def delta_components(self, side: str = "brdf") -> list[int]:
+        """The components of the BSDF that are Dirac lobes on ``side``: those whose flags hold
+        ``DeltaReflection`` (``"brdf"``), or ``DeltaTransmission`` or ``Null`` (``"btdf"``: light
+        that passes straight through, ``thindielectric``'s transmission); ``eval`` gives them no
+        value (:meth:`delta_lobes`)."""
+        mi = mitsuba_module()
+        flag = (int(mi.BSDFFlags.DeltaReflection) if side == "brdf"
+                else int(mi.BSDFFlags.DeltaTransmission) | int(mi.BSDFFlags.Null))
+        return [c for c in range(self.bsdf.component_count()) if int(self.bsdf.flags(c)) & flag]
+
+    def delta_lobes(self, l: np.ndarray, side: str = "brdf") -> list[tuple[np.ndarray, np.ndarray]]:
+        """The Dirac lobes leaving on ``side`` for the light ``l``: ``(v, weight)`` per delta
+        component (:meth:`delta_components`), ``v`` its unit direction (:func:`exact_direction`),
+        ``weight`` (3,) RGB the fraction of the incident flux it carries: Mitsuba's ``sample`` in
+        importance mode with ``si.wi = l``, restricted to that component (its ``pdf`` is then 1 and
+        its weight ``f |cos theta_v| / pdf`` the lobe's reflectance or flux-based transmittance).
+        Components that sample nothing (``pdf = 0``, e.g. ``l_z <= 0``) or off the side give none."""
+        return [(v, w.reshape(3)) for v, w in self._sample_deltas(l, side, None)]
+
+    def delta_lobes_mueller(self, l: np.ndarray, wavelengths_nm: tuple[float, float, float],
+                            side: str = "brdf") -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`delta_lobes` of a BSDF loaded in a polarized variant: ``(v, M)``, ``M`` (3, 4, 4)
+        the Mueller matrix of the lobe's weight in Mitsuba's ``stokes_basis`` frames (those of
+        :meth:`eval_mueller`), channel ``c`` at ``wavelengths_nm[c]``."""
+        return self._sample_deltas(l, side, wavelengths_nm)
+
+    def _sample_deltas(self, l: np.ndarray, side: str, wavelengths_nm) -> list[tuple[np.ndarray, np.ndarray]]:
+        mi = mitsuba_module()
+        l = np.asarray(l, dtype=np.float64).reshape(3)
+        if l[2] <= 0.0:
+            return []
+        t = self._types
+        vectorised = self.variant in (VECTORISED, VECTORISED_POLARIZED)
+        polarized = wavelengths_nm is not None
+        out = []
+        for c in self.delta_components(side):
+            ctx = mi.BSDFContext(mi.TransportMode.Importance, mi.BSDFFlags.All, c)
+            if vectorised:
+                import drjit as dr
+                si = dr.zeros(t.SurfaceInteraction3f, 1)
+                si.wi = t.Vector3f([float(l[0])], [float(l[1])], [float(l[2])])
+                if polarized:
+                    lam = [float(x) for x in wavelengths_nm]
+                    si.wavelengths = t.UnpolarizedSpectrum(lam[0], lam[1], lam[2], lam[2])
+                bs, weight = self.bsdf.sample(ctx, si, t.Float([0.5]), t.Point2f([0.5], [0.5]))
+                wo = np.array([np.asarray(bs.wo[k], dtype=np.float64)[0] for k in range(3)])
+                pdf = float(np.asarray(bs.pdf, dtype=np.float64)[0])
+                if polarized:
+                    w = np.array([[[np.asarray(weight[i, j][ch], dtype=np.float64)[0] for j in range(4)]
+                                   for i in range(4)] for ch in range(3)])
+                else:
+                    w = np.array([np.asarray(weight[k], dtype=np.float64)[0] for k in range(3)])
+            else:
+                si = t.SurfaceInteraction3f()
+                si.wi = t.Vector3f(float(l[0]), float(l[1]), float(l[2]))
+                if polarized:
+                    lam = [float(x) for x in wavelengths_nm]
+                    si.wavelengths = t.UnpolarizedSpectrum(lam[0], lam[1], lam[2], lam[2])
+                bs, weight = self.bsdf.sample(ctx, si, 0.5, t.Point2f(0.5, 0.5))
+                wo = np.asarray(bs.wo, dtype=np.float64).reshape(3)
+                pdf = float(bs.pdf)
+                a = np.asarray(weight, dtype=np.float64)
+                w = np.moveaxis(a[:, :, :3], -1, 0) if polarized else a.reshape(3)
+            on_side = wo[2] > 0.0 if side == "brdf" else wo[2] < 0.0
+            if pdf > 0.0 and on_side and np.all(np.isfinite(w)) and np.any(w != 0.0):
+                out.append((exact_direction(l, wo), w))
+        return out
+
+
+#: how far a direction Mitsuba computes in single precision may lie from the double-precision
+#: direction it stands for (:func:`exact_direction`)
+SINGLE_PRECISION = 1e-5
+
+
+def exact_direction(l: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """The double-precision direction a smooth interface's lobe ``wo`` (single precision, from
+    Mitsuba) stands for, for the light ``l``: the mirror ``(-l_x, -l_y, l_z)`` when ``wo`` is it to
+    :data:`SINGLE_PRECISION` (the direction our tracer gives a smooth reflection, bit for bit), ``-l``
+    when ``wo`` is that (light passing straight through, ``thindielectric``'s transmission); a
+    lobe in the plane of incidence on the far side of the normal (a refraction) gets the azimuth
+    opposite ``l``'s exactly, ``v_xy = -l_xy |wo_xy| / |l_xy|``, and its own ``|v_z|``; a lobe along
+    the normal is ``(0, 0, +-1)``; any other is ``wo`` normalised. On a cell border, the double-
+    precision direction is binned where the tracer bins it (``docs/models.md`` §3, "Delta lobes")."""
+    l = np.asarray(l, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    wo = wo / np.linalg.norm(wo)
+    mirror = np.array([-l[0], -l[1], l[2]])
+    if np.max(np.abs(wo - mirror)) <= SINGLE_PRECISION:
+        return mirror + 0.0
+    if np.max(np.abs(wo + l)) <= SINGLE_PRECISION:
+        return -l + 0.0
+    q, r = math.hypot(wo[0], wo[1]), math.hypot(l[0], l[1])
+    if q <= SINGLE_PRECISION:
+        return np.array([0.0, 0.0, math.copysign(1.0, wo[2])])
+    if r > 0.0 and abs(l[0] * wo[1] - l[1] * wo[0]) <= SINGLE_PRECISION * r * q and l[0] * wo[0] + l[1] * wo[1] < 0.0:
+        k = q / r
+        return np.array([-l[0] * k, -l[1] * k, math.copysign(math.sqrt(max(0.0, 1.0 - q * q)), wo[2])]) + 0.0
+    return wo + 0.0
+
+
 def _rgb(values) -> dict:
     return {"type": "rgb", "value": [float(x) for x in values]}
 
