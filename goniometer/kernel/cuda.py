@@ -235,8 +235,10 @@ def kernel_source(height_correlated, film, polarized=None):
             """The scalar kernel (:func:`kernel_source`'s ``_trace`` gives the arguments)."""
             _trace(stack, run, tables, sizes, shared_hist, hist, acc_g, exit_cell, exit_w, None, None, None, None)
     else:
-        def _kernel(stack, run, tables, sizes, shared_hist, hist, acc_g, exit_cell, exit_w, polar, mhist, exit_m):
-            """The polarized kernel: each thread's path state in a local (4, 16) array."""
+        def _kernel(stack, run, tables, sizes, shared_hist, hist, acc_g, exit_cell, exit_w, mueller):
+            """The polarized kernel: ``mueller`` = ``(polar, mhist, exit_m)``, each thread's path state
+            in a local (4, 16) array."""
+            polar, mhist, exit_m = mueller
             pol = cuda.local.array((4, 16), float64)
             _trace(stack, run, tables, sizes, shared_hist, hist, acc_g, exit_cell, exit_w, polar, pol, mhist, exit_m)
     return _kernel
@@ -271,9 +273,9 @@ def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: in
     """The CUDA kernel's arguments for a batch of ``B`` chunks of ``run`` (a
     :class:`goniometer.kernel.tracer.Launch`) starting at ``first_chunk``: ``hist_cells`` numbers per
     slot's two histograms, ``exit_shape`` the per-path records' ``(B, n)`` (``n`` 0 but for a
-    tabulation). A polarized run (``run.polar`` not None) adds its initial path state, its Mueller
-    histograms (``hist_cells // (max_order + 2) * 32`` numbers per slot) and a tabulation's exits'
-    Mueller matrices ``exit_shape + (1, 16, 3)`` (:func:`kernel_source`). ``to_device`` (None: the
+    tabulation). A polarized run (``run.polar`` not None) adds one argument, the tuple of its
+    initial path state, its Mueller histograms (``hist_cells // (max_order + 2) * 32`` numbers per
+    slot) and a tabulation's exits' Mueller matrices ``exit_shape + (1, 16, 3)`` (:func:`kernel_source`). ``to_device`` (None: the
     arrays stay on the host, as the compile check types them) moves an array to the GPU. Returns
     ``(args, shared_hist, dynamic_shared_bytes)``."""
     dev = to_device if to_device is not None else (lambda a: a)
@@ -289,10 +291,11 @@ def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: in
             dev(np.full(exit_shape, -1, dtype=np.int64) if tabulate else np.zeros((B, 0), dtype=np.int64)),
             dev(np.zeros(exit_shape + (3,)) if tabulate else np.zeros((B, 0, 3))))
     if run.polar is not None:
+        # (a tuple: the simulator hands the CPU functions these arrays as they are)
         m_cells = hist_cells // ((run.max_order + 2) * 3) * _MUELLER_ROW
-        args += (keep(np.ascontiguousarray(run.polar, dtype=np.float64)),
-                 dev(np.zeros((B, 0 if tabulate else m_cells), dtype=np.int64)),
-                 dev(np.zeros((exit_shape if tabulate else (B, 0)) + (1, 16, 3))))
+        args += ((keep(np.ascontiguousarray(run.polar, dtype=np.float64)),
+                  keep(np.zeros((B, 0 if tabulate else m_cells), dtype=np.int64)),
+                  keep(np.zeros((exit_shape if tabulate else (B, 0)) + (1, 16, 3)))),)
     return args, shared_hist, hist_cells * 8 if shared_hist else 0
 
 
@@ -328,7 +331,12 @@ def trace_batch(run, first_chunk: int, sizes: np.ndarray, outs: tuple, exits: tu
         exit_cell[...] = ec.copy_to_host()
         exit_w[...] = ew.copy_to_host()
     if polarized:
-        _mueller_to_host(args[10], args[11], run.param == P_TABULATE, transmits, mueller)
+        _mueller_to_host(*args[9][1:], run.param == P_TABULATE, transmits, mueller)
+
+
+def _host(a) -> np.ndarray:
+    """A device array's copy on the host (the simulator's arrays are there already)."""
+    return a if isinstance(a, np.ndarray) else a.copy_to_host()
 
 
 def _mueller_to_host(mhist, exit_m, tabulate: bool, transmits: bool, mueller: tuple) -> None:
@@ -337,9 +345,9 @@ def _mueller_to_host(mhist, exit_m, tabulate: bool, transmits: bool, mueller: tu
     tabulation's per-path matrices into ``mbrdf`` (its ``mbtdf`` is empty)."""
     mbrdf, mbtdf = mueller
     if tabulate:
-        mbrdf[...] = exit_m.copy_to_host()
+        mbrdf[...] = _host(exit_m)
         return
-    m = mhist.copy_to_host().astype(np.float64) / FIXED_SCALE
+    m = _host(mhist).astype(np.float64) / FIXED_SCALE
     n = mbrdf[0].size
     mbrdf[...] = m[:, :n].reshape(mbrdf.shape)
     mbtdf[...] = m[:, n:].reshape(mbtdf.shape) if transmits else 0.0
