@@ -18,15 +18,18 @@ on first use without the other's code, with launch bounds (:func:`kernel_options
 at least 4 blocks per multiprocessor, so ptxas keeps a thread within 128 registers (25 %
 occupancy), 3 blocks for a stack with a thin film (168 registers). ``tests/goniometer/kernel/test_cuda_compile.py``
 checks without a GPU that every variant compiles for sm_80 and sm_90 without spilling
-(:mod:`goniometer.kernel.cuda_build`).
+(:mod:`goniometer.kernel.cuda_build`). Polarized light (``docs/polarization.md``) is a third flag:
+its variants keep each thread's Mueller state in a local (4, 16) array and deposit each exit's
+matrices into Mueller histograms (launch bounds: 2 blocks, 255 registers).
 
 Sums are 64-bit integers: a weight ``w`` adds ``round(w * 2^32)`` (:func:`fixed_point`) with
 integer atomics, which commute, so a run's sums do not depend on the order in which threads
 finish, nor on the block size: they are the same bits on every launch on the same device and
 compiler. A block first sums into its shared memory (the energies always; the histograms when the
 grid's two histograms fit, :data:`SHARED_BYTES`), then adds what it holds to global memory;
-otherwise it adds to global memory directly. The integers are turned into float64 at the end
-(``/ 2^32``).
+otherwise it adds to global memory directly (always, for the Mueller histograms; their elements
+are signed, in the same fixed point, ``docs/gpu.md``). The integers are turned into float64 at the
+end (``/ 2^32``).
 
 This module imports ``numba.cuda``; :func:`goniometer.kernel.tracer.check_device` says why a run cannot
 use it (no numba-cuda, no GPU) before anything imports it. Under numba-cuda's simulator
@@ -275,9 +278,9 @@ def kernel_args(run, first_chunk: int, sizes: np.ndarray, B: int, hist_cells: in
     slot's two histograms, ``exit_shape`` the per-path records' ``(B, n)`` (``n`` 0 but for a
     tabulation). A polarized run (``run.polar`` not None) adds one argument, the tuple of its
     initial path state, its Mueller histograms (``hist_cells // (max_order + 2) * 32`` numbers per
-    slot) and a tabulation's exits' Mueller matrices ``exit_shape + (1, 16, 3)`` (:func:`kernel_source`). ``to_device`` (None: the
-    arrays stay on the host, as the compile check types them) moves an array to the GPU. Returns
-    ``(args, shared_hist, dynamic_shared_bytes)``."""
+    slot) and a tabulation's exits' Mueller matrices ``exit_shape + (1, 16, 3)``
+    (:func:`kernel_source`). ``to_device`` (None: the arrays stay on the host, as the compile check
+    types them) moves an array to the GPU. Returns ``(args, shared_hist, dynamic_shared_bytes)``."""
     dev = to_device if to_device is not None else (lambda a: a)
     keep = dev if not config.ENABLE_CUDASIM else (lambda a: a)   # the simulator's CPU functions read host arrays
     stack = type(run.stack_args)(*(keep(np.ascontiguousarray(x)) if isinstance(x, np.ndarray) else x

@@ -217,7 +217,8 @@ def occupancy(registers: int, shared_bytes: int, cc: tuple[int, int], block: int
     return min(limits) * block / THREADS_PER_SM
 
 
-#: the kernel's variants by name (``(height_correlated, film, polarized)``, :func:`goniometer.kernel.cuda.kernel_source`)
+#: the kernel's variants by name (``(height_correlated, film, polarized)``,
+#: :func:`goniometer.kernel.cuda.kernel_source`)
 VARIANT_NAMES = {(None, None, None): "separable", (True, None, None): "height-correlated", (None, True, None): "film",
                  (True, True, None): "height-correlated film", (None, None, True): "separable polarized",
                  (True, None, True): "height-correlated polarized", (None, True, True): "film polarized",
