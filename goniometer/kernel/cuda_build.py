@@ -41,6 +41,8 @@ REGISTERS_PER_SM = 65536
 THREADS_PER_SM = 2048
 BLOCKS_PER_SM = 32
 REGISTER_UNIT = 256
+#: the most registers a thread may have (compute capabilities 8.0 and 9.0)
+MAX_REGISTERS_PER_THREAD = 255
 WARP = 32
 SHARED_PER_SM = {(8, 0): 164 * 1024, (9, 0): 228 * 1024}
 #: shared memory the CUDA runtime reserves per block (compute capability 8.0 and later)
@@ -86,9 +88,9 @@ def launch_signatures() -> list[tuple[tuple, tuple]]:
     """``(variant, argument types)`` of every kind of launch the simulator makes
     (:func:`goniometer.kernel.cuda.trace_batch`): slices on the classic, half and RGL grids, with
     separable and height-correlated masking, stacks with and without films, transmitting and
-    reflecting, order 1 integrated, and a tabulation; ``variant`` the kernel's
-    ``(height_correlated, film)``, the types as :func:`numba.typeof` gives them; the distinct
-    pairs, in a fixed order."""
+    reflecting, order 1 integrated (scalar light), and a tabulation, each with scalar and
+    polarized light; ``variant`` the kernel's ``(height_correlated, film, polarized)``, the types
+    as :func:`numba.typeof` gives them; the distinct pairs, in a fixed order."""
     from numba import typeof
 
     from goniometer.grids.rgl import RGLGrid
@@ -110,30 +112,33 @@ def launch_signatures() -> list[tuple[tuple, tuple]]:
     for stack in stacks:
         p = pack(stack)
         for hc in (False, True):
-            launches = [tracer.prepare(p, (0.3, 0.0, 0.95), 100, 64, 1, 0, param, 4, 8,
-                                       boundary_tables("classic" if param == CLASSIC else "half", 4, 8), 3,
-                                       _CAP, skip_first=skip, height_correlated=hc, device="cuda")
-                        for param, skip in ((CLASSIC, False), (HALF, False), (CLASSIC, True))]
-            launches.append(tracer.prepare(p, (0.3, 0.0, 0.95), 100, 64, 1, 0, RGL, rgl.n, rgl.n,
-                                           rgl.kernel_tables(0), 3, _CAP, height_correlated=hc,
-                                           device="cuda"))
-            launches.append(tracer.prepare(p, (0.0, 0.0, 1.0), 100, 64, 1, 9, tracer.P_TABULATE, 1, 1,
-                                           boundary_tables("classic", 1, 1), 1, _CAP, tabulate=True,
-                                           height_correlated=hc, device="cuda"))
-            for run in launches:
-                B = 2
-                tab = run.param == tracer.P_TABULATE
-                cells = 2 * run.n_theta * run.n_phi * (run.max_order + 2) * 3
-                args, _, _ = cuda.kernel_args(run, 0, run.chunk_sizes(0, B), B, cells,
-                                              (B, run.chunk_rays) if tab else (B, 0))
-                key = (run.variant.height_correlated, run.variant.film)
-                sig = tuple(typeof(a) for a in args)
-                seen.setdefault(str((key, sig)), (key, sig))
+            for pol in (False, True):
+                def prepared(light, stream, param, n_theta, n_phi, tables, max_order, **kw):
+                    return tracer.prepare(p, light, 100, 64, 1, stream, param, n_theta, n_phi, tables, max_order,
+                                          _CAP, height_correlated=hc, device="cuda", polarized=pol, **kw)
+
+                launches = [prepared((0.3, 0.0, 0.95), 0, param, 4, 8,
+                                     boundary_tables("classic" if param == CLASSIC else "half", 4, 8), 3,
+                                     skip_first=skip)
+                            for param, skip in ((CLASSIC, False), (HALF, False), (CLASSIC, True))
+                            if not (pol and skip)]   # (order 1 integrated is for scalar runs)
+                launches.append(prepared((0.3, 0.0, 0.95), 0, RGL, rgl.n, rgl.n, rgl.kernel_tables(0), 3))
+                launches.append(prepared((0.0, 0.0, 1.0), 9, tracer.P_TABULATE, 1, 1, boundary_tables("classic", 1, 1),
+                                         1, tabulate=True))
+                for run in launches:
+                    B = 2
+                    tab = run.param == tracer.P_TABULATE
+                    cells = 2 * run.n_theta * run.n_phi * (run.max_order + 2) * 3
+                    args, _, _ = cuda.kernel_args(run, 0, run.chunk_sizes(0, B), B, cells,
+                                                  (B, run.chunk_rays) if tab else (B, 0))
+                    key = (run.variant.height_correlated, run.variant.film, True if pol else None)
+                    sig = tuple(typeof(a) for a in args)
+                    seen.setdefault(str((key, sig)), (key, sig))
     return list(seen.values())
 
 
 def compile_ptx(cc: tuple[int, int], variant: tuple, signature: tuple) -> str:
-    """The PTX of the CUDA kernel's ``variant`` (``(height_correlated, film)``) for argument types
+    """The PTX of the CUDA kernel's ``variant`` (``(height_correlated, film, polarized)``) for argument types
     ``signature`` and compute capability ``cc``: :data:`BASE_CC`'s (compiled once a process) with
     ``cc``'s ``.target`` (module docstring). Raises :class:`BuildError` if it does not compile."""
     ptx = _compiled_ptx(BASE_CC, variant, signature)
@@ -154,7 +159,7 @@ def _compiled_ptx(cc: tuple[int, int], variant: tuple, signature: tuple) -> str:
     try:
         with _compute_capability(cc):
             ptx, _ = cuda.compile(kernel.kernel_source(*variant), signature, device=False, abi="numba", cc=cc,
-                                  output="ptx", **kernel.kernel_options(variant[1]))
+                                  output="ptx", **kernel.kernel_options(*variant[1:]))
     except Exception as e:   # numba's typing and lowering errors, NVVM's
         raise BuildError(f"the CUDA kernel does not compile for sm_{cc[0]}{cc[1]}: {type(e).__name__}: {e}") from e
     return ptx
@@ -212,9 +217,12 @@ def occupancy(registers: int, shared_bytes: int, cc: tuple[int, int], block: int
     return min(limits) * block / THREADS_PER_SM
 
 
-#: the kernel's variants by name (``(height_correlated, film)``, :func:`goniometer.kernel.cuda.kernel_source`)
-VARIANT_NAMES = {(None, None): "separable", (True, None): "height-correlated", (None, True): "film",
-                 (True, True): "height-correlated film"}
+#: the kernel's variants by name (``(height_correlated, film, polarized)``,
+#: :func:`goniometer.kernel.cuda.kernel_source`)
+VARIANT_NAMES = {(None, None, None): "separable", (True, None, None): "height-correlated", (None, True, None): "film",
+                 (True, True, None): "height-correlated film", (None, None, True): "separable polarized",
+                 (True, None, True): "height-correlated polarized", (None, True, True): "film polarized",
+                 (True, True, True): "height-correlated film polarized"}
 
 
 def variant_report(cc: tuple[int, int], variant: tuple, signature: tuple, ptxas: str | None = None) -> dict:
@@ -222,33 +230,34 @@ def variant_report(cc: tuple[int, int], variant: tuple, signature: tuple, ptxas:
     variant's launch bounds, :func:`goniometer.kernel.cuda.kernel_options`) and ``max_registers``
     (the registers the launch bounds allow a thread)."""
     from goniometer.kernel.cuda import kernel_options
-    threads, blocks = kernel_options(variant[1])["launch_bounds"]
+    threads, blocks = kernel_options(*variant[1:])["launch_bounds"]
     r = ptxas_report(compile_ptx(cc, variant, signature), cc, ptxas)
-    r["max_registers"] = REGISTERS_PER_SM // (threads * blocks)
+    r["max_registers"] = min(MAX_REGISTERS_PER_THREAD, REGISTERS_PER_SM // (threads * blocks))
     r["occupancy"] = occupancy(r["registers"], r["shared_bytes"], cc, threads)
     return r
 
 
-def build_report(architectures=ARCHITECTURES, ptxas: str | None = None) -> dict:
+def build_report(architectures=ARCHITECTURES, ptxas: str | None = None, variants=None) -> dict:
     """Per architecture (``"sm_80"``, ``"sm_90"``): ``{"registers", "spill_bytes", "shared_bytes",
     "occupancy"}`` of the kernel over every launch signature (:func:`launch_signatures`): the most
     registers, spilled bytes and static shared memory, the least occupancy; and ``"variants"``,
-    each variant's :func:`variant_report` by name (:data:`VARIANT_NAMES`). Occupancy counts the
+    each variant's :func:`variant_report` by name (:data:`VARIANT_NAMES`). ``variants``: the keys
+    (``(height_correlated, film, polarized)``) to compile, or None for all. Occupancy counts the
     static shared memory; a launch whose histograms sit in shared memory adds up to
     :data:`goniometer.kernel.cuda.SHARED_BYTES` of dynamic shared memory, within which the
     launch bounds' blocks still fit."""
-    sigs = launch_signatures()
+    sigs = [(key, sig) for key, sig in launch_signatures() if variants is None or key in variants]
     report = {}
     for cc in architectures:
-        variants = {}
+        per_variant = {}
         for key, sig in sigs:
             name = VARIANT_NAMES[key]
-            while name in variants:   # (several argument types of one variant)
+            while name in per_variant:   # (several argument types of one variant)
                 name += "'"
-            variants[name] = variant_report(cc, key, sig, ptxas)
-        v = list(variants.values())
+            per_variant[name] = variant_report(cc, key, sig, ptxas)
+        v = list(per_variant.values())
         report[f"sm_{cc[0]}{cc[1]}"] = {
             "registers": max(x["registers"] for x in v), "spill_bytes": max(x["spill_bytes"] for x in v),
             "shared_bytes": max(x["shared_bytes"] for x in v), "occupancy": min(x["occupancy"] for x in v),
-            "variants": variants}
+            "variants": per_variant}
     return report

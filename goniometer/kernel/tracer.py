@@ -225,7 +225,7 @@ def launch(run: Launch, first_chunk: int, outs: tuple, exits: tuple | None = Non
     if run.device == "cuda":
         check_device(run.device)
         from goniometer.kernel import cuda
-        cuda.trace_batch(run, first_chunk, sizes, outs, exits)
+        cuda.trace_batch(run, first_chunk, sizes, outs, exits, mueller if run.polar is not None else None)
         return
     kernel = _trace_batch if parallel else _trace_batch_serial
     kernel(run.stack_args, run.scalars(first_chunk), run.tables, sizes, *run.variant,

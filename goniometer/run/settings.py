@@ -159,9 +159,6 @@ class SimulationSettings(_Channels):
             raise SettingsError(f"spectral: {self.spectral!r} is not a boolean (true or false)")
         if not isinstance(self.polarized, (bool, np.bool_)):
             raise SettingsError(f"polarized: {self.polarized!r} is not a boolean (true or false)")
-        if self.polarized and self.device != "cpu":
-            raise SettingsError(f"polarized: the {self.device} kernel traces scalar light only; a polarized run traces "
-                                f"on the cpu (docs/polarization.md section 3)")
         if self.polarized and self.first_order == "integrated":
             raise SettingsError("first_order: integrated is for scalar runs (it integrates the intensity of order 1, "
                                 "not its Mueller matrix); a polarized run traces it")

@@ -286,6 +286,7 @@ def test_gonio_simulate_polarized_and_info(tmp_path, capsys):
     assert "\n" not in err and "first_order: integrated is for scalar runs" in err, err
 
 
-def test_a_polarized_run_on_cuda_is_refused_in_one_line():
-    with pytest.raises(SettingsError, match="polarized: the cuda kernel traces scalar light only"):
-        g.SimulationSettings(polarized=True, device="cuda")
+def test_a_polarized_run_on_cuda_is_accepted():
+    """The CUDA kernel traces polarized light (tests/goniometer/kernel/test_cuda.py runs it)."""
+    s = g.SimulationSettings(polarized=True, device="cuda")
+    assert s.to_dict()["polarized"] and s.to_dict()["device"] == "cuda"

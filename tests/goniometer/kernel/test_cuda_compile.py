@@ -1,7 +1,10 @@
 """The CUDA kernel compiled for GPUs without a GPU (``docs/gpu.md``, compiled in CI): every variant
 the simulator launches, for sm_80 and sm_90, through NVVM and ``ptxas -v``
-(``goniometer.kernel.cuda_build``): no compile error, no spilled register, within its launch
-bounds (25 % occupancy without a film); the report's parser and the occupancy formula."""
+(``goniometer.kernel.cuda_build``): no compile error, no spilled register (but the polarized film
+variants' few bytes on sm_80), within its launch bounds (25 % occupancy for scalar light without a
+film); the report's parser and the occupancy formula. Of the polarized variants the regular suite
+compiles the one with every polarized code path (height-correlated, a film), ``make test-slow`` the
+other three."""
 
 from __future__ import annotations
 
@@ -21,30 +24,54 @@ needs_toolkit = pytest.mark.skipif(
     "ptxas is not found: the CUDA toolkit wheels are not installed (pip install 'numba-cuda[cu12]')")
 
 
+#: the variants the regular suite compiles: the scalar ones and the polarized one with every code path
+REGULAR = {k for k in cuda_build.VARIANT_NAMES if k[2] is None} | {(True, True, True)}
+#: spilled bytes a variant may have: none, but ptxas spills 32 bytes a thread of the polarized film
+#: variants for sm_80 at 255 registers (docs/gpu.md)
+SPILL_ALLOWED = {("sm_80", "film polarized"): 64, ("sm_80", "height-correlated film polarized"): 64}
+
+
 @pytest.fixture(scope="module")
 def report():
-    return cuda_build.build_report(ptxas=PTXAS)
+    return cuda_build.build_report(ptxas=PTXAS, variants=REGULAR)
+
+
+def _check_variants(r: dict, arch: str) -> None:
+    for name, v in r["variants"].items():
+        assert v["spill_bytes"] <= SPILL_ALLOWED.get((arch, name), 0), f"{arch} {name}: {v}"
+        assert 0 < v["registers"] <= v["max_registers"], f"{arch} {name}: {v}"
+        # scalar light without a film: 128 registers, four blocks of 128 threads, a quarter of the
+        # threads resident; polarized light: 255 registers, two blocks, an eighth
+        if "film" not in name and "polarized" not in name:
+            assert v["max_registers"] == 128 and v["occupancy"] >= 0.25, f"{arch} {name}: {v}"
+        if "polarized" in name:
+            assert v["max_registers"] == 255 and v["occupancy"] >= 0.125, f"{arch} {name}: {v}"
 
 
 @needs_toolkit
 @pytest.mark.parametrize("arch", ["sm_80", "sm_90"])
 def test_every_variant_compiles_without_spilling(report, arch):
     r = report[arch]
-    assert set(r["variants"]) == set(cuda_build.VARIANT_NAMES.values()), r["variants"].keys()
-    for name, v in r["variants"].items():
-        assert v["spill_bytes"] == 0, f"{arch} {name}: {v}"
-        assert 0 < v["registers"] <= v["max_registers"], f"{arch} {name}: {v}"
-        # without a film: 128 registers, four blocks of 128 threads, a quarter of the threads resident
-        if "film" not in name:
-            assert v["max_registers"] == 128 and v["occupancy"] >= 0.25, f"{arch} {name}: {v}"
-    assert r["spill_bytes"] == 0 and r["registers"] == max(v["registers"] for v in r["variants"].values())
+    assert set(r["variants"]) == {cuda_build.VARIANT_NAMES[k] for k in REGULAR}, r["variants"].keys()
+    _check_variants(r, arch)
+    assert r["registers"] == max(v["registers"] for v in r["variants"].values())
+
+
+@needs_toolkit
+@pytest.mark.slow
+def test_the_other_polarized_variants_compile():
+    others = set(cuda_build.VARIANT_NAMES) - REGULAR
+    rep = cuda_build.build_report(ptxas=PTXAS, variants=others)
+    for arch, r in rep.items():
+        assert set(r["variants"]) == {cuda_build.VARIANT_NAMES[k] for k in others}, r["variants"].keys()
+        _check_variants(r, arch)
 
 
 @needs_toolkit
 def test_the_check_sees_spills():
     """The same report, of the same PTX, when its launch bounds leave 64 registers a thread
     (eight blocks of 128 threads): spills."""
-    (key, sig), = [(k, s) for k, s in cuda_build.launch_signatures() if k == (None, None)]
+    (key, sig), = [(k, s) for k, s in cuda_build.launch_signatures() if k == (None, None, None)]
     ptx = cuda_build.compile_ptx((9, 0), key, sig)
     assert ".minnctapersm 4" in ptx and cuda_build.ptxas_report(ptx, (9, 0), PTXAS)["spill_bytes"] == 0
     low = cuda_build.ptxas_report(ptx.replace(".minnctapersm 4", ".minnctapersm 8"), (9, 0), PTXAS)
@@ -93,7 +120,7 @@ def test_nvvm_gives_each_architecture_the_same_ptx():
     def names_out(ptx: str) -> str:
         return re.sub(r"_cudapy_smem_\d+", "S", re.sub(r"_Z\w+", "N", ptx))
 
-    (key, sig), = [(k, s) for k, s in cuda_build.launch_signatures() if k == (True, True)]
+    (key, sig), = [(k, s) for k, s in cuda_build.launch_signatures() if k == (True, True, None)]
     native = cuda_build._compiled_ptx((9, 0), key, sig)
     assert ".target sm_90" in native
     assert names_out(native) == names_out(cuda_build.compile_ptx((9, 0), key, sig))
