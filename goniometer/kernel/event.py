@@ -528,7 +528,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             # divided by the probability of its choice, the base's or a collision's
             # depolarization, or nothing (an index-matched interface); the weights become the
             # matrices' [0, 0], their change booked as absorbed (signed). The matrices themselves
-            # are updated with masking and roulette below
+            # are updated after this loop, with masking and roulette (mueller_pass)
             fresnel = plain
             if aniso is None:
                 gmx = mx
