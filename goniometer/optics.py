@@ -475,14 +475,6 @@ def mueller_terms(x: complex, y: complex, factor: float):
 
 
 @numba.njit(cache=True, error_model='numpy', inline='always')
-def _terms_of(xr: float, xi: float, yr: float, yi: float):
-    """:func:`mueller_terms` of ``diag(x, y)`` given as real and imaginary parts (factor 1)."""
-    xx = xr * xr + xi * xi
-    yy = yr * yr + yi * yi
-    return 0.5 * (xx + yy), 0.5 * (xx - yy), xr * yr + xi * yi, xi * yr - xr * yi
-
-
-@numba.njit(cache=True, error_model='numpy', inline='always')
 def fresnel_dielectric_mueller(cos_i: float, eta: float):
     """The Fresnel event of a dielectric interface, relative index ``eta`` (far side / arrival side),
     light arriving at ``cos_i`` in (0, 1]: ``(ra, rb, rc, rs, ta, tb, tc, ts)``, the reflection's and
@@ -532,23 +524,29 @@ def fresnel_conductor_mueller(cos_i: float, eta: float, kappa: float):
     inv = s2 / (e2 * e2 + m2 * m2)
     zr = 1.0 - e2 * inv                     # z = 1 - sin^2 / n^2 = zr + i zi, zi <= 0
     zi = -m2 * inv
-    mz = math.sqrt(zr * zr + zi * zi)
-    sr = math.sqrt(max(0.5 * (mz + zr), 0.0))
-    si = math.sqrt(max(0.5 * (mz - zr), 0.0))   # cos_t = sr - i si
+    # cos_t = sr - i si: the larger part from sqrt((|z| + |zr|) / 2), the other as |zi| / (2 that) (no
+    # cancellation)
+    t = math.sqrt(0.5 * (math.sqrt(zr * zr + zi * zi) + abs(zr)))
+    o = -zi / (2.0 * max(t, 1e-300))
+    sr = t if zr >= 0.0 else o
+    si = o if zr >= 0.0 else t
     # n cos_t = u - i w
     u = eta * sr - kappa * si
     w = eta * si + kappa * sr
-    # r_s = (c - u + i w) / (c + u - i w)
-    ar, ai, br, bi = cos_i - u, w, cos_i + u, -w
-    d = 1.0 / (br * br + bi * bi)
-    rsr = (ar * br + ai * bi) * d
-    rsi = (ai * br - ar * bi) * d
-    # r_p = (n c - cos_t) / (n c + cos_t), n c = eta c - i kappa c
-    ar, ai, br, bi = eta * cos_i - sr, si - kappa * cos_i, eta * cos_i + sr, -kappa * cos_i - si
-    d = 1.0 / (br * br + bi * bi)
-    rpr = (ar * br + ai * bi) * d
-    rpi = (ai * br - ar * bi) * d
-    return _terms_of(rsr, rsi, rpr, rpi)
+    # r_s = N_s / D_s = (c - u + i w) / (c + u - i w); r_p = N_p / D_p = (n c - cos_t) / (n c + cos_t),
+    # n c = eta c - i kappa c; |r|^2 = |N|^2 / |D|^2 and r_s conj(r_p) = N_s conj(N_p) / (D_s conj(D_p))
+    nsr, nsi, dsr, dsi = cos_i - u, w, cos_i + u, -w
+    npr, npi, dpr, dpi = eta * cos_i - sr, si - kappa * cos_i, eta * cos_i + sr, -kappa * cos_i - si
+    ds2 = dsr * dsr + dsi * dsi
+    dp2 = dpr * dpr + dpi * dpi
+    rs2 = (nsr * nsr + nsi * nsi) / ds2
+    rp2 = (npr * npr + npi * npi) / dp2
+    xr = nsr * npr + nsi * npi          # N_s conj(N_p)
+    xi = nsi * npr - nsr * npi
+    yr = dsr * dpr + dsi * dpi          # D_s conj(D_p)
+    yi = dsi * dpr - dsr * dpi
+    q = 1.0 / (ds2 * dp2)
+    return 0.5 * (rs2 + rp2), 0.5 * (rs2 - rp2), (xr * yr + xi * yi) * q, (xi * yr - xr * yi) * q
 
 
 @numba.njit(cache=True, error_model='numpy')

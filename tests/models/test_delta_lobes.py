@@ -16,7 +16,7 @@ from goniometer.cli import main
 from goniometer.files import slices as store
 from goniometer.grids.slice_grid import SliceGrid, light_direction
 from goniometer.stack import Interface, Stack
-from goniometer.testing.statistics import assert_z_close
+from goniometer.testing.statistics import Z_TOL, assert_z_close
 from models import registry
 from models.base import DeltaLobe, Model, ModelFailure, ModelValue
 from models.compare.integrate import integrate, integrate_mueller, integrate_slice
@@ -179,15 +179,17 @@ def test_gonio_evaluate_judges_the_smooth_dielectric(files, capsys):
     d = json.loads(capsys.readouterr().out)
     assert d["side"] == "btdf" and d["failed"] == {}
     e, w = d["models"][spec]["total"], d["models"][wrong]["total"]
-    assert e["rmse_mean"] <= 1.5 * e["noise_floor_mean"], e
-    assert w["rmse_mean"] > 3.0 * w["noise_floor_mean"], w
+    # the lobes land in a cell or two per direction: the RMSE over the noise floor is then about one
+    # cell's |z|, judged at the suite's false-alarm rate (Z_TOL), not at a fixed multiple
+    assert e["rmse_mean"] <= Z_TOL * e["noise_floor_mean"], e
+    assert w["rmse_mean"] > 10.0 * Z_TOL * w["noise_floor_mean"], w
     assert "delta lobes (components 0, 1) are sampled by Mitsuba" in d["approximations"][spec]
     m = d["mueller"][spec]
     assert "delta lobes sampled by Mitsuba" in m["note"]
     rmse, noise = np.array(m["mueller_rmse"]), np.array(m["mueller_noise"])
     big = noise > 1e-6 * noise.max()          # the elements a dielectric leaves 0 are 0 to rounding on both sides
     assert np.count_nonzero(big) == 6 * 3     # a refraction's M00 M01 M10 M11 M22 M33 (no retardance)
-    assert np.all(rmse[big] <= 1.5 * noise[big]), rmse / np.maximum(noise, 1e-300)
+    assert np.all(rmse[big] <= Z_TOL * noise[big]), rmse / np.maximum(noise, 1e-300)
 
 
 class _Lobes(Model):

@@ -28,11 +28,11 @@ def _step_args(walks: bool, film: bool) -> tuple:
     """Arguments selecting a coated metal's specialisation of the step: separable masking, slices,
     no Lambertian base, a conductor whose blue channel shares the green one's index, isotropic;
     with ``walks``: multiple-scattering interfaces, a scattering medium and height-correlated
-    masking; with ``film``: filmed interfaces (their Airy terms, docs/kernel.md)."""
+    masking; with ``film``: filmed interfaces (their Airy terms, docs/kernel.md); scalar light."""
     flag = True if walks else None
     return (np.zeros(N_FIELDS * LANES), np.zeros(400), 16, 2, False, 1, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
             10000, 0.5, 0.0, 0.8, np.uint64(1), 0, 5, flag, None, flag, None, True, None, True, None, flag,
-            True if film else None)
+            True if film else None, None)
 
 
 @pytest.mark.skipif(not _host_has("avx2"), reason="the packed-instruction check is for x86-64 CPUs with AVX2 or AVX-512")
