@@ -81,13 +81,15 @@ def check_device(device: str, threads: int | None = None) -> None:
         raise DeviceError("device: cuda: no CUDA GPU is visible (numba.cuda.is_available() is False)")
 
 
-def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> Variant:
+def kernel_flags(packed: PackedStack, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO,
+                 polarized: bool = False) -> Variant:
     """The kernel's :class:`~goniometer.kernel.variants.Variant` for a packed stack
     (:func:`goniometer.kernel.variants.variant_flags` of the stack's facts). ``kernel``:
     ``KERNEL_AUTO`` (the lane kernel), ``KERNEL_LANES`` or ``KERNEL_PATHS`` (the per-path kernel,
     :mod:`goniometer.kernel.paths`: the second implementation the tests check the lane kernel
-    against, ``docs/kernel.md``). Two runs with equal variants run the same compiled kernel."""
-    return variant_flags(stack_facts(packed), height_correlated, tabulate, kernel)
+    against, ``docs/kernel.md``); ``polarized``: a polarized run's. Two runs with equal variants
+    (and light) run the same compiled kernel."""
+    return variant_flags(stack_facts(packed), height_correlated, tabulate, kernel, polarized)
 
 
 # ---------------------------------------------------------------------- chunk arithmetic
@@ -184,7 +186,7 @@ def prepare(packed: PackedStack, light, n_rays: int, chunk_rays: int, seed: int,
     if device != "cpu" and kernel != KERNEL_AUTO:
         raise ValueError(f"kernel: a {device} launch has one kernel (KERNEL_AUTO), not {kernel!r}")
     facts = stack_facts(packed)
-    variant = variant_flags(facts, height_correlated, tabulate, kernel)
+    variant = variant_flags(facts, height_correlated, tabulate, kernel, polarized)
     polar = None
     if polarized:
         from goniometer import optics

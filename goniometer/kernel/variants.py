@@ -104,10 +104,12 @@ class Variant(NamedTuple):
     film: bool | None
 
 
-def variant_flags(facts: StackFacts, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO) -> Variant:
+def variant_flags(facts: StackFacts, height_correlated: bool, tabulate: bool, kernel: int = KERNEL_AUTO,
+                  polarized: bool = False) -> Variant:
     """The :class:`Variant` of a stack. ``kernel``: ``KERNEL_AUTO`` (the lane kernel),
     ``KERNEL_LANES`` or ``KERNEL_PATHS`` (``lanes`` None: the per-path kernel, whose variants are
-    the masking's and the films')."""
+    the masking's and the films'). ``polarized``: a polarized run's variant (the lane kernel's is
+    general in anisotropy and conductor channels, as a height-correlated one)."""
     if kernel not in (KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS):
         raise ValueError(f"kernel: {kernel!r} is not one of KERNEL_AUTO, KERNEL_LANES, KERNEL_PATHS")
     f = facts
@@ -121,9 +123,10 @@ def variant_flags(facts: StackFacts, height_correlated: bool, tabulate: bool, ke
     if kernel == KERNEL_PATHS:
         return Variant(None, flag(height_correlated), None, None, None, None, None, None, None, None, flag(f.film))
     aniso, g_is_r, b_is_g = f.anisotropic, f.g_is_r, f.b_is_g
-    if height_correlated:
-        # the rarer masking gets fewer, more general variants (each is a compile of its own): the
-        # tangent-frame rotation (exact for an isotropic stack) and three conductor channels
+    if height_correlated or polarized:
+        # the rarer masking and polarized light get fewer, more general variants (each is a compile
+        # of its own): the tangent-frame rotation (exact for an isotropic stack) and three conductor
+        # channels
         aniso = True
         g_is_r = b_is_g = False
     return Variant(True, flag(height_correlated), flag(tabulate), flag(f.scattering), flag(f.lambertian),

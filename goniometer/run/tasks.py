@@ -32,7 +32,8 @@ def run_variant(stack: Stack, settings: SimulationSettings) -> tuple:
     if settings.spectral:
         from goniometer.run.launches import launch_stacks
         return tuple(sorted({run_variant(st, s) for _, st, s in launch_stacks(stack, settings)}, key=repr))
-    flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False)
+    flags = tracer.kernel_flags(pack(stack), settings.masking == "height-correlated", False,
+                                polarized=settings.polarized)
     key = (flags, settings.parametrization, settings.first_order)
     key = key if settings.device == "cpu" else key + (settings.device,)
     return key + ("polarized",) if settings.polarized else key
