@@ -246,7 +246,8 @@ def lane_plane(kx, ky, kz, fx, fy, fz, mx, my, mz):
 def lane_coefficients(lamb, coll, fresnel, rho, a, b, c, s, f):
     """One channel's event as the six numbers ``(A0, A1, B, C, S, F)`` of the matrix ``F [[A0, B, 0,
     0], [B, A1, 0, 0], [0, 0, C, S], [0, 0, -S, C]]``: the Lambertian base (albedo ``rho``) and a
-    Henyey-Greenstein collision depolarize (``A0`` the albedo, the rest 0), a Fresnel event
+    Henyey-Greenstein collision depolarize (``A0`` the base's albedo, or 1: a collision's albedo is
+    in its traversal's factor; the rest 0), a Fresnel event
     ``(a, b, c, s)`` divided by its choice's probability (``f`` = 1 / probability), otherwise (an
     index-matched interface) the identity."""
     d = lamb or coll
