@@ -219,7 +219,7 @@ def renew(S, ckey, n_rays, lx, ly, lz, tabulate, r_new, e_new, polar):
                 qy = polar[3, 1]
                 qz = polar[3, 2]
             else:
-                qx, qy, qz = polarized.lane_frame(x, y, z)
+                qx, qy, qz = polarized.beam_frame(x, y, z)
             S[F_FRAME * LN + i] = qx if ended else S[F_FRAME * LN + i]
             S[(F_FRAME + 1) * LN + i] = qy if ended else S[(F_FRAME + 1) * LN + i]
             S[(F_FRAME + 2) * LN + i] = qz if ended else S[(F_FRAME + 2) * LN + i]
@@ -679,7 +679,7 @@ def step(S, table, off, n_if, transmit_base, base_k, ce0, ce1, ce2, ck0, ck1, ck
             S[(F_EVENT + K_NEW) * LN + i] = 1.0 if nw else 0.0
             # the frame: the plane of incidence's s after a Fresnel event, a new one after a
             # depolarization, else unchanged
-            dpx, dpy, dpz = polarized.lane_frame(nx, ny, nz)
+            dpx, dpy, dpz = polarized.beam_frame(nx, ny, nz)
             dep = lamb or coll
             S[F_FRAME * LN + i] = (dpx if dep else (psx if fresnel else pfx)) if go else pfx
             S[(F_FRAME + 1) * LN + i] = (dpy if dep else (psy if fresnel else pfy)) if go else pfy

@@ -43,6 +43,17 @@ def initial_state(x: tuple[float, float, float]) -> np.ndarray:
 
 
 @numba.njit(cache=True, error_model='numpy', inline='always')
+def beam_frame(dx, dy, dz):
+    """The s/p frame's ``x`` of a beam along ``d`` (:func:`goniometer.optics.normal_frame`; along the
+    normal, the limit from ``d``'s own horizontal part, ``(1, 0)`` straight up or down): the frame a
+    path starts with, leaves a depolarizing event with and is recorded in at its exit."""
+    n = math.sqrt(dx * dx + dy * dy)
+    hx = dx / n if n > 0.0 else 1.0
+    hy = dy / n if n > 0.0 else 0.0
+    return optics.normal_frame(dx, dy, dz, hx, hy)
+
+
+@numba.njit(cache=True, error_model='numpy', inline='always')
 def start(pol, polar, dx, dy, dz) -> None:
     """Reset ``pol`` to the driver's initial state ``polar`` (:func:`initial_state`); for a path
     that drew its own light direction (a tabulation, ``polar`` has a zero frame) the frame of its
@@ -51,10 +62,7 @@ def start(pol, polar, dx, dy, dz) -> None:
         for j in range(16):
             pol[i, j] = polar[i, j]
     if polar[P_FRAME, 0] == 0.0 and polar[P_FRAME, 1] == 0.0 and polar[P_FRAME, 2] == 0.0:
-        n = math.sqrt(dx * dx + dy * dy)
-        hx = dx / n if n > 0.0 else 1.0
-        hy = dy / n if n > 0.0 else 0.0
-        pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2] = optics.normal_frame(dx, dy, dz, hx, hy)
+        pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2] = beam_frame(dx, dy, dz)
 
 
 @numba.njit(cache=True, error_model='numpy', inline='always')
@@ -86,10 +94,7 @@ def to_plane(pol, kx, ky, kz, mx, my, mz) -> None:
 @numba.njit(cache=True, error_model='numpy', inline='always')
 def to_exit(pol, dx, dy, dz) -> None:
     """Turn the frames to the exit beam's s/p frame (``docs/polarization.md`` section 2)."""
-    n = math.sqrt(dx * dx + dy * dy)
-    hx = dx / n if n > 0.0 else 1.0
-    hy = dy / n if n > 0.0 else 0.0
-    sx, sy, sz = optics.normal_frame(dx, dy, dz, hx, hy)
+    sx, sy, sz = beam_frame(dx, dy, dz)
     to_frame(pol, dx, dy, dz, sx, sy, sz)
 
 
@@ -116,10 +121,7 @@ def depolarize(pol, f0, f1, f2, dx, dy, dz) -> None:
     optics.mueller_depolarize(pol, 0, f0)
     optics.mueller_depolarize(pol, 1, f1)
     optics.mueller_depolarize(pol, 2, f2)
-    n = math.sqrt(dx * dx + dy * dy)
-    hx = dx / n if n > 0.0 else 1.0
-    hy = dy / n if n > 0.0 else 0.0
-    pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2] = optics.normal_frame(dx, dy, dz, hx, hy)
+    pol[P_FRAME, 0], pol[P_FRAME, 1], pol[P_FRAME, 2] = beam_frame(dx, dy, dz)
 
 
 @numba.njit(cache=True, error_model='numpy', inline='always')
@@ -188,10 +190,7 @@ def tabulated_exit(pol, lx, ly, lz, vx, vy, vz, folded, out) -> None:
         xz *= inv
         to_frame(pol, vx, vy, vz, xx, xy, xz)
         # the incident beam (along -l): its frame is the one start() set, turned to x on the right
-        n = math.sqrt(lx * lx + ly * ly)
-        hx = -lx / n if n > 0.0 else 1.0
-        hy = -ly / n if n > 0.0 else 0.0
-        sx, sy, sz = optics.normal_frame(-lx, -ly, -lz, hx, hy)
+        sx, sy, sz = beam_frame(-lx, -ly, -lz)
         c2, s2 = optics.stokes_rotation(-lx, -ly, -lz, sx, sy, sz, xx, xy, xz)
         for ch in range(3):
             for i in range(4):
@@ -211,17 +210,6 @@ def tabulated_exit(pol, lx, ly, lz, vx, vy, vz, folded, out) -> None:
 
 # ---- the lane kernel's event (goniometer.kernel.event.step): functions of numbers, inlined into its
 # vectorised loop, which keeps each lane's state in its fields F_MUELLER .. F_FRAME + 2
-
-@numba.njit(cache=True, error_model='numpy', inline='always')
-def lane_frame(dx, dy, dz):
-    """The s/p frame's ``x`` of a beam along ``d`` (:func:`goniometer.optics.normal_frame`, its
-    horizontal part as the limit along the normal; ``(1, 0)`` straight up or down): where a
-    depolarizing event leaves the frame, as :func:`depolarize`."""
-    n = math.sqrt(dx * dx + dy * dy)
-    hx = dx / n if n > 0.0 else 1.0
-    hy = dy / n if n > 0.0 else 0.0
-    return optics.normal_frame(dx, dy, dz, hx, hy)
-
 
 @numba.njit(cache=True, error_model='numpy', inline='always')
 def lane_plane(kx, ky, kz, fx, fy, fz, mx, my, mz):
@@ -300,10 +288,7 @@ def lane_exit(S, i, ln, f_mueller, f_frame, dx, dy, dz, out, n) -> None:
     """Lane ``i``'s Mueller matrices (fields of ``S``, ``ln`` lanes) for its exit along ``d``, turned
     to the exit beam's s/p frame (as :func:`to_exit` turns a path's), into row ``n`` of ``out``
     (element ``e`` of channel ``c`` at column ``3 e + c``)."""
-    n2 = dx * dx + dy * dy
-    hx = dx / math.sqrt(n2) if n2 > 0.0 else 1.0
-    hy = dy / math.sqrt(n2) if n2 > 0.0 else 0.0
-    sx, sy, sz = optics.normal_frame(dx, dy, dz, hx, hy)
+    sx, sy, sz = beam_frame(dx, dy, dz)
     c2, s2 = optics.stokes_rotation(dx, dy, dz, S[f_frame * ln + i], S[(f_frame + 1) * ln + i],
                                     S[(f_frame + 2) * ln + i], sx, sy, sz)
     for c in range(3):
