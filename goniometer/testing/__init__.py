@@ -13,7 +13,7 @@
 from goniometer._lazy import lazy_face
 
 _STATISTICS = (
-    "P_FALSE_ALARM", "Z_TOL", "MIN_EXPECTED", "MIN_CELLS", "chi2_limit", "chi2_interval",
+    "P_FALSE_ALARM", "Z_TOL", "MIN_EXPECTED", "MIN_CELLS", "chi2_limit", "chi2_interval", "noise_floor_ratio_limit",
     "expected_exits", "model_sigma", "cell_chi2", "assert_cells_match", "flux", "sparse_flux",
     "assert_sparse_flux_matches", "mean_stderr", "effective_exits", "two_sample_chi2", "assert_samples_match",
     "assert_z_close", "energy_total", "assert_energy_conserved", "assert_energy_matches",

@@ -20,7 +20,8 @@ from scipy import stats
 from goniometer.testing import (MIN_EXPECTED, P_FALSE_ALARM, Z_TOL, assert_cells_match, assert_energy_conserved,
                                 assert_energy_matches, assert_samples_match, assert_sparse_flux_matches,
                                 assert_z_close, cell_chi2, chi2_interval, chi2_limit, effective_exits, energy_total,
-                                expected_exits, flux, mean_stderr, model_sigma, sparse_flux, two_sample_chi2)
+                                expected_exits, flux, mean_stderr, model_sigma, noise_floor_ratio_limit, sparse_flux,
+                                two_sample_chi2)
 
 RHO = np.array([0.2, 0.35, 0.5])
 #: mean exit weight of the synthetic runs (weights uniform in [0.3, 1])
@@ -85,6 +86,31 @@ def test_the_false_alarm_conventions():
 def test_limits_refuse_what_they_cannot_mean(call, field):
     with pytest.raises(ValueError, match=rf"^{field}: "):
         call()
+
+
+def test_the_noise_floor_ratio_limit_bounds_the_false_alarm_rate():
+    """A perfect model's RMSE over unequal cells (weights and errors spread over two decades)
+    exceeds its noise floor times the limit no more often than the stated rate (a rigorous bound);
+    a model whose errors are twice the noise, far more often. Equal cells: at most 16 % above the
+    exact chi-square limit of their number at P_FALSE_ALARM, never below it."""
+    rng = np.random.default_rng(5)
+    n, trials, p = 60, 40_000, 1e-3
+    w = rng.exponential(1.0, n)
+    se = 10.0 ** rng.uniform(-1.0, 1.0, n)
+    floor = np.sqrt((w * se ** 2).sum())
+    limit = float(noise_floor_ratio_limit(se, w, p=p))
+    d = rng.standard_normal((trials, n)) * se
+    ratio = np.sqrt((w * d ** 2).sum(axis=1)) / floor
+    assert np.mean(ratio > limit) <= p + Z_TOL * math.sqrt(p / trials)
+    assert np.mean(2.0 * ratio > limit) > 100 * p
+    for cells in (1, 15, 60, 1000):
+        exact = math.sqrt(stats.chi2.isf(P_FALSE_ALARM, cells) / cells)
+        assert exact <= noise_floor_ratio_limit(np.ones(cells), 2.0) <= 1.16 * exact
+    both = noise_floor_ratio_limit(np.ones((2, 25)), np.ones(25), axis=1)
+    assert both.shape == (2,) and both[0] == both[1]
+    assert np.isnan(noise_floor_ratio_limit(np.zeros(4), np.ones(4)))
+    with pytest.raises(ValueError, match=r"^weight: "):
+        noise_floor_ratio_limit(np.ones(4), -np.ones(4))
 
 
 # ---------------------------------------------------------------------- cells against a model
