@@ -7,6 +7,7 @@ tests import as a plugin author's tests do."""
 from __future__ import annotations
 
 import os
+import signal
 
 # Under pytest-xdist (`make test` runs two workers) the workers share one numba cache, set before
 # numba is first imported (numba writes each cache file whole and replaces it atomically; the
@@ -51,6 +52,14 @@ ior = 1.5
 type = "lambertian"
 albedo = 0.5
 """
+
+
+def child_sigint_default() -> None:
+    """``preexec_fn`` of a child that a test interrupts: SIGINT at its default even when the suite
+    runs as a background job (where the shell makes it ignored, and an ignored SIGINT is rightly
+    left ignored by the child's Python). Nothing is imported here: the child runs it between fork
+    and exec."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def refused(capsys, argv, *needles) -> str:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from goniometer.cli import main
-from tests.conftest import PLASTIC_TOML
+from tests.conftest import PLASTIC_TOML, child_sigint_default
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "configs" / "examples"
 GOOD = PLASTIC_TOML + """[simulation]
@@ -120,12 +120,6 @@ def test_info_on_a_bad_file(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("gonio: error: ")
 
 
-def _sigint_default() -> None:
-    """In the child: SIGINT at its default even when the suite runs as a background job (where
-    the shell makes it ignored, and an ignored SIGINT is rightly left ignored)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 @pytest.fixture
 def sigint_default():
     """SIGINT handled by Python's default handler during the test (restored after)."""
@@ -148,7 +142,7 @@ def test_ctrl_c_leaves_no_partial_file(tmp_path, tmp_path_factory, when):
         env.pop("NUMBA_CACHE_DIR", None)
     proc = subprocess.Popen([sys.executable, "-m", "goniometer.cli", "simulate", str(cfg), "--out", str(out),
                              "--rays", "200000000", "--threads", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=env, preexec_fn=_sigint_default)
+                            env=env, preexec_fn=child_sigint_default)
     try:
         # the banner is printed before the kernel is compiled or loaded
         deadline = time.time() + 120

@@ -21,6 +21,7 @@ from goniometer.database import load_database, simulate_database
 import models.report.build as build_module
 from models.report import build_report
 from models.report.spheres import SPHERE_ANGLES_DEG
+from tests.conftest import child_sigint_default
 
 DEFINITION = Path(__file__).resolve().parents[1] / "data" / "edge_database.toml"
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -202,13 +203,6 @@ def tiny_results(tmp_path_factory) -> Path:
     return results
 
 
-def _sigint_default() -> None:
-    """In the child: Ctrl-C's default disposition. A process started with SIGINT ignored (as a test
-    worker may be, and the background jobs of a shell) keeps ignoring it: Python then installs no
-    KeyboardInterrupt, and a SIGINT to the report alone would do nothing."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 @pytest.mark.parametrize("who", ["group", "report"])
 def test_ctrl_c_stops_the_workers_and_a_rerun_resumes(tiny_results, tmp_path, who):
     """gonio report --jobs 2 interrupted once a material is cached: Ctrl-C at a terminal (the whole
@@ -217,7 +211,7 @@ def test_ctrl_c_stops_the_workers_and_a_rerun_resumes(tiny_results, tmp_path, wh
     results, out = tiny_results, tmp_path / "report"
     proc = subprocess.Popen([sys.executable, "-m", "goniometer.cli", "report", str(results), "--out", str(out),
                              "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, preexec_fn=_sigint_default)
+                            start_new_session=True, preexec_fn=child_sigint_default)
     deadline = time.monotonic() + 600
     while not list((out / "cache").rglob("*.json")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)
