@@ -111,6 +111,21 @@ def _tr(dz: float, wz: float) -> float:
     return math.exp(-abs(dz / wz))
 
 
+@njit(cache=True, inline="always")
+def _tr3(tau0: float, tau1: float, tau2: float, wz: float):
+    """:func:`_tr` of the three slots' optical depths along ``wz``; a slot whose depth equals an
+    earlier slot's takes its value (the same number)."""
+    t0 = _tr(tau0, wz)
+    t1 = t0 if tau1 == tau0 else _tr(tau1, wz)
+    if tau2 == tau1:
+        t2 = t1
+    elif tau2 == tau0:
+        t2 = t0
+    else:
+        t2 = _tr(tau2, wz)
+    return t0, t1, t2
+
+
 @njit(cache=True)
 def direction_key(seed: int, vx: float, vy: float, vz: float, lx: float, ly: float, lz: float) -> np.uint64:
     """The random stream's key of one (viewer, light) pair: SplitMix64 steps over the bits of the
@@ -265,25 +280,25 @@ def diel_sample(ox: float, oy: float, oz: float, eta: float, a: float, smooth: b
 
 @njit(cache=True)
 def base_f(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, kind: int, a: float, smooth: bool,
-           ch: np.ndarray):
+           rho0: float, rho1: float, rho2: float, e0: float, k0: float, e1: float, k1: float, e2: float, k2: float):
     """The base's ``f(wo, wi)`` (no cosine) per slot, both directions pointing up into the coat:
     Lambertian ``rho / pi``, or the GGX conductor of relative index ``eta + i k`` with
     ``G = 1 / (1 + Lambda_o + Lambda_i)`` (0 for a smooth conductor: a mirror)."""
     if oz <= 0.0 or iz <= 0.0:
         return 0.0, 0.0, 0.0
     if kind == BASE_LAMBERTIAN:
-        return ch[K_RHO, 0] * _INV_PI, ch[K_RHO, 1] * _INV_PI, ch[K_RHO, 2] * _INV_PI
+        return rho0 * _INV_PI, rho1 * _INV_PI, rho2 * _INV_PI
     if smooth:
         return 0.0, 0.0, 0.0
-    f0 = microfacet_reflection(ix, iy, iz, ox, oy, oz, a, a, ch[K_ETA, 0], ch[K_K, 0], True)
-    if ch[K_ETA, 1] == ch[K_ETA, 0] and ch[K_K, 1] == ch[K_K, 0]:
+    f0 = microfacet_reflection(ix, iy, iz, ox, oy, oz, a, a, e0, k0, True)
+    if e1 == e0 and k1 == k0:
         f1 = f0
     else:
-        f1 = microfacet_reflection(ix, iy, iz, ox, oy, oz, a, a, ch[K_ETA, 1], ch[K_K, 1], True)
-    if ch[K_ETA, 2] == ch[K_ETA, 1] and ch[K_K, 2] == ch[K_K, 1]:
+        f1 = microfacet_reflection(ix, iy, iz, ox, oy, oz, a, a, e1, k1, True)
+    if e2 == e1 and k2 == k1:
         f2 = f1
     else:
-        f2 = microfacet_reflection(ix, iy, iz, ox, oy, oz, a, a, ch[K_ETA, 2], ch[K_K, 2], True)
+        f2 = microfacet_reflection(ix, iy, iz, ox, oy, oz, a, a, e2, k2, True)
     return f0, f1, f2
 
 
@@ -309,8 +324,8 @@ def base_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, k
 
 
 @njit(cache=True)
-def base_sample(ox: float, oy: float, oz: float, kind: int, a: float, smooth: bool, ch: np.ndarray, u1: float,
-                u2: float):
+def base_sample(ox: float, oy: float, oz: float, kind: int, a: float, smooth: bool, rho0: float, rho1: float,
+                rho2: float, e0: float, k0: float, e1: float, k1: float, e2: float, k2: float, u1: float, u2: float):
     """Sample the base's reflection from ``wo`` (pointing up). Returns
     ``(ok, wi_x, wi_y, wi_z, weight_0, weight_1, weight_2, pdf)`` with the weight
     ``f |cos wi| / pdf`` per slot (pbrt's ``beta`` factor) and the density."""
@@ -323,11 +338,11 @@ def base_sample(ox: float, oy: float, oz: float, kind: int, a: float, smooth: bo
         if iz <= 0.0:
             return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         # f |cos| / pdf = (rho / pi) iz / (iz / pi) = rho
-        return True, ix, iy, iz, ch[K_RHO, 0], ch[K_RHO, 1], ch[K_RHO, 2], iz * _INV_PI
+        return True, ix, iy, iz, rho0, rho1, rho2, iz * _INV_PI
     if smooth:
-        f0 = fresnel_conductor(oz, ch[K_ETA, 0], ch[K_K, 0])
-        f1 = fresnel_conductor(oz, ch[K_ETA, 1], ch[K_K, 1])
-        f2 = fresnel_conductor(oz, ch[K_ETA, 2], ch[K_K, 2])
+        f0 = fresnel_conductor(oz, e0, k0)
+        f1 = fresnel_conductor(oz, e1, k1)
+        f2 = fresnel_conductor(oz, e2, k2)
         return True, -ox, -oy, oz, f0, f1, f2, 1.0
     mx, my, mz = sample_vndf(ox, oy, oz, a, a, u1, u2)
     ix, iy, iz = reflect(ox, oy, oz, mx, my, mz)
@@ -336,7 +351,7 @@ def base_sample(ox: float, oy: float, oz: float, kind: int, a: float, smooth: bo
     pdf = base_pdf(ox, oy, oz, ix, iy, iz, kind, a, smooth)
     if pdf <= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    f0, f1, f2 = base_f(ox, oy, oz, ix, iy, iz, kind, a, smooth, ch)
+    f0, f1, f2 = base_f(ox, oy, oz, ix, iy, iz, kind, a, smooth, rho0, rho1, rho2, e0, k0, e1, k1, e2, k2)
     k = iz / pdf
     return True, ix, iy, iz, f0 * k, f1 * k, f2 * k, pdf
 
@@ -370,6 +385,9 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
     alb1 = ch[K_ALBEDO, 1]
     alb2 = ch[K_ALBEDO, 2]
     scattering = (alb0 != 0.0 or alb1 != 0.0 or alb2 != 0.0) and thick > 0.0
+    # the base's values per slot, read once (scalars: no array reference counts in the calls)
+    base = (ch[K_RHO, 0], ch[K_RHO, 1], ch[K_RHO, 2], ch[K_ETA, 0], ch[K_K, 0], ch[K_ETA, 1], ch[K_K, 1],
+            ch[K_ETA, 2], ch[K_K, 2])
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
@@ -389,6 +407,12 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
     b2 = b
     z = thick
     at_top = True
+    # the slots' transmittances through the slab along d (computed at the first base connection) and
+    # along the current w (valid while w_tr is True): each computed once, the same values
+    d_tr = False
+    t_d0 = t_d1 = t_d2 = 1.0
+    w_tr = False
+    t_w0 = t_w1 = t_w2 = 1.0
     for depth in range(max_depth):
         # Russian roulette on the largest channel
         bm = max(b0, max(b1, b2))
@@ -403,9 +427,12 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             # cross the absorbing layer to the other interface
             at_top = not at_top
             z = thick if at_top else 0.0
-            b0 *= _tr(tau0, wz)
-            b1 *= _tr(tau1, wz)
-            b2 *= _tr(tau2, wz)
+            if not w_tr:
+                t_w0, t_w1, t_w2 = _tr3(tau0, tau1, tau2, wz)
+                w_tr = True
+            b0 *= t_w0
+            b1 *= t_w1
+            b2 *= t_w2
         else:
             dist = -math.log1p(-next_float(s)) * abs(wz)
             zp = z + dist if wz > 0.0 else z - dist
@@ -428,6 +455,7 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
                 b1 *= alb1
                 b2 *= alb2
                 wx, wy, wz = nx, ny, nz
+                w_tr = False
                 z = zp
                 if wz > 0.0 and not top_smooth:
                     fe = diel_f(-wx, -wy, -wz, lx, ly, lz, eta, a0, True, exact)
@@ -456,18 +484,22 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             b1 *= k
             b2 *= k
             wx, wy, wz = nx, ny, nz
+            w_tr = False
         else:
             # at the base
             if not (kind == BASE_CONDUCTOR and base_smooth):
                 wt = 1.0
                 if not top_smooth:
                     wt = _power_heuristic(dpdf, base_pdf(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth))
-                e0, e1, e2 = base_f(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth, ch)
+                e0, e1, e2 = base_f(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth, *base)
                 c = abs(dz) * wt * df / dpdf
-                f0 += b0 * e0 * c * _tr(tau0, dz)
-                f1 += b1 * e1 * c * _tr(tau1, dz)
-                f2 += b2 * e2 * c * _tr(tau2, dz)
-            ok, nx, ny, nz, k0, k1, k2, bpdf = base_sample(-wx, -wy, -wz, kind, a1, base_smooth, ch,
+                if not d_tr:
+                    t_d0, t_d1, t_d2 = _tr3(tau0, tau1, tau2, dz)
+                    d_tr = True
+                f0 += b0 * e0 * c * t_d0
+                f1 += b1 * e1 * c * t_d1
+                f2 += b2 * e2 * c * t_d2
+            ok, nx, ny, nz, k0, k1, k2, bpdf = base_sample(-wx, -wy, -wz, kind, a1, base_smooth, *base,
                                                            next_float(s), next_float(s))
             if not ok or bpdf == 0.0:
                 break
@@ -475,6 +507,7 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             b1 *= k1
             b2 *= k2
             wx, wy, wz = nx, ny, nz
+            w_tr = False
             if not top_smooth:
                 fe = diel_f(-wx, -wy, -wz, lx, ly, lz, eta, a0, True, exact)
                 if fe != 0.0:
@@ -486,9 +519,11 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
                             pe = diel_pdf(-wx, -wy, -wz, lx, ly, lz, eta, a0, False, True)
                         wt = _power_heuristic(bpdf, pe)
                     c = fe * wt
-                    f0 += b0 * c * _tr(tau0, wz)
-                    f1 += b1 * c * _tr(tau1, wz)
-                    f2 += b2 * c * _tr(tau2, wz)
+                    t_w0, t_w1, t_w2 = _tr3(tau0, tau1, tau2, wz)
+                    w_tr = True
+                    f0 += b0 * c * t_w0
+                    f1 += b1 * c * t_w1
+                    f2 += b2 * c * t_w2
         if b0 == 0.0 and b1 == 0.0 and b2 == 0.0:
             break
     return f0, f1, f2
