@@ -42,9 +42,9 @@ import numpy as np
 
 from goniometer import optics
 from goniometer.bits import double_as_uint64
-from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric, ggx_lambda,
-                               hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
-                               sample_vndf, vndf_pdf)
+from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric, ggx_d,
+                               ggx_lambda, hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
+                               sample_vndf, smith_g1_dir, smith_g2, vndf_pdf)
 from goniometer.kernel.rng import next_float, seed_state, splitmix64
 from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from models._jit import njit
@@ -356,6 +356,81 @@ def base_sample(ox: float, oy: float, oz: float, kind: int, a: float, smooth: bo
     return True, ix, iy, iz, f0 * k, f1 * k, f2 * k, pdf
 
 
+# ---------------------------------------------------------------------- the rough conductor base, fused
+
+@njit(cache=True, inline="always")
+def _base_fresnel(c: float, e: float, k: float) -> float:
+    """The Fresnel factor :func:`goniometer.optics.microfacet_reflection` takes for the index
+    ``e + i k``: the conductor's if ``k > 0``, else the dielectric's."""
+    if k > 0.0:
+        return fresnel_conductor(c, e, k)
+    return fresnel_dielectric(c, e)
+
+
+@njit(cache=True)
+def conductor_pair(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, a: float, lam_o: float,
+                   lam_i: float, g1_o: float, e0: float, k0: float, e1: float, k1: float, e2: float, k2: float):
+    """:func:`base_f` and :func:`base_pdf` of a rough conductor together, ``(f_0, f_1, f_2, pdf)``,
+    given ``lam_o``, ``lam_i`` (``ggx_lambda`` of ``o`` and ``i``) and ``g1_o``
+    (``smith_g1_dir`` of ``o``), which the walk computes once per direction.
+
+    The same bits as the two functions: the half vector of ``o + i`` (``optics.half_vector``'s
+    expressions; ``o + i`` equals ``i + o`` exactly), its ``D`` and the masking
+    ``smith_g2(lam_i, lam_o)`` are computed once instead of once per slot and once more for the
+    density; each slot's value is ``microfacet_reflection``'s ``F D G / (4 i_z o_z)`` in its
+    order, the density ``vndf_pdf``'s ``G1 (o.h) D / o_z`` over ``4 |o.h|``."""
+    if oz <= 0.0 or iz <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    hx = ox + ix
+    hy = oy + iy
+    hz = oz + iz
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx *= inv
+    hy *= inv
+    hz *= inv
+    d = ggx_d(hx, hy, hz, a, a)
+    # the density: vndf_pdf(o, h) / (4 |o.h|), smith_g1 being 0 unless (o.h) o_z > 0
+    wm = ox * hx + oy * hy + oz * hz
+    if wm <= 0.0 or oz <= 0.0:
+        dw = 0.0
+    else:
+        dw = (g1_o if wm * oz > 0.0 else 0.0) * wm * d / oz
+    pdf = dw / (4.0 * abs(wm))
+    # the values: microfacet_reflection(i, o, a, a, e, k, True) per slot, equal indices sharing one
+    lh = ix * hx + iy * hy + iz * hz
+    g = smith_g2(lam_i, lam_o, False, True)
+    den = 4.0 * iz * oz
+    f0 = _base_fresnel(lh, e0, k0) * d * g / den
+    if e1 == e0 and k1 == k0:
+        f1 = f0
+    else:
+        f1 = _base_fresnel(lh, e1, k1) * d * g / den
+    if e2 == e1 and k2 == k1:
+        f2 = f1
+    else:
+        f2 = _base_fresnel(lh, e2, k2) * d * g / den
+    return f0, f1, f2, pdf
+
+
+@njit(cache=True)
+def conductor_sample(ox: float, oy: float, oz: float, a: float, lam_o: float, g1_o: float, e0: float, k0: float,
+                     e1: float, k1: float, e2: float, k2: float, u1: float, u2: float):
+    """:func:`base_sample` of a rough conductor (the same result, bit for bit), its value and
+    density from :func:`conductor_pair` with the walk's ``lam_o`` and ``g1_o`` of ``o``."""
+    if oz <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    mx, my, mz = sample_vndf(ox, oy, oz, a, a, u1, u2)
+    ix, iy, iz = reflect(ox, oy, oz, mx, my, mz)
+    if iz <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    f0, f1, f2, pdf = conductor_pair(ox, oy, oz, ix, iy, iz, a, lam_o, ggx_lambda(ix, iy, iz, a, a), g1_o,
+                                     e0, k0, e1, k1, e2, k2)
+    if pdf <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    k = iz / pdf
+    return True, ix, iy, iz, f0 * k, f1 * k, f2 * k, pdf
+
+
 # ---------------------------------------------------------------------- one sample of pbrt's estimator
 
 @njit(cache=True)
@@ -388,6 +463,9 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
     # the base's values per slot, read once (scalars: no array reference counts in the calls)
     base = (ch[K_RHO, 0], ch[K_RHO, 1], ch[K_RHO, 2], ch[K_ETA, 0], ch[K_K, 0], ch[K_ETA, 1], ch[K_K, 1],
             ch[K_ETA, 2], ch[K_K, 2])
+    cond = base[3:]
+    rough_conductor = kind == BASE_CONDUCTOR and not base_smooth
+    lam_d = 0.0  # ggx_lambda of -d for the base's alpha, once per walk (rough conductor)
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
@@ -487,7 +565,26 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             w_tr = False
         else:
             # at the base
-            if not (kind == BASE_CONDUCTOR and base_smooth):
+            if rough_conductor:
+                # the terms of -w (and once of -d) for the base's alpha, shared by the connection and the sample
+                lam_w = ggx_lambda(-wx, -wy, -wz, a1, a1)
+                g1_w = smith_g1_dir(-wx, -wy, -wz, a1, a1)
+                if not d_tr:
+                    lam_d = ggx_lambda(-dx, -dy, -dz, a1, a1)
+                e0, e1, e2, bp = conductor_pair(-wx, -wy, -wz, -dx, -dy, -dz, a1, lam_w, lam_d, g1_w, *cond)
+                wt = 1.0
+                if not top_smooth:
+                    wt = _power_heuristic(dpdf, bp)
+                c = abs(dz) * wt * df / dpdf
+                if not d_tr:
+                    t_d0, t_d1, t_d2 = _tr3(tau0, tau1, tau2, dz)
+                    d_tr = True
+                f0 += b0 * e0 * c * t_d0
+                f1 += b1 * e1 * c * t_d1
+                f2 += b2 * e2 * c * t_d2
+                ok, nx, ny, nz, k0, k1, k2, bpdf = conductor_sample(-wx, -wy, -wz, a1, lam_w, g1_w, *cond,
+                                                                    next_float(s), next_float(s))
+            elif not (kind == BASE_CONDUCTOR and base_smooth):
                 wt = 1.0
                 if not top_smooth:
                     wt = _power_heuristic(dpdf, base_pdf(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth))
@@ -499,8 +596,9 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
                 f0 += b0 * e0 * c * t_d0
                 f1 += b1 * e1 * c * t_d1
                 f2 += b2 * e2 * c * t_d2
-            ok, nx, ny, nz, k0, k1, k2, bpdf = base_sample(-wx, -wy, -wz, kind, a1, base_smooth, *base,
-                                                           next_float(s), next_float(s))
+            if not rough_conductor:
+                ok, nx, ny, nz, k0, k1, k2, bpdf = base_sample(-wx, -wy, -wz, kind, a1, base_smooth, *base,
+                                                               next_float(s), next_float(s))
             if not ok or bpdf == 0.0:
                 break
             b0 *= k0
