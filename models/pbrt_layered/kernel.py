@@ -42,9 +42,10 @@ import numpy as np
 
 from goniometer import optics
 from goniometer.bits import double_as_uint64
-from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric, ggx_d,
+from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric,
+                               fresnel_dielectric_cos_t_inv, ggx_d,
                                ggx_lambda, hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
-                               sample_vndf, smith_g1_dir, smith_g2, vndf_pdf)
+                               sample_vndf, sample_vndf_polar, smith_g1_dir, smith_g2, vndf_pdf, vndf_stretch_norm2)
 from goniometer.kernel.rng import next_float, seed_state, splitmix64
 from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from models._jit import njit
@@ -276,6 +277,226 @@ def diel_sample(ox: float, oy: float, oz: float, eta: float, a: float, smooth: b
     return True, ix, iy, iz, f, pdf
 
 
+# ---------------------------------------------------------------------- the rough coat, fused
+#
+# The walk evaluates the coat through the functions below: each gives the bits of the
+# straightforward composition above (diel_sample, diel_f, diel_pdf) with the same expressions in
+# the same order, but takes the terms that depend on one direction only (Lambda, G1 and the
+# visible-normal sampler's stretch of v, l and the walk's current direction w) from the walk,
+# which computes them once per direction instead of once per use, and computes the half vector
+# and D of a reflection once for its value and density. ggx_lambda, smith_g1_dir and
+# vndf_stretch_norm2 depend on the squares of a direction's coordinates (and |z|): the same
+# number for w and -w. Anything off their common path is left to the general functions.
+
+@njit(cache=True, inline="always")
+def coat_indices(eta: float):
+    """``(eta, 1 / eta, 1 / (1 / eta))``: the coat's relative index seen from outside and from
+    inside, each followed by the reciprocal that ``fresnel_dielectric`` computes of it."""
+    inv = 1.0 / eta
+    return eta, inv, 1.0 / inv
+
+
+@njit(cache=True, inline="always")
+def _fresnel_coat(c: float, etas: tuple, outside: bool) -> float:
+    """``fresnel_dielectric(c, eta if outside else 1 / eta)`` for ``etas`` from :func:`coat_indices`:
+    ``fresnel_dielectric(c, e)`` is ``fresnel_dielectric_cos_t_inv(c, e, 1 / e)``, whose reciprocal
+    is taken from ``etas`` instead of divided again (the same number)."""
+    eta, inv, inv_inv = etas
+    if outside:
+        return fresnel_dielectric_cos_t_inv(c, eta, inv)[0]
+    return fresnel_dielectric_cos_t_inv(c, inv, inv_inv)[0]
+
+
+@njit(cache=True, inline="always")
+def coat_terms(x: float, y: float, z: float, a: float):
+    """``(Lambda, G1, 1 / |w stretched|)`` of the direction ``w`` for the coat's alpha: what
+    ``ggx_lambda``, ``smith_g1_dir`` and ``sample_vndf`` compute of it."""
+    return (ggx_lambda(x, y, z, a, a), smith_g1_dir(x, y, z, a, a),
+            1.0 / math.sqrt(vndf_stretch_norm2(x, y, z, a, a)))
+
+
+@njit(cache=True)
+def coat_transmission(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float, etas: tuple,
+                      outside: bool, a: float, lam_l: float, lam_v: float, exact: bool) -> float:
+    """:func:`diel_f`'s transmission in its frame (light side ``l`` with ``l_z > 0``, ``v_z < 0``;
+    the light outside the coat, relative index ``eta``, or inside, ``1 / eta``), given ``lam_l`` and
+    ``lam_v`` (``ggx_lambda`` of ``l`` and ``v``): ``optics.microfacet_transmission``'s expressions
+    in its order, then pbrt's masking (or, with ``exact``, the height-correlated one)."""
+    e = etas[0] if outside else etas[1]
+    if lz <= 0.0 or vz >= 0.0 or e == 1.0:
+        return 0.0
+    hx = -(lx + e * vx)
+    hy = -(ly + e * vy)
+    hz = -(lz + e * vz)
+    n = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if n == 0.0:
+        return 0.0
+    if hz < 0.0:
+        n = -n
+    hx /= n
+    hy /= n
+    hz /= n
+    lh = lx * hx + ly * hy + lz * hz
+    vh = vx * hx + vy * hy + vz * hz
+    if lh <= 0.0 or vh >= 0.0:
+        return 0.0
+    f = _fresnel_coat(lh, etas, outside)
+    if f >= 1.0:
+        return 0.0
+    d = ggx_d(hx, hy, hz, a, a)
+    g = smith_g2(lam_l, lam_v, True, exact)
+    denom = lh + e * vh
+    f = (1.0 - f) * d * g * abs(lh * vh) * e * e / (lz * abs(vz) * denom * denom)
+    if exact:
+        return f
+    if f == 0.0:
+        return 0.0
+    return f * ((1.0 + lam_l) * (1.0 + lam_v) / (1.0 + lam_l + lam_v))
+
+
+@njit(cache=True)
+def coat_transmission_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, etas: tuple,
+                          a: float, g1: float) -> float:
+    """:func:`diel_pdf` of the transmission lobe alone for a transmission pair (``o_z i_z < 0``),
+    given ``etas`` (:func:`coat_indices`) and ``g1`` (``smith_g1_dir`` of ``o``)."""
+    eta, inv_eta, _ = etas
+    if oz == 0.0 or iz == 0.0:
+        return 0.0
+    if oz * iz > 0.0:
+        return diel_pdf(ox, oy, oz, ix, iy, iz, eta, a, False, True)
+    etap = eta if oz > 0.0 else inv_eta
+    mx = etap * ix + ox
+    my = etap * iy + oy
+    mz = etap * iz + oz
+    n2 = mx * mx + my * my + mz * mz
+    if n2 == 0.0:
+        return 0.0
+    inv = 1.0 / math.sqrt(n2)
+    if mz < 0.0:
+        inv = -inv
+    mx *= inv
+    my *= inv
+    mz *= inv
+    dmi = mx * ix + my * iy + mz * iz
+    dmo = mx * ox + my * oy + mz * oz
+    if dmi * iz < 0.0 or dmo * oz < 0.0:
+        return 0.0
+    r = _fresnel_coat(dmo, etas, dmo > 0.0)
+    pr = 0.0
+    pt = 1.0 - r
+    if pr + pt <= 0.0:
+        return 0.0
+    # vndf_pdf of o (of -o inside), its smith_g1 being G1 where (w.m) w_z > 0
+    if oz > 0.0:
+        wx, wy, wz = ox, oy, oz
+    else:
+        wx, wy, wz = -ox, -oy, -oz
+    wm = wx * mx + wy * my + wz * mz
+    if wm <= 0.0 or wz <= 0.0:
+        dw = 0.0
+    else:
+        dw = (g1 if wm * wz > 0.0 else 0.0) * wm * ggx_d(mx, my, mz, a, a) / wz
+    den = dmi + dmo / etap
+    if den == 0.0:
+        return 0.0
+    return dw * abs(dmi) / (den * den) * pt / (pr + pt)
+
+
+@njit(cache=True)
+def coat_enter(ox: float, oy: float, oz: float, etas: tuple, a: float, smooth: bool, terms: tuple,
+               radiance: bool, exact: bool, uc: float, u1: float, u2: float):
+    """:func:`diel_sample` from outside (``o_z > 0``) for transmission only, given ``etas``
+    (:func:`coat_indices`) and ``terms`` (:func:`coat_terms` of ``o``). Returns
+    ``(ok, wi_x, wi_y, wi_z, f, pdf)``."""
+    eta, inv_eta, _ = etas
+    if smooth or oz <= 0.0:
+        return diel_sample(ox, oy, oz, eta, a, smooth, radiance, False, True, exact, uc, u1, u2)
+    lam_o, g1_o, st_o = terms
+    cp, sp = cos_sin_2pi(u1)
+    mx, my, mz = sample_vndf_polar(ox, oy, oz, a, a, cp, sp, u2, st_o)
+    dmo = ox * mx + oy * my + oz * mz
+    r = _fresnel_coat(dmo, etas, dmo > 0.0)
+    # the reflection lobe is not allowed: its probability 0 / (0 + (1 - r)) never exceeds uc
+    if 0.0 + (1.0 - r) <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    if dmo > 0.0:
+        ix, iy, iz, ok = refract(ox, oy, oz, mx, my, mz, eta)
+    else:
+        ix, iy, iz, ok = refract(ox, oy, oz, -mx, -my, -mz, inv_eta)
+    if not ok or iz * oz >= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    # diel_f's frame: radiance transport has the light on the inside (flipped up), importance outside
+    lam_i = ggx_lambda(ix, iy, iz, a, a)
+    if radiance:
+        f = coat_transmission(ix, iy, -iz, ox, oy, -oz, etas, False, a, lam_i, lam_o, exact)
+    else:
+        f = coat_transmission(ox, oy, oz, ix, iy, iz, etas, True, a, lam_o, lam_i, exact)
+    pdf = coat_transmission_pdf(ox, oy, oz, ix, iy, iz, etas, a, g1_o)
+    return True, ix, iy, iz, f, pdf
+
+
+@njit(cache=True)
+def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth: bool, lam_w: float,
+                 g1_w: float, exact: bool, uc: float, u1: float, u2: float):
+    """:func:`diel_sample` of ``-w`` (``w_z > 0``: the walk at the coat from inside) for reflection
+    only, radiance transport, given ``etas`` (:func:`coat_indices`) and ``lam_w``, ``g1_w``
+    (:func:`coat_terms` of ``w``). Returns ``(ok, wi_x, wi_y, wi_z, f, pdf)``."""
+    eta = etas[0]
+    if smooth or wz <= 0.0:
+        return diel_sample(-wx, -wy, -wz, eta, a, smooth, True, True, False, exact, uc, u1, u2)
+    ox = -wx
+    oy = -wy
+    oz = -wz
+    cp, sp = cos_sin_2pi(u1)
+    mx, my, mz = sample_vndf_polar(wx, wy, wz, a, a, cp, sp, u2, 1.0 / math.sqrt(vndf_stretch_norm2(wx, wy, wz, a, a)))
+    dmo = ox * mx + oy * my + oz * mz
+    r = _fresnel_coat(dmo, etas, dmo > 0.0)
+    pr = r
+    pt = 0.0
+    if pr + pt <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    if not uc < pr / (pr + pt):
+        # only for a NaN r: the general function
+        return diel_sample(-wx, -wy, -wz, eta, a, smooth, True, True, False, exact, uc, u1, u2)
+    ix, iy, iz = reflect(ox, oy, oz, mx, my, mz)
+    if iz * oz <= 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    # diel_f: microfacet_reflection(i, o flipped up, a, a, 1 / eta, 0, True)
+    hx = ix + ox
+    hy = iy + oy
+    hz = -iz + -oz
+    n2 = hx * hx + hy * hy + hz * hz
+    inv = 1.0 / math.sqrt(n2)
+    hx *= inv
+    hy *= inv
+    hz *= inv
+    if not (n2 != 0.0 and iz + oz < 0.0):
+        return diel_sample(-wx, -wy, -wz, eta, a, smooth, True, True, False, exact, uc, u1, u2)
+    lh = ix * hx + iy * hy + -iz * hz
+    d = ggx_d(hx, hy, hz, a, a)
+    g = smith_g2(ggx_lambda(ix, iy, -iz, a, a), lam_w, False, True)
+    f = _fresnel_coat(lh, etas, False) * d * g / (4.0 * -iz * -oz)
+    # diel_pdf(o, i, reflection only): its normal is (-h_x, -h_y, h_z) (the same sum, turned up),
+    # whose D is h's
+    mx = -hx
+    my = -hy
+    mz = hz
+    dmi = mx * ix + my * iy + mz * iz
+    dmo = mx * ox + my * oy + mz * oz
+    if dmi * iz < 0.0 or dmo * oz < 0.0:
+        return True, ix, iy, iz, f, 0.0
+    r = _fresnel_coat(dmo, etas, dmo > 0.0)
+    pr = r
+    if pr + pt <= 0.0:
+        return True, ix, iy, iz, f, 0.0
+    wm = wx * mx + wy * my + wz * mz
+    if wm <= 0.0:
+        dw = 0.0
+    else:
+        dw = (g1_w if wm * wz > 0.0 else 0.0) * wm * d / wz
+    return True, ix, iy, iz, f, dw / (4.0 * abs(dmo)) * pr / (pr + pt)
+
+
 # ---------------------------------------------------------------------- the base
 
 @njit(cache=True)
@@ -434,12 +655,13 @@ def conductor_sample(ox: float, oy: float, oz: float, a: float, lam_o: float, g1
 # ---------------------------------------------------------------------- one sample of pbrt's estimator
 
 @njit(cache=True)
-def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf: np.ndarray, real: np.ndarray,
-         ch: np.ndarray, s: np.ndarray):
+def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: tuple, tl: tuple, conf: np.ndarray,
+         real: np.ndarray, ch: np.ndarray, s: np.ndarray):
     """One sample of pbrt-v4's stochastic layered ``f(wo = v, wi = l)`` without the coat's own
     reflection (which the caller evaluates exactly): the walk from the viewer into the layer, with
     next-event connections to the light through the coat at every base and medium vertex, weighted
-    as pbrt weights them (``docs/pbrt-layered.md``). Draws from the stream ``s``. Returns the
+    as pbrt weights them (``docs/pbrt-layered.md``). ``tv``, ``tl``: :func:`coat_terms` of ``v``
+    and ``l`` (the same for every walk of the pair). Draws from the stream ``s``. Returns the
     contribution per slot."""
     max_depth = conf[C_MAX_DEPTH]
     fixed = conf[C_FIXED] != 0
@@ -448,9 +670,11 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
     top_smooth = conf[C_TOP_SMOOTH] != 0
     base_smooth = conf[C_BASE_SMOOTH] != 0
     eta = real[R_ETA]
+    etas = coat_indices(eta)
     a0 = real[R_ALPHA0]
     a1 = real[R_ALPHA1]
     g = real[R_G]
+    lam_l, g1_l, _ = tl
     # the optical depth per slot (Beer-Lambert crossings); a scattering walk's slots share one
     tau0 = ch[K_TAU, 0]
     tau1 = ch[K_TAU, 1]
@@ -465,32 +689,37 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             ch[K_ETA, 2], ch[K_K, 2])
     cond = base[3:]
     rough_conductor = kind == BASE_CONDUCTOR and not base_smooth
-    lam_d = 0.0  # ggx_lambda of -d for the base's alpha, once per walk (rough conductor)
+    mirror = kind == BASE_CONDUCTOR and base_smooth
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
     # the path from the viewer enters the coat (radiance transport, transmission only)
-    ok, wx, wy, wz, wf, wpdf = diel_sample(vx, vy, vz, eta, a0, top_smooth, True, False, True, exact,
-                                           next_float(s), next_float(s), next_float(s))
+    ok, wx, wy, wz, wf, wpdf = coat_enter(vx, vy, vz, etas, a0, top_smooth, tv, True, exact,
+                                          next_float(s), next_float(s), next_float(s))
     if not ok or wf == 0.0 or wpdf == 0.0 or wz == 0.0:
         return f0, f1, f2
     # the direction the light arrives with inside the coat, drawn once (importance transport)
-    ok, dx, dy, dz, df, dpdf = diel_sample(lx, ly, lz, eta, a0, top_smooth, False, False, True, exact,
-                                           next_float(s), next_float(s), next_float(s))
+    ok, dx, dy, dz, df, dpdf = coat_enter(lx, ly, lz, etas, a0, top_smooth, tl, False, exact,
+                                          next_float(s), next_float(s), next_float(s))
     if not ok or df == 0.0 or dpdf == 0.0 or dz == 0.0:
         return f0, f1, f2
+    # the rough conductor's Lambda of -d, once per walk
+    lam_d = ggx_lambda(-dx, -dy, -dz, a1, a1) if rough_conductor else 0.0
     b = wf * abs(wz) / wpdf
     b0 = b
     b1 = b
     b2 = b
     z = thick
     at_top = True
-    # the slots' transmittances through the slab along d (computed at the first base connection) and
-    # along the current w (valid while w_tr is True): each computed once, the same values
+    # what depends on the current direction w alone, computed when first needed and kept until w
+    # changes (the same numbers as computing them at each use): the slots' transmittances through
+    # the slab along w (w_tr), the coat's Lambda and G1 of w (w_coat); along d, once per walk
     d_tr = False
     t_d0 = t_d1 = t_d2 = 1.0
     w_tr = False
     t_w0 = t_w1 = t_w2 = 1.0
+    w_coat = False
+    lam_w = g1_w = 0.0
     for depth in range(max_depth):
         # Russian roulette on the largest channel
         bm = max(b0, max(b1, b2))
@@ -533,15 +762,18 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
                 b1 *= alb1
                 b2 *= alb2
                 wx, wy, wz = nx, ny, nz
-                w_tr = False
+                w_tr = w_coat = False
                 z = zp
                 if wz > 0.0 and not top_smooth:
-                    fe = diel_f(-wx, -wy, -wz, lx, ly, lz, eta, a0, True, exact)
+                    if not w_coat:
+                        lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                        w_coat = True
+                    fe = coat_transmission(lx, ly, lz, -wx, -wy, -wz, etas, True, a0, lam_l, lam_w, exact)
                     if fe != 0.0:
                         if fixed:
-                            pe = diel_pdf(lx, ly, lz, -wx, -wy, -wz, eta, a0, False, True)
+                            pe = coat_transmission_pdf(lx, ly, lz, -wx, -wy, -wz, etas, a0, g1_l)
                         else:
-                            pe = diel_pdf(-wx, -wy, -wz, lx, ly, lz, eta, a0, False, True)
+                            pe = coat_transmission_pdf(-wx, -wy, -wz, lx, ly, lz, etas, a0, g1_w)
                         c = _tr(zp - thick, wz) * fe * _power_heuristic(pp, pe)
                         f0 += b0 * c
                         f1 += b1 * c
@@ -553,8 +785,11 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
         if at_top:
             # at the coat from inside: reflect back into the layer (leaving is only counted by the
             # connections)
-            ok, nx, ny, nz, bf, bpdf = diel_sample(-wx, -wy, -wz, eta, a0, top_smooth, True, True, False, exact,
-                                                   next_float(s), next_float(s), next_float(s))
+            if not w_coat and not top_smooth:
+                lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                w_coat = True
+            ok, nx, ny, nz, bf, bpdf = coat_reflect(wx, wy, wz, etas, a0, top_smooth, lam_w, g1_w, exact,
+                                                    next_float(s), next_float(s), next_float(s))
             if not ok or bf == 0.0 or bpdf == 0.0 or nz == 0.0:
                 break
             k = bf * abs(nz) / bpdf
@@ -562,18 +797,21 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             b1 *= k
             b2 *= k
             wx, wy, wz = nx, ny, nz
-            w_tr = False
+            w_tr = w_coat = False
         else:
-            # at the base
-            if rough_conductor:
-                # the terms of -w (and once of -d) for the base's alpha, shared by the connection and the sample
-                lam_w = ggx_lambda(-wx, -wy, -wz, a1, a1)
-                g1_w = smith_g1_dir(-wx, -wy, -wz, a1, a1)
-                if not d_tr:
-                    lam_d = ggx_lambda(-dx, -dy, -dz, a1, a1)
-                e0, e1, e2, bp = conductor_pair(-wx, -wy, -wz, -dx, -dy, -dz, a1, lam_w, lam_d, g1_w, *cond)
+            # at the base: connect along d unless the base is a mirror, then sample the base
+            if not mirror:
+                if rough_conductor:
+                    # the base's Lambda and G1 of -w, shared by the connection and the sample
+                    lam_b = ggx_lambda(-wx, -wy, -wz, a1, a1)
+                    g1_b = smith_g1_dir(-wx, -wy, -wz, a1, a1)
+                    e0, e1, e2, bp = conductor_pair(-wx, -wy, -wz, -dx, -dy, -dz, a1, lam_b, lam_d, g1_b, *cond)
+                else:
+                    e0, e1, e2 = base_f(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth, *base)
                 wt = 1.0
                 if not top_smooth:
+                    if not rough_conductor:
+                        bp = base_pdf(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth)
                     wt = _power_heuristic(dpdf, bp)
                 c = abs(dz) * wt * df / dpdf
                 if not d_tr:
@@ -582,21 +820,10 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
                 f0 += b0 * e0 * c * t_d0
                 f1 += b1 * e1 * c * t_d1
                 f2 += b2 * e2 * c * t_d2
-                ok, nx, ny, nz, k0, k1, k2, bpdf = conductor_sample(-wx, -wy, -wz, a1, lam_w, g1_w, *cond,
+            if rough_conductor:
+                ok, nx, ny, nz, k0, k1, k2, bpdf = conductor_sample(-wx, -wy, -wz, a1, lam_b, g1_b, *cond,
                                                                     next_float(s), next_float(s))
-            elif not (kind == BASE_CONDUCTOR and base_smooth):
-                wt = 1.0
-                if not top_smooth:
-                    wt = _power_heuristic(dpdf, base_pdf(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth))
-                e0, e1, e2 = base_f(-wx, -wy, -wz, -dx, -dy, -dz, kind, a1, base_smooth, *base)
-                c = abs(dz) * wt * df / dpdf
-                if not d_tr:
-                    t_d0, t_d1, t_d2 = _tr3(tau0, tau1, tau2, dz)
-                    d_tr = True
-                f0 += b0 * e0 * c * t_d0
-                f1 += b1 * e1 * c * t_d1
-                f2 += b2 * e2 * c * t_d2
-            if not rough_conductor:
+            else:
                 ok, nx, ny, nz, k0, k1, k2, bpdf = base_sample(-wx, -wy, -wz, kind, a1, base_smooth, *base,
                                                                next_float(s), next_float(s))
             if not ok or bpdf == 0.0:
@@ -605,16 +832,19 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, conf:
             b1 *= k1
             b2 *= k2
             wx, wy, wz = nx, ny, nz
-            w_tr = False
+            w_tr = w_coat = False
             if not top_smooth:
-                fe = diel_f(-wx, -wy, -wz, lx, ly, lz, eta, a0, True, exact)
+                # connect the sampled direction (w_z > 0) to the light through the coat
+                lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                w_coat = True
+                fe = coat_transmission(lx, ly, lz, -wx, -wy, -wz, etas, True, a0, lam_l, lam_w, exact)
                 if fe != 0.0:
                     wt = 1.0
-                    if not (kind == BASE_CONDUCTOR and base_smooth):
+                    if not mirror:
                         if fixed:
-                            pe = diel_pdf(lx, ly, lz, -wx, -wy, -wz, eta, a0, False, True)
+                            pe = coat_transmission_pdf(lx, ly, lz, -wx, -wy, -wz, etas, a0, g1_l)
                         else:
-                            pe = diel_pdf(-wx, -wy, -wz, lx, ly, lz, eta, a0, False, True)
+                            pe = coat_transmission_pdf(-wx, -wy, -wz, lx, ly, lz, etas, a0, g1_w)
                         wt = _power_heuristic(bpdf, pe)
                     c = fe * wt
                     t_w0, t_w1, t_w2 = _tr3(tau0, tau1, tau2, wz)
@@ -647,6 +877,8 @@ def evaluate_one(vx: float, vy: float, vz: float, lx: float, ly: float, lz: floa
     ns = conf[C_SAMPLES]
     runs = max(ns, 2)
     key = direction_key(conf[C_SEED], vx, vy, vz, lx, ly, lz)
+    tv = coat_terms(vx, vy, vz, real[R_ALPHA0])
+    tl = coat_terms(lx, ly, lz, real[R_ALPHA0])
     n_groups = chan.shape[0]
     for gr in range(n_groups):
         if n_groups > 1 and gr > 0:
@@ -674,7 +906,7 @@ def evaluate_one(vx: float, vy: float, vz: float, lx: float, ly: float, lz: floa
         x1 = 0.0
         x2 = 0.0
         for j in range(runs):
-            x0, x1, x2 = walk(vx, vy, vz, lx, ly, lz, conf, real, ch, s)
+            x0, x1, x2 = walk(vx, vy, vz, lx, ly, lz, tv, tl, conf, real, ch, s)
             if j == 0:
                 first0, first1, first2 = x0, x1, x2
             if ns == 1:
