@@ -45,6 +45,7 @@ from goniometer.bits import double_as_uint64
 from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric,
                                fresnel_dielectric_cos_t_inv, ggx_d,
                                ggx_lambda, hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
+                               refract_known,
                                sample_vndf, sample_vndf_polar, smith_g1_dir, smith_g2, vndf_pdf, vndf_stretch_norm2)
 from goniometer.kernel.rng import next_float, seed_state, splitmix64
 from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
@@ -308,6 +309,20 @@ def _fresnel_coat(c: float, etas: tuple, outside: bool) -> float:
 
 
 @njit(cache=True, inline="always")
+def _refract_coat(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, etas: tuple, outside: bool):
+    """``refract(w, m, eta if outside else 1 / eta)`` for ``etas`` from :func:`coat_indices`:
+    ``optics.refract``'s expressions, with the reciprocal it computes of its index taken from
+    ``etas`` (the same number)."""
+    inv_e = etas[1] if outside else etas[2]
+    c = wx * mx + wy * my + wz * mz
+    sin2_t = inv_e * inv_e * max(0.0, 1.0 - c * c)
+    if sin2_t >= 1.0:
+        return 0.0, 0.0, 0.0, False
+    x, y, z = refract_known(wx, wy, wz, mx, my, mz, inv_e, c, math.sqrt(1.0 - sin2_t))
+    return x, y, z, True
+
+
+@njit(cache=True, inline="always")
 def coat_terms(x: float, y: float, z: float, a: float):
     """``(Lambda, G1, 1 / |w stretched|)`` of the direction ``w`` for the coat's alpha: what
     ``ggx_lambda``, ``smith_g1_dir`` and ``sample_vndf`` compute of it."""
@@ -420,9 +435,9 @@ def coat_enter(ox: float, oy: float, oz: float, etas: tuple, a: float, smooth: b
     if 0.0 + (1.0 - r) <= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0
     if dmo > 0.0:
-        ix, iy, iz, ok = refract(ox, oy, oz, mx, my, mz, eta)
+        ix, iy, iz, ok = _refract_coat(ox, oy, oz, mx, my, mz, etas, True)
     else:
-        ix, iy, iz, ok = refract(ox, oy, oz, -mx, -my, -mz, inv_eta)
+        ix, iy, iz, ok = _refract_coat(ox, oy, oz, -mx, -my, -mz, etas, False)
     if not ok or iz * oz >= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0
     # diel_f's frame: radiance transport has the light on the inside (flipped up), importance outside
@@ -455,8 +470,8 @@ def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth:
     pt = 0.0
     if pr + pt <= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0
-    if not uc < pr / (pr + pt):
-        # only for a NaN r: the general function
+    # the lobe choice uc < pr / (pr + pt) = r / r: 1 > uc for any r > 0 (a NaN r: the general function)
+    if r != r:
         return diel_sample(-wx, -wy, -wz, eta, a, smooth, True, True, False, exact, uc, u1, u2)
     ix, iy, iz = reflect(ox, oy, oz, mx, my, mz)
     if iz * oz <= 0.0:
