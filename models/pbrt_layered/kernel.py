@@ -417,37 +417,83 @@ def coat_transmission_pdf(ox: float, oy: float, oz: float, ix: float, iy: float,
     return dw * abs(dmi) / (den * den) * pt / (pr + pt)
 
 
-@njit(cache=True)
-def coat_enter(ox: float, oy: float, oz: float, etas: tuple, a: float, smooth: bool, terms: tuple,
-               radiance: bool, exact: bool, uc: float, u1: float, u2: float):
-    """:func:`diel_sample` from outside (``o_z > 0``) for transmission only, given ``etas``
-    (:func:`coat_indices`) and ``terms`` (:func:`coat_terms` of ``o``). Returns
-    ``(ok, wi_x, wi_y, wi_z, f, pdf)``."""
-    eta, inv_eta, _ = etas
-    if smooth or oz <= 0.0:
-        return diel_sample(ox, oy, oz, eta, a, smooth, radiance, False, True, exact, uc, u1, u2)
-    lam_o, g1_o, st_o = terms
+@njit(cache=True, inline="always")
+def _enter_direction(ox: float, oy: float, oz: float, etas: tuple, a: float, st_o: float, u1: float, u2: float):
+    """The direction :func:`diel_sample` draws from outside (``o_z > 0``, rough coat, transmission
+    only) with the sampler's ``st_o`` of ``o`` (:func:`coat_terms`): ``(ok, wi_x, wi_y, wi_z)``.
+    Its lobe choice needs no number: the reflection lobe's probability ``0 / (0 + (1 - r))`` never
+    exceeds ``uc``."""
     cp, sp = cos_sin_2pi(u1)
     mx, my, mz = sample_vndf_polar(ox, oy, oz, a, a, cp, sp, u2, st_o)
     dmo = ox * mx + oy * my + oz * mz
     r = _fresnel_coat(dmo, etas, dmo > 0.0)
-    # the reflection lobe is not allowed: its probability 0 / (0 + (1 - r)) never exceeds uc
     if 0.0 + (1.0 - r) <= 0.0:
-        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0
     if dmo > 0.0:
         ix, iy, iz, ok = _refract_coat(ox, oy, oz, mx, my, mz, etas, True)
     else:
         ix, iy, iz, ok = _refract_coat(ox, oy, oz, -mx, -my, -mz, etas, False)
     if not ok or iz * oz >= 0.0:
-        return False, 0.0, 0.0, 0.0, 0.0, 0.0
-    # diel_f's frame: radiance transport has the light on the inside (flipped up), importance outside
+        return False, 0.0, 0.0, 0.0
+    return True, ix, iy, iz
+
+
+@njit(cache=True, inline="always")
+def _enter_value(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, etas: tuple, a: float,
+                 terms: tuple, radiance: bool, exact: bool):
+    """:func:`diel_sample`'s ``(f, pdf)`` of the entry from ``o`` (outside) to ``i`` (inside)
+    given :func:`coat_terms` of ``o``: diel_f's frame has the light on the inside (flipped up) in
+    radiance transport, outside in importance transport."""
+    lam_o, g1_o, _ = terms
     lam_i = ggx_lambda(ix, iy, iz, a, a)
     if radiance:
         f = coat_transmission(ix, iy, -iz, ox, oy, -oz, etas, False, a, lam_i, lam_o, exact)
     else:
         f = coat_transmission(ox, oy, oz, ix, iy, iz, etas, True, a, lam_o, lam_i, exact)
-    pdf = coat_transmission_pdf(ox, oy, oz, ix, iy, iz, etas, a, g1_o)
-    return True, ix, iy, iz, f, pdf
+    return f, coat_transmission_pdf(ox, oy, oz, ix, iy, iz, etas, a, g1_o)
+
+
+@njit(cache=True)
+def coat_entries(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, etas: tuple, a: float,
+                 smooth: bool, tv: tuple, tl: tuple, exact: bool, s: np.ndarray):
+    """The walk's first two samples of the coat, each as :func:`diel_sample` draws it from outside
+    for transmission only: from ``v`` (radiance transport), then from ``l`` (importance transport),
+    given :func:`coat_terms` of ``v`` and ``l``. Returns ``(ok, w_x, w_y, w_z, f_w, pdf_w, d_x, d_y,
+    d_z, f_d, pdf_d)``; ``ok`` is False where the walk ends there (a failed sample, or a zero value,
+    density or cosine). The stream ``s`` advances as if the two were drawn one after the other: by
+    three numbers where the viewer's entry ends the walk, by six otherwise.
+
+    On a rough coat the two entries are computed side by side (they are independent, and the
+    processor overlaps them): the light's numbers are drawn before the viewer's entry is known to
+    succeed, and the state is put back when it does not."""
+    ucv = next_float(s)
+    u1v = next_float(s)
+    u2v = next_float(s)
+    if smooth or vz <= 0.0 or lz <= 0.0:
+        ok, wx, wy, wz, wf, wpdf = diel_sample(vx, vy, vz, etas[0], a, smooth, True, False, True, exact, ucv, u1v,
+                                               u2v)
+        if not ok or wf == 0.0 or wpdf == 0.0 or wz == 0.0:
+            return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        ok, dx, dy, dz, df, dpdf = diel_sample(lx, ly, lz, etas[0], a, smooth, False, False, True, exact,
+                                               next_float(s), next_float(s), next_float(s))
+        return ok and df != 0.0 and dpdf != 0.0 and dz != 0.0, wx, wy, wz, wf, wpdf, dx, dy, dz, df, dpdf
+    s0, s1, s2, s3 = s[0], s[1], s[2], s[3]
+    ucl = next_float(s)
+    u1l = next_float(s)
+    u2l = next_float(s)
+    okv, wx, wy, wz = _enter_direction(vx, vy, vz, etas, a, tv[2], u1v, u2v)
+    okl, dx, dy, dz = _enter_direction(lx, ly, lz, etas, a, tl[2], u1l, u2l)
+    # (a failed direction is (0, 0, 0), whose value and density are 0)
+    wf, wpdf = _enter_value(vx, vy, vz, wx, wy, wz, etas, a, tv, True, exact)
+    df, dpdf = _enter_value(lx, ly, lz, dx, dy, dz, etas, a, tl, False, exact)
+    if not okv or wf == 0.0 or wpdf == 0.0 or wz == 0.0:
+        # the walk ends at the viewer's entry: the light's numbers were not drawn
+        s[0] = s0
+        s[1] = s1
+        s[2] = s2
+        s[3] = s3
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return okl and df != 0.0 and dpdf != 0.0 and dz != 0.0, wx, wy, wz, wf, wpdf, dx, dy, dz, df, dpdf
 
 
 @njit(cache=True)
@@ -708,15 +754,11 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
-    # the path from the viewer enters the coat (radiance transport, transmission only)
-    ok, wx, wy, wz, wf, wpdf = coat_enter(vx, vy, vz, etas, a0, top_smooth, tv, True, exact,
-                                          next_float(s), next_float(s), next_float(s))
-    if not ok or wf == 0.0 or wpdf == 0.0 or wz == 0.0:
-        return f0, f1, f2
-    # the direction the light arrives with inside the coat, drawn once (importance transport)
-    ok, dx, dy, dz, df, dpdf = coat_enter(lx, ly, lz, etas, a0, top_smooth, tl, False, exact,
-                                          next_float(s), next_float(s), next_float(s))
-    if not ok or df == 0.0 or dpdf == 0.0 or dz == 0.0:
+    # the path from the viewer enters the coat (radiance transport, transmission only), and the
+    # direction the light arrives with inside the coat is drawn once (importance transport)
+    ok, wx, wy, wz, wf, wpdf, dx, dy, dz, df, dpdf = coat_entries(vx, vy, vz, lx, ly, lz, etas, a0, top_smooth,
+                                                                   tv, tl, exact, s)
+    if not ok:
         return f0, f1, f2
     # the rough conductor's Lambda of -d, once per walk
     lam_d = ggx_lambda(-dx, -dy, -dz, a1, a1) if rough_conductor else 0.0
