@@ -496,6 +496,24 @@ def coat_entries(vx: float, vy: float, vz: float, lx: float, ly: float, lz: floa
     return okl and df != 0.0 and dpdf != 0.0 and dz != 0.0, wx, wy, wz, wf, wpdf, dx, dy, dz, df, dpdf
 
 
+@njit(cache=True, inline="always")
+def coat_exit(wx: float, wy: float, wz: float, lx: float, ly: float, lz: float, etas: tuple, a: float, tl: tuple,
+              lam_w: float, g1_w: float, fixed: bool, exact: bool):
+    """A walk's connection of its direction ``w`` (``w_z > 0``) to the light through the coat:
+    ``(diel_f(-w, l), density)`` (radiance transport), the density being the one pbrt weighs it
+    with, ``diel_pdf(-w, l)`` (``fixed``: ``diel_pdf(l, -w)``), given :func:`coat_terms` of ``l``
+    (``tl``) and ``lam_w``, ``g1_w`` of ``w``. The walk uses the density only where the value is
+    not 0; it is computed alongside, the two being independent (cheaper than waiting for the
+    value)."""
+    lam_l, g1_l, _ = tl
+    fe = coat_transmission(lx, ly, lz, -wx, -wy, -wz, etas, True, a, lam_l, lam_w, exact)
+    if fixed:
+        pe = coat_transmission_pdf(lx, ly, lz, -wx, -wy, -wz, etas, a, g1_l)
+    else:
+        pe = coat_transmission_pdf(-wx, -wy, -wz, lx, ly, lz, etas, a, g1_w)
+    return fe, pe
+
+
 @njit(cache=True)
 def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth: bool, lam_w: float,
                  g1_w: float, exact: bool, uc: float, u1: float, u2: float):
@@ -825,12 +843,8 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
                     if not w_coat:
                         lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
                         w_coat = True
-                    fe = coat_transmission(lx, ly, lz, -wx, -wy, -wz, etas, True, a0, lam_l, lam_w, exact)
+                    fe, pe = coat_exit(wx, wy, wz, lx, ly, lz, etas, a0, tl, lam_w, g1_w, fixed, exact)
                     if fe != 0.0:
-                        if fixed:
-                            pe = coat_transmission_pdf(lx, ly, lz, -wx, -wy, -wz, etas, a0, g1_l)
-                        else:
-                            pe = coat_transmission_pdf(-wx, -wy, -wz, lx, ly, lz, etas, a0, g1_w)
                         c = _tr(zp - thick, wz) * fe * _power_heuristic(pp, pe)
                         f0 += b0 * c
                         f1 += b1 * c
@@ -894,18 +908,14 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
                 # connect the sampled direction (w_z > 0) to the light through the coat
                 lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
                 w_coat = True
-                fe = coat_transmission(lx, ly, lz, -wx, -wy, -wz, etas, True, a0, lam_l, lam_w, exact)
+                t_w0, t_w1, t_w2 = _tr3(tau0, tau1, tau2, wz)
+                w_tr = True
+                fe, pe = coat_exit(wx, wy, wz, lx, ly, lz, etas, a0, tl, lam_w, g1_w, fixed, exact)
                 if fe != 0.0:
                     wt = 1.0
                     if not mirror:
-                        if fixed:
-                            pe = coat_transmission_pdf(lx, ly, lz, -wx, -wy, -wz, etas, a0, g1_l)
-                        else:
-                            pe = coat_transmission_pdf(-wx, -wy, -wz, lx, ly, lz, etas, a0, g1_w)
                         wt = _power_heuristic(bpdf, pe)
                     c = fe * wt
-                    t_w0, t_w1, t_w2 = _tr3(tau0, tau1, tau2, wz)
-                    w_tr = True
                     f0 += b0 * c * t_w0
                     f1 += b1 * c * t_w1
                     f2 += b2 * c * t_w2
