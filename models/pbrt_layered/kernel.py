@@ -93,6 +93,13 @@ hg_scatter = _models_copy(optics.hg_scatter, inline="always", hg_scatter_cs=_hg_
 
 # ---------------------------------------------------------------------- small helpers
 
+@njit(cache=True, error_model="numpy")
+def _quotient(a: float, b: float) -> float:
+    """``a / b`` as :mod:`goniometer.optics` divides (no exception for ``b = 0``): for optics'
+    expressions that this module computes itself, which keep optics' arithmetic."""
+    return a / b
+
+
 @njit(cache=True, inline="always")
 def _power_heuristic(a: float, b: float) -> float:
     """The power heuristic with exponent 2 for one sample of each strategy, ``a^2 / (a^2 + b^2)``
@@ -330,7 +337,7 @@ def coat_terms(x: float, y: float, z: float, a: float):
             1.0 / math.sqrt(vndf_stretch_norm2(x, y, z, a, a)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def coat_transmission(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float, etas: tuple,
                       outside: bool, a: float, lam_l: float, lam_v: float, exact: bool) -> float:
     """:func:`diel_f`'s transmission in its frame (light side ``l`` with ``l_z > 0``, ``v_z < 0``;
@@ -540,21 +547,22 @@ def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth:
     ix, iy, iz = reflect(ox, oy, oz, mx, my, mz)
     if iz * oz <= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0
-    # diel_f: microfacet_reflection(i, o flipped up, a, a, 1 / eta, 0, True)
+    # diel_f: microfacet_reflection(i, o flipped up, a, a, 1 / eta, 0, True), its half vector
+    # normalize(i + o) flipped up (optics.half_vector's expressions)
     hx = ix + ox
     hy = iy + oy
     hz = -iz + -oz
     n2 = hx * hx + hy * hy + hz * hz
+    if not (n2 != 0.0 and iz + oz < 0.0):
+        return diel_sample(-wx, -wy, -wz, eta, a, smooth, True, True, False, exact, uc, u1, u2)
     inv = 1.0 / math.sqrt(n2)
     hx *= inv
     hy *= inv
     hz *= inv
-    if not (n2 != 0.0 and iz + oz < 0.0):
-        return diel_sample(-wx, -wy, -wz, eta, a, smooth, True, True, False, exact, uc, u1, u2)
     lh = ix * hx + iy * hy + -iz * hz
     d = ggx_d(hx, hy, hz, a, a)
     g = smith_g2(ggx_lambda(ix, iy, -iz, a, a), lam_w, False, True)
-    f = _fresnel_coat(lh, etas, False) * d * g / (4.0 * -iz * -oz)
+    f = _quotient(_fresnel_coat(lh, etas, False) * d * g, 4.0 * -iz * -oz)
     # diel_pdf(o, i, reflection only): its normal is (-h_x, -h_y, h_z) (the same sum, turned up),
     # whose D is h's
     mx = -hx
@@ -700,15 +708,15 @@ def conductor_pair(ox: float, oy: float, oz: float, ix: float, iy: float, iz: fl
     lh = ix * hx + iy * hy + iz * hz
     g = smith_g2(lam_i, lam_o, False, True)
     den = 4.0 * iz * oz
-    f0 = _base_fresnel(lh, e0, k0) * d * g / den
+    f0 = _quotient(_base_fresnel(lh, e0, k0) * d * g, den)
     if e1 == e0 and k1 == k0:
         f1 = f0
     else:
-        f1 = _base_fresnel(lh, e1, k1) * d * g / den
+        f1 = _quotient(_base_fresnel(lh, e1, k1) * d * g, den)
     if e2 == e1 and k2 == k1:
         f2 = f1
     else:
-        f2 = _base_fresnel(lh, e2, k2) * d * g / den
+        f2 = _quotient(_base_fresnel(lh, e2, k2) * d * g, den)
     return f0, f1, f2, pdf
 
 
@@ -748,12 +756,10 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
     kind = conf[C_BASE]
     top_smooth = conf[C_TOP_SMOOTH] != 0
     base_smooth = conf[C_BASE_SMOOTH] != 0
-    eta = real[R_ETA]
-    etas = coat_indices(eta)
+    etas = coat_indices(real[R_ETA])
     a0 = real[R_ALPHA0]
     a1 = real[R_ALPHA1]
     g = real[R_G]
-    lam_l, g1_l, _ = tl
     # the optical depth per slot (Beer-Lambert crossings); a scattering walk's slots share one
     tau0 = ch[K_TAU, 0]
     tau1 = ch[K_TAU, 1]
@@ -840,9 +846,8 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
                 w_tr = w_coat = False
                 z = zp
                 if wz > 0.0 and not top_smooth:
-                    if not w_coat:
-                        lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
-                        w_coat = True
+                    lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                    w_coat = True
                     fe, pe = coat_exit(wx, wy, wz, lx, ly, lz, etas, a0, tl, lam_w, g1_w, fixed, exact)
                     if fe != 0.0:
                         c = _tr(zp - thick, wz) * fe * _power_heuristic(pp, pe)
