@@ -16,7 +16,17 @@ The layer is the slab ``0 <= z <= thickness`` (thickness = optical depth, extinc
 
 Every microfacet, Fresnel, refraction and phase formula comes from :mod:`goniometer.optics`; this
 module only composes them the way pbrt's component BxDFs do (rough dielectric with the masking
-``G = 1 / (1 + Lambda_o + Lambda_i)`` in both lobes, rough or smooth conductor, Lambertian, HG).
+``G = 1 / (1 + Lambda_o + Lambda_i)`` in both lobes, rough or smooth conductor, Lambertian, HG):
+:func:`diel_sample`, :func:`diel_f`, :func:`diel_pdf`, :func:`base_f`, :func:`base_pdf`,
+:func:`base_sample`. The walk's hot steps (the rough coat's entries, reflection from inside and
+exits, the rough conductor's connection and sample) are fused versions of these that give the
+same bits: the same expressions in the same order, where a value that depends on one direction
+only (its Lambda, G1, the sampler's stretch, the slab's transmittance along it) or a shared part
+(a reflection's half vector and D, a reciprocal) is computed once and reused
+(``tests/models/test_pbrt_layered.py`` checks each against the general functions bit for bit;
+``benchmarks/README.md``, issue 34, the time they save). Where optics' expressions are restated
+here (the microfacet values' last products and quotients), they divide as optics does
+(:func:`_quotient`, no exception on a zero divisor).
 
 The parameters of one evaluation are packed by :func:`models.pbrt_layered.model.pack`:
 
@@ -291,10 +301,14 @@ def diel_sample(ox: float, oy: float, oz: float, eta: float, a: float, smooth: b
 # straightforward composition above (diel_sample, diel_f, diel_pdf) with the same expressions in
 # the same order, but takes the terms that depend on one direction only (Lambda, G1 and the
 # visible-normal sampler's stretch of v, l and the walk's current direction w) from the walk,
-# which computes them once per direction instead of once per use, and computes the half vector
-# and D of a reflection once for its value and density. ggx_lambda, smith_g1_dir and
-# vndf_stretch_norm2 depend on the squares of a direction's coordinates (and |z|): the same
-# number for w and -w. Anything off their common path is left to the general functions.
+# which computes them once per direction instead of once per use, computes the half vector and D
+# of a reflection once for its value and density, and takes the reciprocals of the coat's index
+# that fresnel_dielectric and refract would divide again from coat_indices. ggx_lambda,
+# smith_g1_dir and vndf_stretch_norm2 depend on the squares of a direction's coordinates (and
+# |z|): the same number for w and -w. Anything off their common path is left to the general
+# functions. Independent computations are placed side by side (the two entries, an exit's value
+# and density): the processor overlaps them, which is most of what remains to gain, the walk's
+# arithmetic being long chains of divisions and square roots.
 
 @njit(cache=True, inline="always")
 def coat_indices(eta: float):
