@@ -238,6 +238,88 @@ def test_standard_errors_match_the_spread_over_seeds(n_samples):
     assert np.all((ratio > 0.6) & (ratio < 1.7)), ratio
 
 
+def _bits(values) -> np.ndarray:
+    return np.array([float(x) for x in values]).view(np.uint64)
+
+
+def _unit(rng: np.random.Generator, up: bool) -> tuple[float, float, float]:
+    """A direction of the upper hemisphere (or any), grazing ones frequent."""
+    x = rng.normal(size=3)
+    if up:
+        x[2] = abs(x[2]) * (1e-3 if rng.random() < 0.2 else 1.0)
+    x /= np.linalg.norm(x)
+    return float(x[0]), float(x[1]), float(x[2])
+
+
+@pytest.mark.parametrize("eta, a", [(1.5, 0.05), (1.33, 0.3), (0.8, 0.7)])
+def test_the_walks_fused_steps_give_the_general_functions_bits(eta, a):
+    """The walk's coat and conductor steps (each direction's Lambda, G1 and sampler stretch computed
+    once, a reflection's half vector shared by its value and density, the Fresnel reciprocals
+    once, the two entries side by side) against diel_sample, diel_f, diel_pdf, base_f, base_pdf
+    and base_sample, bit for bit, for random directions and numbers (grazing ones included), both
+    masking forms and both MIS densities; the entries leave the stream where drawing one after
+    the other leaves it."""
+    from goniometer.kernel.packing import BASE_CONDUCTOR
+    from goniometer.kernel.rng import next_float, seed_state
+    from models.pbrt_layered import kernel as K
+
+    rng = np.random.default_rng(int(eta * 100) + int(a * 10))
+    etas = K.coat_indices(eta)
+    cond = (0.97, 0.67, 0.3, 0.0067, 0.3, 0.0067)  # eta, k per slot; slots 1 and 2 equal
+    rho = (0.0, 0.0, 0.0)
+    a1 = 0.2
+    ended = 0
+    for case in range(300):
+        exact = case % 2 == 1
+        fixed = case % 4 >= 2
+        v, l = _unit(rng, True), _unit(rng, True)
+        tv, tl = K.coat_terms(*v, a), K.coat_terms(*l, a)
+        # the two entries against two diel_samples drawn one after the other
+        s = np.empty(4, dtype=np.uint64)
+        seed_state(s, np.uint64(case))
+        ref = s.copy()
+        got = K.coat_entries(*v, *l, etas, a, False, tv, tl, exact, s)
+        u = [next_float(ref) for _ in range(3)]
+        ok, wx, wy, wz, wf, wpdf = K.diel_sample(*v, eta, a, False, True, False, True, exact, *u)
+        if not ok or wf == 0.0 or wpdf == 0.0 or wz == 0.0:
+            ended += 1
+            assert not got[0]
+        else:
+            u = [next_float(ref) for _ in range(3)]
+            ok, dx, dy, dz, df, dpdf = K.diel_sample(*l, eta, a, False, False, False, True, exact, *u)
+            assert got[0] == (ok and df != 0.0 and dpdf != 0.0 and dz != 0.0)
+            if got[0]:
+                assert np.array_equal(_bits(got[1:]), _bits((wx, wy, wz, wf, wpdf, dx, dy, dz, df, dpdf)))
+        assert np.array_equal(s, ref)
+        # the coat from inside, reflection only
+        w = _unit(rng, True)
+        lam_w, g1_w, _ = K.coat_terms(*w, a)
+        u = tuple(rng.random(3))
+        want = K.diel_sample(-w[0], -w[1], -w[2], eta, a, False, True, True, False, exact, *u)
+        assert np.array_equal(_bits(K.coat_reflect(*w, etas, a, False, lam_w, g1_w, exact, *u)), _bits(want))
+        # the connection of w to the light, and its MIS density
+        fe, pe = K.coat_exit(*w, *l, etas, a, tl, lam_w, g1_w, fixed, exact)
+        mw = (-w[0], -w[1], -w[2])
+        assert np.array_equal(_bits([fe]), _bits([K.diel_f(*mw, *l, eta, a, True, exact)]))
+        want = K.diel_pdf(*l, *mw, eta, a, False, True) if fixed else K.diel_pdf(*mw, *l, eta, a, False, True)
+        assert np.array_equal(_bits([pe]), _bits([want]))
+        # the rough conductor: the connection along a direction d, and the sample
+        o, d = _unit(rng, True), _unit(rng, case % 5 != 0)
+        lam_o, g1_o = g.optics.ggx_lambda(*o, a1, a1), g.optics.smith_g1_dir(*o, a1, a1)
+        pair = K.conductor_pair(*o, *d, a1, lam_o, g.optics.ggx_lambda(*d, a1, a1), g1_o, *cond)
+        want = K.base_f(*o, *d, BASE_CONDUCTOR, a1, False, *rho, *cond) + (
+            K.base_pdf(*o, *d, BASE_CONDUCTOR, a1, False),)
+        assert np.array_equal(_bits(pair), _bits(want))
+        u = tuple(rng.random(2))
+        want = K.base_sample(*o, BASE_CONDUCTOR, a1, False, *rho, *cond, *u)
+        assert np.array_equal(_bits(K.conductor_sample(*o, a1, lam_o, g1_o, *cond, *u)), _bits(want))
+    # the viewer's entry ended some walks (the stream put back), not most
+    if eta < 1.0:
+        # a coat less dense than the air ends many entries (total internal reflection from
+        # outside): the stream is put back after the light's numbers were drawn
+        assert 50 < ended < 250, ended
+
+
 def test_smooth_coat_white_base_conserves_all_but_the_depth_cap():
     """A smooth coat over a white Lambertian without absorption: what enters leaves, so the internal
     albedo is 1 - F(theta) for deep walks; pbrt's maxdepth 10 keeps 5 base vertices and loses
