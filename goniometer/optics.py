@@ -922,6 +922,22 @@ def microfacet_transmission(
     if lz <= 0.0 or vz >= 0.0 or eta == 1.0:
         # eta == 1: the interface is invisible, transmission is a Dirac delta
         return 0.0
+    return microfacet_transmission_given(lx, ly, lz, vx, vy, vz, ax, ay, eta, 1.0 / eta,
+                                         ggx_lambda(lx, ly, lz, ax, ay), ggx_lambda(vx, vy, vz, ax, ay),
+                                         height_correlated)
+
+
+@numba.njit(cache=True, error_model='numpy')
+def microfacet_transmission_given(
+    lx: float, ly: float, lz: float, vx: float, vy: float, vz: float,
+    ax: float, ay: float, eta: float, inv_eta: float, lambda_l: float, lambda_v: float,
+    height_correlated: bool,
+) -> float:
+    """:func:`microfacet_transmission` for callers that already hold ``inv_eta = 1 / eta`` and the
+    Smith ``Lambda`` of ``l`` and of ``v`` (:func:`ggx_lambda`; a random walk reuses them for every
+    pair a direction enters): the same expressions, so the same number."""
+    if lz <= 0.0 or vz >= 0.0 or eta == 1.0:
+        return 0.0
     hx = -(lx + eta * vx)
     hy = -(ly + eta * vy)
     hz = -(lz + eta * vz)
@@ -938,13 +954,11 @@ def microfacet_transmission(
     # refraction geometry: l on the positive side of h, v on the negative side
     if lh <= 0.0 or vh >= 0.0:
         return 0.0
-    f = fresnel_dielectric(lh, eta)
+    f = fresnel_dielectric_cos_t_inv(lh, eta, inv_eta)[0]
     if f >= 1.0:
         return 0.0
     d = ggx_d(hx, hy, hz, ax, ay)
-    li = ggx_lambda(lx, ly, lz, ax, ay)
-    lo = ggx_lambda(vx, vy, vz, ax, ay)
-    g = smith_g2(li, lo, True, height_correlated)
+    g = smith_g2(lambda_l, lambda_v, True, height_correlated)
     denom = lh + eta * vh
     return (1.0 - f) * d * g * abs(lh * vh) * eta * eta / (lz * abs(vz) * denom * denom)
 

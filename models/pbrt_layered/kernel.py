@@ -52,10 +52,9 @@ import numpy as np
 
 from goniometer import optics
 from goniometer.bits import double_as_uint64
-from goniometer.optics import (cosine_from_disk, cos_sin_2pi, fresnel_conductor, fresnel_dielectric,
-                               fresnel_dielectric_cos_t_inv, ggx_d,
-                               ggx_lambda, hg_phase, microfacet_reflection, microfacet_transmission, reflect, refract,
-                               refract_known,
+from goniometer.optics import (cos_sin_2pi, cosine_from_disk, fresnel_conductor, fresnel_dielectric,
+                               fresnel_dielectric_cos_t_inv, ggx_d, ggx_lambda, hg_phase, microfacet_reflection,
+                               microfacet_transmission, microfacet_transmission_given, reflect, refract, refract_known,
                                sample_vndf, sample_vndf_polar, smith_g1_dir, smith_g2, vndf_pdf, vndf_stretch_norm2)
 from goniometer.kernel.rng import next_float, seed_state, splitmix64
 from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
@@ -195,6 +194,31 @@ def diel_f(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, eta
     return f * ((1.0 + li) * (1.0 + lo) / (1.0 + li + lo))
 
 
+@njit(cache=True, inline="always")
+def _generalized_half(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, etap: float):
+    """The microfacet normal of the pair ``(o, i)`` for the index ratio ``etap`` (1 for a
+    reflection): ``etap i + o`` normalised towards +z, with ``i.m`` and ``o.m``. Returns ``(ok, m_x,
+    m_y, m_z, i.m, o.m)``, ``ok`` False where the pair has no such normal (a zero sum, or a
+    direction on the wrong side of ``m``)."""
+    mx = etap * ix + ox
+    my = etap * iy + oy
+    mz = etap * iz + oz
+    n2 = mx * mx + my * my + mz * mz
+    if n2 == 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    inv = 1.0 / math.sqrt(n2)
+    if mz < 0.0:
+        inv = -inv
+    mx *= inv
+    my *= inv
+    mz *= inv
+    dmi = mx * ix + my * iy + mz * iz
+    dmo = mx * ox + my * oy + mz * oz
+    if dmi * iz < 0.0 or dmo * oz < 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    return True, mx, my, mz, dmi, dmo
+
+
 @njit(cache=True)
 def diel_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, eta: float, a: float,
              refl: bool, trans: bool) -> float:
@@ -207,21 +231,8 @@ def diel_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, e
     etap = 1.0
     if not reflection:
         etap = eta if oz > 0.0 else 1.0 / eta
-    mx = etap * ix + ox
-    my = etap * iy + oy
-    mz = etap * iz + oz
-    n2 = mx * mx + my * my + mz * mz
-    if n2 == 0.0:
-        return 0.0
-    inv = 1.0 / math.sqrt(n2)
-    if mz < 0.0:
-        inv = -inv
-    mx *= inv
-    my *= inv
-    mz *= inv
-    dmi = mx * ix + my * iy + mz * iz
-    dmo = mx * ox + my * oy + mz * oz
-    if dmi * iz < 0.0 or dmo * oz < 0.0:
+    ok, mx, my, mz, dmi, dmo = _generalized_half(ox, oy, oz, ix, iy, iz, etap)
+    if not ok:
         return 0.0
     r = fresnel_dielectric(dmo, eta if dmo > 0.0 else 1.0 / eta)
     pr = r if refl else 0.0
@@ -351,38 +362,16 @@ def coat_terms(x: float, y: float, z: float, a: float):
             1.0 / math.sqrt(vndf_stretch_norm2(x, y, z, a, a)))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def coat_transmission(lx: float, ly: float, lz: float, vx: float, vy: float, vz: float, etas: tuple,
                       outside: bool, a: float, lam_l: float, lam_v: float, exact: bool) -> float:
     """:func:`diel_f`'s transmission in its frame (light side ``l`` with ``l_z > 0``, ``v_z < 0``;
     the light outside the coat, relative index ``eta``, or inside, ``1 / eta``), given ``lam_l`` and
-    ``lam_v`` (``ggx_lambda`` of ``l`` and ``v``): ``optics.microfacet_transmission``'s expressions
-    in its order, then pbrt's masking (or, with ``exact``, the height-correlated one)."""
-    e = etas[0] if outside else etas[1]
-    if lz <= 0.0 or vz >= 0.0 or e == 1.0:
-        return 0.0
-    hx = -(lx + e * vx)
-    hy = -(ly + e * vy)
-    hz = -(lz + e * vz)
-    n = math.sqrt(hx * hx + hy * hy + hz * hz)
-    if n == 0.0:
-        return 0.0
-    if hz < 0.0:
-        n = -n
-    hx /= n
-    hy /= n
-    hz /= n
-    lh = lx * hx + ly * hy + lz * hz
-    vh = vx * hx + vy * hy + vz * hz
-    if lh <= 0.0 or vh >= 0.0:
-        return 0.0
-    f = _fresnel_coat(lh, etas, outside)
-    if f >= 1.0:
-        return 0.0
-    d = ggx_d(hx, hy, hz, a, a)
-    g = smith_g2(lam_l, lam_v, True, exact)
-    denom = lh + e * vh
-    f = (1.0 - f) * d * g * abs(lh * vh) * e * e / (lz * abs(vz) * denom * denom)
+    ``lam_v`` (``ggx_lambda`` of ``l`` and ``v``): ``optics.microfacet_transmission_given`` with the
+    reciprocal of the index from ``etas``, then pbrt's masking (or, with ``exact``, the
+    height-correlated one)."""
+    e, inv_e = (etas[0], etas[1]) if outside else (etas[1], etas[2])
+    f = microfacet_transmission_given(lx, ly, lz, vx, vy, vz, a, a, e, inv_e, lam_l, lam_v, exact)
     if exact:
         return f
     if f == 0.0:
@@ -401,21 +390,8 @@ def coat_transmission_pdf(ox: float, oy: float, oz: float, ix: float, iy: float,
     if oz * iz > 0.0:
         return diel_pdf(ox, oy, oz, ix, iy, iz, eta, a, False, True)
     etap = eta if oz > 0.0 else inv_eta
-    mx = etap * ix + ox
-    my = etap * iy + oy
-    mz = etap * iz + oz
-    n2 = mx * mx + my * my + mz * mz
-    if n2 == 0.0:
-        return 0.0
-    inv = 1.0 / math.sqrt(n2)
-    if mz < 0.0:
-        inv = -inv
-    mx *= inv
-    my *= inv
-    mz *= inv
-    dmi = mx * ix + my * iy + mz * iz
-    dmo = mx * ox + my * oy + mz * oz
-    if dmi * iz < 0.0 or dmo * oz < 0.0:
+    ok, mx, my, mz, dmi, dmo = _generalized_half(ox, oy, oz, ix, iy, iz, etap)
+    if not ok:
         return 0.0
     r = _fresnel_coat(dmo, etas, dmo > 0.0)
     pr = 0.0
