@@ -53,9 +53,10 @@ import numpy as np
 from goniometer import optics
 from goniometer.bits import double_as_uint64
 from goniometer.optics import (cos_sin_2pi, cosine_from_disk, fresnel_conductor, fresnel_dielectric,
-                               fresnel_dielectric_cos_t_inv, ggx_d, ggx_lambda, hg_phase, microfacet_reflection,
-                               microfacet_transmission, microfacet_transmission_given, reflect, refract, refract_known,
-                               sample_vndf, sample_vndf_polar, smith_g1_dir, smith_g2, vndf_pdf, vndf_stretch_norm2)
+                               fresnel_dielectric_cos_t_inv, ggx_d, ggx_lambda, half_vector, hg_phase,
+                               microfacet_reflection, microfacet_transmission, microfacet_transmission_given, reflect,
+                               refract, refract_known, sample_vndf, sample_vndf_polar, smith_g1_dir, smith_g2,
+                               vndf_pdf, vndf_stretch_norm2)
 from goniometer.kernel.rng import next_float, seed_state, splitmix64
 from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from models._jit import njit
@@ -611,13 +612,7 @@ def base_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, k
         return iz * _INV_PI
     if smooth:
         return 0.0
-    hx = ox + ix
-    hy = oy + iy
-    hz = oz + iz
-    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    hx *= inv
-    hy *= inv
-    hz *= inv
+    hx, hy, hz = half_vector(ox, oy, oz, ix, iy, iz)
     return vndf_pdf(ox, oy, oz, hx, hy, hz, a, a) / (4.0 * abs(ox * hx + oy * hy + oz * hz))
 
 
@@ -672,20 +667,14 @@ def conductor_pair(ox: float, oy: float, oz: float, ix: float, iy: float, iz: fl
     given ``lam_o``, ``lam_i`` (``ggx_lambda`` of ``o`` and ``i``) and ``g1_o``
     (``smith_g1_dir`` of ``o``), which the walk computes once per direction.
 
-    The same bits as the two functions: the half vector of ``o + i`` (``optics.half_vector``'s
-    expressions; ``o + i`` equals ``i + o`` exactly), its ``D`` and the masking
+    The same bits as the two functions: the half vector of ``o + i`` (``optics.half_vector``;
+    ``o + i`` equals ``i + o`` exactly), its ``D`` and the masking
     ``smith_g2(lam_i, lam_o)`` are computed once instead of once per slot and once more for the
     density; each slot's value is ``microfacet_reflection``'s ``F D G / (4 i_z o_z)`` in its
     order, the density ``vndf_pdf``'s ``G1 (o.h) D / o_z`` over ``4 |o.h|``."""
     if oz <= 0.0 or iz <= 0.0:
         return 0.0, 0.0, 0.0, 0.0
-    hx = ox + ix
-    hy = oy + iy
-    hz = oz + iz
-    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    hx *= inv
-    hy *= inv
-    hz *= inv
+    hx, hy, hz = half_vector(ox, oy, oz, ix, iy, iz)
     d = ggx_d(hx, hy, hz, a, a)
     # the density: vndf_pdf(o, h) / (4 |o.h|), smith_g1 being 0 unless (o.h) o_z > 0
     wm = ox * hx + oy * hy + oz * hz
