@@ -4,6 +4,7 @@ and the PNG writing of images and matplotlib figures (atomic, unfiltered rows, f
 
 from __future__ import annotations
 
+import functools
 import io
 import struct
 import zlib
@@ -79,24 +80,31 @@ def _frame(img: np.ndarray, pm: PixelMap, valid: np.ndarray | None = None) -> np
     ok = pm.ok if valid is None else (pm.ok & valid)
     out = np.where(ok[..., None], np.nan_to_num(img), 0.82)   # masked cells: light grey
     out[~pm.inside] = 1.0
-    ring = pm.inside & ~np.pad(pm.inside, 1)[2:, 1:-1] | pm.inside & ~np.pad(pm.inside, 1)[1:-1, 2:] \
-        | pm.inside & ~np.pad(pm.inside, 1)[:-2, 1:-1] | pm.inside & ~np.pad(pm.inside, 1)[1:-1, :-2]
-    out[ring] = 0.45
+    out[pm.ring] = 0.45
     return out
 
 
 def mark_light(img: np.ndarray, light: np.ndarray) -> np.ndarray:
     """Hollow yellow ring (dark outline) at the top-view position of the light direction; the
     values under its centre stay visible."""
-    s = img.shape[0]
-    cx = (light[0] + 1.0) / 2.0 * s - 0.5
-    cy = (1.0 - light[1]) / 2.0 * s - 0.5
+    outline, ring = _light_ring(img.shape[0], float(light[0]), float(light[1]))
+    img[outline] = (0.1, 0.1, 0.1)
+    img[ring] = (1.0, 0.85, 0.0)
+    return img
+
+
+@functools.lru_cache(maxsize=64)
+def _light_ring(s: int, lx: float, ly: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels of :func:`mark_light`'s dark outline and yellow ring in an ``s`` x ``s`` view, light
+    ``(lx, ly, .)`` (every panel of an incident direction marks the same light: worked out once)."""
+    cx = (lx + 1.0) / 2.0 * s - 0.5
+    cy = (1.0 - ly) / 2.0 * s - 0.5
     yy, xx = np.mgrid[0:s, 0:s]
     r = np.sqrt((xx - cx) ** 2 + (yy - cy) ** 2)
     rad = max(4.0, s / 40)
-    img[(r >= rad - 2.2) & (r <= rad + 1.2)] = (0.1, 0.1, 0.1)
-    img[(r >= rad - 1.2) & (r <= rad + 0.2)] = (1.0, 0.85, 0.0)
-    return img
+    outline, ring = (r >= rad - 2.2) & (r <= rad + 1.2), (r >= rad - 1.2) & (r <= rad + 0.2)
+    outline.flags.writeable = ring.flags.writeable = False
+    return outline, ring
 
 
 def compose(rows: list[list[np.ndarray]], gap: int = 8) -> np.ndarray:
