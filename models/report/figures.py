@@ -328,17 +328,18 @@ def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
     lum_ref = _lum(inc.ref)
     lum_scale = exposure(remap(lum_ref), inc.omega, inc.mask)
     g_lum_ref = remap(pm.sample(lum_ref))
-    diffs = {n: remap(pm.sample(_lum(t + i))) - g_lum_ref for n, (t, i) in inc.models.items()}
+    totals = {n: t + i for n, (t, i) in inc.models.items()}
+    lums = {"reference": lum_ref, **{n: _lum(cells) for n, cells in totals.items()}}
+    diffs = {n: remap(pm.sample(lums[n])) - g_lum_ref for n in totals}
     allabs = np.concatenate([np.abs(d[np.isfinite(d)]) for d in diffs.values()]) if diffs else np.zeros(0)
     lim = float(np.percentile(allabs, 99)) if allabs.size else 0.0
     lim = max(lim, 1e-3 * lum_scale, 1e-12)
     noise = remap(pm.sample(lum_ref + 2.0 * _lum(inc.ref_se))) - g_lum_ref
     out = {}
-    panels = {"reference": (inc.ref, noise)}
-    panels.update({n: (t + i, diffs[n]) for n, (t, i) in inc.models.items()})
+    panels = {"reference": (inc.ref, noise), **{n: (cells, diffs[n]) for n, cells in totals.items()}}
     for name, (cells, third) in panels.items():
         a = mark_light(rgb_panel(cells, scale, pm), inc.light)
-        b = mark_light(iso_panel(_lum(cells), lum_scale, pm), inc.light)
+        b = mark_light(iso_panel(lums[name], lum_scale, pm), inc.light)
         c = mark_light(diverging_panel(third, lim, pm), inc.light)
         fname = f"top_{tag}_{safe_part(name)}.png"
         if labels is None:

@@ -153,12 +153,14 @@ def figure_pixels(fig) -> np.ndarray:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
     dpi = fig.dpi
-    fig.dpi = DPI
+    if dpi != DPI:   # the report's figures are made at DPI: only a foreign one is set to it, for this drawing
+        fig.dpi = DPI
     try:
         canvas.draw()
         return np.array(canvas.buffer_rgba())
     finally:
-        fig.dpi = dpi
+        if dpi != DPI:
+            fig.dpi = dpi
 
 
 def figure_png(fig, tight: bool = False) -> bytes:
