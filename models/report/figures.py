@@ -125,7 +125,7 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
         labels = (title, side) if standalone else None
         tops, diff_scale, lum_scale, rgb_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
         orders = f"orders_{tag}.png"
-        top, bottom, orders_legend = _orders_panels(inc, sd.grid)
+        top, bottom, orders_legend = _orders_panels(inc, sd.grid, rgb_scale)
         if standalone:
             save_figure(_labelled_orders(top, bottom, orders_legend, inc, title, side), fig_dir / orders)
         else:
@@ -385,12 +385,13 @@ def _labelled_top(panels: tuple[np.ndarray, np.ndarray, np.ndarray], name: str, 
     return fig
 
 
-def _orders_panels(inc: _Incident, grid: SliceGrid) -> tuple[list[np.ndarray], list[np.ndarray], list[dict]]:
-    """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled) over isovalues (each
-    order exposed on its own range, see :func:`exposure`): the top and bottom rows of disks, and
-    each column's colour-bar numbers (:func:`_legend`)."""
+def _orders_panels(inc: _Incident, grid: SliceGrid, scale: float) -> tuple[list[np.ndarray], list[np.ndarray],
+                                                                          list[dict]]:
+    """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled, on the top views' RGB
+    exposure ``scale``, :func:`_top_views`) over isovalues (each order exposed on its own range,
+    see :func:`exposure`): the top and bottom rows of disks, and each column's colour-bar numbers
+    (:func:`_legend`)."""
     pm = pixel_map(grid, inc.light, inc.mask, ORDER_DISK_PX)
-    scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
     top, bottom, legends = [], [], []
     for k in range(inc.orders.shape[0]):
         cells = inc.orders[k]

@@ -41,9 +41,18 @@ def legend_colours(stops: int = 11) -> dict:
     ``diverging``, ``stops`` colours of :func:`diverging_panel` evenly spaced from -lim to +lim."""
     def hexes(rgb: np.ndarray) -> list[str]:
         return ["#%02x%02x%02x" % tuple(int(round(255 * c)) for c in row[:3]) for row in rgb]
-    return {"bands": hexes(colormap("viridis")(np.linspace(0.0, 1.0, ISO_LEVELS))),
+    return {"bands": hexes(band_colours(ISO_LEVELS)),
             "diverging": hexes(colormap("RdBu_r")(np.linspace(0.0, 1.0, stops))),
             "masked": hexes(np.full((1, 3), 0.82))[0]}
+
+
+@functools.lru_cache(maxsize=8)
+def band_colours(levels: int) -> np.ndarray:
+    """The RGB colours (levels, 3) of :func:`iso_panel`'s bands, lowest first: viridis at ``levels``
+    evenly spaced points (read-only)."""
+    colours = colormap("viridis")(np.linspace(0.0, 1.0, levels))[:, :3]
+    colours.flags.writeable = False
+    return colours
 
 
 def rgb_panel(rgb: np.ndarray, scale: float, pm: PixelMap, factor: float = 1.0) -> np.ndarray:
@@ -58,10 +67,8 @@ def iso_panel(lum: np.ndarray, scale: float, pm: PixelMap, levels: int = ISO_LEV
     g = remap(pm.sample(lum)) / scale
     band = np.where(np.isfinite(g), np.floor(np.clip(g, 0.0, None) * levels), -1).astype(int)
     band = np.minimum(band, levels)
-    colours = colormap("viridis")(np.linspace(0.0, 1.0, levels))[:, :3]
-    img = np.ones(band.shape + (3,))
-    inside = (band >= 0) & (band < levels)
-    img[inside] = colours[band[inside]]
+    # the band colours, then white: above the scale (band = levels) and no value (band = -1)
+    img = np.vstack([band_colours(levels), np.ones((1, 3))])[np.where(band < 0, levels, band)]
     edge = np.zeros(band.shape, bool)
     edge[:, 1:] |= (band[:, 1:] != band[:, :-1]) & (band[:, 1:] >= 0) & (band[:, :-1] >= 0)
     edge[1:, :] |= (band[1:, :] != band[:-1, :]) & (band[1:, :] >= 0) & (band[:-1, :] >= 0)

@@ -112,3 +112,18 @@ def test_the_light_ring_is_around_the_light_and_the_same_every_time():
     assert (a[int(round(cy)), int(round(cx))] == 1.0).all(), "the value under the light stays visible"
     other = mark_light(np.ones((s, s, 3)), light_direction(40.0, 90.0))
     assert not np.array_equal(other, a)
+
+
+def test_the_bands_are_viridis_and_white_above_the_scale():
+    from models.report.geometry import remap
+    from models.report.panels import ISO_LEVELS, band_colours, colormap, iso_panel
+    np.testing.assert_array_equal(band_colours(ISO_LEVELS), colormap("viridis")(np.linspace(0, 1, ISO_LEVELS))[:, :3])
+    grid = SliceGrid("classic", 6, 4)
+    pm = pixel_map(grid, light_direction(0.0, 0.0), np.ones(grid.shape, bool), 60)
+    scale = float(remap(1.0))
+    for level, f in ((0, 0.0), (4, 0.15), (9, 0.97), (None, 5.0)):    # g(f) / g(1) in band `level`; 5: above
+        img = iso_panel(np.full(grid.shape, f), scale, pm)
+        centre = img[30, 30]
+        want = np.ones(3) if level is None else band_colours(ISO_LEVELS)[level]
+        assert level is None or int(np.floor(remap(f) / scale * ISO_LEVELS)) == level
+        np.testing.assert_array_equal(centre, want)
