@@ -116,15 +116,16 @@ def draw_material_figures(ref: SimulationResult, slices: dict[str, tuple[np.ndar
     side = comparison_side(ref.stack)
     sd = ref.brdf if side == "brdf" else ref.btdf
     entries, hover = [], []
+    plane_fig = PlaneFigure(side, list(slices), styles, title, ref.settings.rays)
     for inc in _incidents(ref, sd, slices, _figure_incidents(ref, incidents)):
         tag = f"theta{inc.theta:g}_phi{inc.phi:g}" if standalone else f"m{inc.m}"
         plane = f"plane_{tag}.png"
-        plane_fig, plane_values = _plane_figure(inc, sd.grid, side, styles, title, ref.settings.rays)
-        save_figure(plane_fig, fig_dir / plane)
+        plane_values = plane_fig.draw(inc, sd.grid)
+        save_figure(plane_fig.fig, fig_dir / plane)
         labels = (title, side) if standalone else None
         tops, diff_scale, lum_scale, rgb_scale = _top_views(inc, sd.grid, fig_dir, tag, labels)
         orders = f"orders_{tag}.png"
-        top, bottom, orders_legend = _orders_panels(inc, sd.grid)
+        top, bottom, orders_legend = _orders_panels(inc, sd.grid, rgb_scale)
         if standalone:
             save_figure(_labelled_orders(top, bottom, orders_legend, inc, title, side), fig_dir / orders)
         else:
@@ -230,58 +231,89 @@ def _lum(cells: np.ndarray) -> np.ndarray:
 ZERO_HIT_BOUND = 3.0
 
 
-def _plane_figure(inc: _Incident, grid: SliceGrid, side: str, styles: dict, title: str, rays: int):
-    """The plane-of-incidence figure and the values it plots (for the hover read-out,
-    :func:`models.report.hover.hover_plane`). The grey band is the reference +- 2 standard errors;
-    where no path reached a cell (value 0, standard error 0: tiny cells near the pole of half slices
-    at low ray counts) it spans [0, 3 / (N Omega)] instead, the 95 % upper limit, so an empty cell
-    does not look like a confident zero."""
-    from matplotlib.figure import Figure
-    x, rows, cols = plane_cells(grid, inc.light, inc.phi, inc.mask)
-    # (title, reference cells, their standard error, the model part drawn from (top, internal))
-    if side == "brdf":
-        parts = [("total", inc.ref, inc.ref_se, lambda t, i: t + i),
-                 ("internal paths (order 1 / top lobe dropped)", inc.ref_internal, inc.ref_internal_se,
-                  lambda t, i: i)]
-    else:
-        parts = [("BTDF", inc.ref, inc.ref_se, lambda t, i: t + i)]
-    width = 4.0 * len(parts) + 1.6
-    fig = Figure(figsize=(width, 2.9), dpi=DPI)   # fixed layout: constrained layout costs ~0.3 s a figure
-    fig.subplots_adjust(left=0.6 / width, right=1.0 - 1.55 / width, bottom=0.17, top=0.84, wspace=0.22)
-    axes = fig.subplots(1, len(parts), squeeze=False)[0]
+class PlaneFigure:
+    """The plane-of-incidence figure of one material, drawn for one incident direction after the
+    other (:meth:`draw`): the figure, its axes, ticks, labels and legend are made once (they are the
+    same for every incident direction of a material, and making them costs about as much as
+    drawing the figure), each direction sets the curves, the band, the light's line, the y range
+    and the title. What each direction's PNG shows is what a figure made for it alone would show
+    (``tests/models/test_report_figures.py`` compares the pixels).
 
-    def along(cells: np.ndarray) -> np.ndarray:
-        return 0.5 * (cells[rows, cols[:, 0]] + cells[rows, cols[:, 1]])
+    The grey band is the reference +- 2 standard errors; where no path reached a cell (value 0,
+    standard error 0: tiny cells near the pole of half slices at low ray counts) it spans
+    [0, 3 / (N Omega)] instead, the 95 % upper limit, so an empty cell does not look like a
+    confident zero. ``models``: the names drawn (every incident direction gives each a slice,
+    :class:`_Incident`), coloured by ``styles``; ``rays``: N, the rays of a slice."""
 
-    bound = along(ZERO_HIT_BOUND / (max(rays, 1) * np.where(inc.omega > 0, inc.omega, np.inf)))
-    size = fig.get_size_inches() * DPI
-    values = []
-    for ax, (label, ref_cells, se_cells, pick) in zip(axes, parts):
-        lum = along(_lum(ref_cells))
-        se = along(_lum(se_cells))
-        upper = np.where(lum > 0, lum + 2 * se, bound)
-        ax.fill_between(x, remap(lum - 2 * se), remap(upper), color="0.8", lw=0,
-                        label="reference ±2σ\n(no hit: 95% bound)")
-        ax.plot(x, remap(lum), "k--", lw=1.3, label="reference")
-        for name, (top, internal) in inc.models.items():
-            st = styles.get(name, {"colour": "k"})
-            ax.plot(x, remap(along(_lum(pick(top, internal)))), "-", color=st["colour"], lw=1.1, label=name)
-        ax.axvline(inc.theta, color="0.5", lw=0.6, ls=":")
-        ax.set_xlim(-90, 90)
-        ax.set_xticks([-90, -60, -30, 0, 30, 60, 90])
-        ax.set_xlabel("signed θ_v (deg), > 0 on the " + ("mirror" if side == "brdf" else "straight-through")
-                      + " side", fontsize=8)
-        ax.set_title(label, fontsize=9)
-        ax.tick_params(labelsize=8)
-        box = ax.get_position()
-        values.append(hover_plane(label, [box.x0 * size[0], (1.0 - box.y1) * size[1], box.width * size[0],
-                                          box.height * size[1]], ax.get_xlim(), x, lum, se,
-                                  {n: along(_lum(pick(t, i))) for n, (t, i) in inc.models.items()}))
-    axes[0].set_ylabel("log(1 + √f), luminance", fontsize=8)
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="center right", fontsize=7, frameon=False)
-    fig.suptitle(f"{title}: plane of incidence, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°", fontsize=9)
-    return fig, values
+    def __init__(self, side: str, models: Sequence[str], styles: dict, title: str, rays: int) -> None:
+        from matplotlib.figure import Figure
+        # (title, reference cells, their standard error, the model part drawn from (top, internal))
+        if side == "brdf":
+            self.parts = [("total", "ref", "ref_se", lambda t, i: t + i),
+                          ("internal paths (order 1 / top lobe dropped)", "ref_internal", "ref_internal_se",
+                           lambda t, i: i)]
+        else:
+            self.parts = [("BTDF", "ref", "ref_se", lambda t, i: t + i)]
+        self.side, self.models, self.title, self.rays = side, list(models), title, rays
+        width = 4.0 * len(self.parts) + 1.6
+        fig = Figure(figsize=(width, 2.9), dpi=DPI)   # fixed layout: constrained layout costs ~0.3 s a figure
+        fig.subplots_adjust(left=0.6 / width, right=1.0 - 1.55 / width, bottom=0.17, top=0.84, wspace=0.22)
+        self.fig = fig
+        self.axes = fig.subplots(1, len(self.parts), squeeze=False)[0]
+        size = fig.get_size_inches() * DPI
+        self.boxes, self.bands, self.curves, self.lights = [], [], [], []
+        for ax, (label, _, _, _) in zip(self.axes, self.parts):
+            self.bands.append(None)
+            ref_line, = ax.plot([], [], "k--", lw=1.3, label="reference")
+            model_lines = [ax.plot([], [], "-", color=styles.get(n, {"colour": "k"})["colour"], lw=1.1, label=n)[0]
+                           for n in self.models]
+            self.curves.append([ref_line, *model_lines])
+            self.lights.append(ax.axvline(0.0, color="0.5", lw=0.6, ls=":"))
+            ax.set_xlim(-90, 90)
+            ax.set_xticks([-90, -60, -30, 0, 30, 60, 90])
+            ax.set_xlabel("signed θ_v (deg), > 0 on the " + ("mirror" if side == "brdf" else "straight-through")
+                          + " side", fontsize=8)
+            ax.set_title(label, fontsize=9)
+            ax.tick_params(labelsize=8)
+            box = ax.get_position()
+            self.boxes.append([box.x0 * size[0], (1.0 - box.y1) * size[1], box.width * size[0], box.height * size[1]])
+        self.axes[0].set_ylabel("log(1 + √f), luminance", fontsize=8)
+        self.legend = None
+        self.suptitle = fig.suptitle("", fontsize=9)
+
+    def draw(self, inc: _Incident, grid: SliceGrid) -> list[dict]:
+        """Set the figure (:attr:`fig`) to the incident direction ``inc``; returns the values it
+        plots, one entry per panel (for the hover read-out, :func:`models.report.hover.hover_plane`)."""
+        if list(inc.models) != self.models:
+            raise ValueError(f"plane figure of {self.models}: the incident direction has {list(inc.models)}")
+        x, rows, cols = plane_cells(grid, inc.light, inc.phi, inc.mask)
+
+        def along(cells: np.ndarray) -> np.ndarray:
+            return 0.5 * (cells[rows, cols[:, 0]] + cells[rows, cols[:, 1]])
+
+        bound = along(ZERO_HIT_BOUND / (max(self.rays, 1) * np.where(inc.omega > 0, inc.omega, np.inf)))
+        values = []
+        for k, (ax, (label, ref_name, se_name, pick)) in enumerate(zip(self.axes, self.parts)):
+            lum = along(_lum(getattr(inc, ref_name)))
+            se = along(_lum(getattr(inc, se_name)))
+            upper = np.where(lum > 0, lum + 2 * se, bound)
+            models = {n: along(_lum(pick(t, i))) for n, (t, i) in inc.models.items()}
+            for line, y in zip(self.curves[k], [lum, *models.values()]):
+                line.set_data(x, remap(y))
+            self.lights[k].set_xdata([inc.theta, inc.theta])
+            if self.bands[k] is not None:
+                self.bands[k].remove()
+            ax.relim()   # the curves' limits; the band adds its own (a Collection: not in relim before 3.9)
+            self.bands[k] = ax.fill_between(x, remap(lum - 2 * se), remap(upper), color="0.8", lw=0,
+                                            label="reference ±2σ\n(no hit: 95% bound)")
+            values.append(hover_plane(label, self.boxes[k], ax.get_xlim(), x, lum, se, models))
+        if self.legend is None:   # the band first, as when it was added first
+            handles, labels = self.axes[0].get_legend_handles_labels()
+            order = [len(handles) - 1, *range(len(handles) - 1)]
+            self.legend = self.fig.legend([handles[j] for j in order], [labels[j] for j in order],
+                                          loc="center right", fontsize=7, frameon=False)
+        self.suptitle.set_text(f"{self.title}: plane of incidence, θ_l = {inc.theta:g}°, φ_l = {inc.phi:g}°")
+        return values
 
 
 def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
@@ -296,17 +328,18 @@ def _top_views(inc: _Incident, grid: SliceGrid, fig_dir: Path, tag: str,
     lum_ref = _lum(inc.ref)
     lum_scale = exposure(remap(lum_ref), inc.omega, inc.mask)
     g_lum_ref = remap(pm.sample(lum_ref))
-    diffs = {n: remap(pm.sample(_lum(t + i))) - g_lum_ref for n, (t, i) in inc.models.items()}
+    totals = {n: t + i for n, (t, i) in inc.models.items()}
+    lums = {"reference": lum_ref, **{n: _lum(cells) for n, cells in totals.items()}}
+    diffs = {n: remap(pm.sample(lums[n])) - g_lum_ref for n in totals}
     allabs = np.concatenate([np.abs(d[np.isfinite(d)]) for d in diffs.values()]) if diffs else np.zeros(0)
     lim = float(np.percentile(allabs, 99)) if allabs.size else 0.0
     lim = max(lim, 1e-3 * lum_scale, 1e-12)
     noise = remap(pm.sample(lum_ref + 2.0 * _lum(inc.ref_se))) - g_lum_ref
     out = {}
-    panels = {"reference": (inc.ref, noise)}
-    panels.update({n: (t + i, diffs[n]) for n, (t, i) in inc.models.items()})
+    panels = {"reference": (inc.ref, noise), **{n: (cells, diffs[n]) for n, cells in totals.items()}}
     for name, (cells, third) in panels.items():
         a = mark_light(rgb_panel(cells, scale, pm), inc.light)
-        b = mark_light(iso_panel(_lum(cells), lum_scale, pm), inc.light)
+        b = mark_light(iso_panel(lums[name], lum_scale, pm), inc.light)
         c = mark_light(diverging_panel(third, lim, pm), inc.light)
         fname = f"top_{tag}_{safe_part(name)}.png"
         if labels is None:
@@ -352,12 +385,13 @@ def _labelled_top(panels: tuple[np.ndarray, np.ndarray, np.ndarray], name: str, 
     return fig
 
 
-def _orders_panels(inc: _Incident, grid: SliceGrid) -> tuple[list[np.ndarray], list[np.ndarray], list[dict]]:
-    """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled) over isovalues (each
-    order exposed on its own range, see :func:`exposure`): the top and bottom rows of disks, and
-    each column's colour-bar numbers (:func:`_legend`)."""
+def _orders_panels(inc: _Incident, grid: SliceGrid, scale: float) -> tuple[list[np.ndarray], list[np.ndarray],
+                                                                          list[dict]]:
+    """Figure 13: per bounce order (columns), RGB (orders >= 2 doubled, on the top views' RGB
+    exposure ``scale``, :func:`_top_views`) over isovalues (each order exposed on its own range,
+    see :func:`exposure`): the top and bottom rows of disks, and each column's colour-bar numbers
+    (:func:`_legend`)."""
     pm = pixel_map(grid, inc.light, inc.mask, ORDER_DISK_PX)
-    scale = exposure(np.max(remap(inc.ref), axis=0), inc.omega, inc.mask)
     top, bottom, legends = [], [], []
     for k in range(inc.orders.shape[0]):
         cells = inc.orders[k]

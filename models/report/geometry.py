@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -47,7 +48,10 @@ def _pixel_cells(param: int, transmission: bool, lx: float, ly: float, lz: float
 
 @dataclass
 class PixelMap:
-    """Where every top-view pixel reads its value: ``ii``/``jj`` cells, ``ok`` valid pixels."""
+    """Where every top-view pixel reads its value: ``ii``/``jj`` cells, ``ok`` valid pixels,
+    ``inside`` the pixels of the disk. A map is sampled many times (the reference, every model,
+    several panels each): what every sample needs is worked out once (:attr:`ring`, and the valid
+    pixels' positions and cells)."""
 
     ii: np.ndarray
     jj: np.ndarray
@@ -55,11 +59,25 @@ class PixelMap:
     inside: np.ndarray
     size: int
 
+    @cached_property
+    def _valid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The flat positions of the valid pixels, and the (row, column) of their cells."""
+        return np.flatnonzero(self.ok), self.ii[self.ok], self.jj[self.ok]
+
+    @cached_property
+    def ring(self) -> np.ndarray:
+        """The disk's outline: its pixels with a 4-neighbour outside it (size, size)."""
+        inside = self.inside
+        return inside & ~np.pad(inside, 1)[2:, 1:-1] | inside & ~np.pad(inside, 1)[1:-1, 2:] \
+            | inside & ~np.pad(inside, 1)[:-2, 1:-1] | inside & ~np.pad(inside, 1)[1:-1, :-2]
+
     def sample(self, cells: np.ndarray) -> np.ndarray:
         """``cells`` (..., n_theta, n_phi) -> (..., size, size), NaN where invalid."""
-        out = np.full(cells.shape[:-2] + (self.size, self.size), np.nan)
-        out[..., self.ok] = cells[..., self.ii[self.ok], self.jj[self.ok]]
-        return out
+        pos, ii, jj = self._valid
+        lead = cells.shape[:-2]
+        out = np.full(lead + (self.size * self.size,), np.nan)
+        out[..., pos] = np.take(cells.reshape(lead + (-1,)), ii * cells.shape[-1] + jj, axis=-1)
+        return out.reshape(lead + (self.size, self.size))
 
 
 def pixel_map(grid: SliceGrid, light: np.ndarray, mask: np.ndarray, size: int) -> PixelMap:

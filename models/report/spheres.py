@@ -25,10 +25,11 @@ from models import registry
 from models.base import ModelError
 from models.evaluation import group_name
 from models.render import (RenderError, SphereSet, SphereView, comparison_figure, render_views,
-                           slices_reference, view_text, write_png)
+                           slices_reference, view_text)
 from models.render.reference import Reference
 from models.report.evaluation import read_reference
 from models.report.files import OnceWriter, material_dir, read_json, write_json
+from models.report.panels import save_figure
 from models.report.results import MaterialResult, ReportMaterial
 
 #: light angles (degrees from the view direction) of every material's spheres, and their size
@@ -178,7 +179,7 @@ def material_spheres(res: MaterialResult, ref: SimulationResult | None, out: Pat
         for angle, spheres in drawn_sets.items():
             fig = comparison_figure(spheres, splits=False, caption=False,
                                     title=f"{view_text(spheres.view)}")
-            write_png(out / rel / _sphere_file(angle), fig)
+            save_figure(fig, out / rel / _sphere_file(angle))
         write_json(stamp_path, {"key": fkey})
     skipped = drawn_sets[SPHERE_ANGLES_DEG[0]].skipped if drawn_sets else {}
     notes += [f"{n}: {r}" for n, r in skipped.items()]
@@ -226,7 +227,7 @@ def figure1(results: Sequence[MaterialResult], out: Path, report_key: str) -> di
     if rendered or not (stamp and stamp.get("key") == fkey and (out / FIGURE1_FILE).is_file()):
         title = (f"Bati 2019 figure 1: {res.material.name} (α0 = 0.05, α1 = 0.2, yellow-tinted τ, η1 = 1.2), "
                  f"{view_text(spheres.view)}")
-        write_png(out / FIGURE1_FILE, comparison_figure(spheres, splits=True, caption=True, title=title))
+        save_figure(comparison_figure(spheres, splits=True, caption=True, title=title), out / FIGURE1_FILE)
         write_json(out / "figures" / "figure1.json", {"key": fkey})
     rmse = {n: spheres.rmse(n) for n in spheres.models}
     return {"src": FIGURE1_FILE, "material": res.material.name, "models": names, "missing": missing,

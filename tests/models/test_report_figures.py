@@ -1,7 +1,8 @@
 """The report's matplotlib figures are readable (models/report/tables.py, figures.py, furnace.py;
 docs/report.md, figures): a log axis always has labelled ticks, the tallest energy bar stays inside
-its axes, the furnace legend hides no curve, and ``gonio plot``'s bounce orders are a labelled
-figure. Synthetic numbers: no simulation."""
+its axes, the furnace legend hides no curve, ``gonio plot``'s bounce orders are a labelled
+figure, and the plane-of-incidence figure a material redraws for each incident direction is the one
+drawn anew for it. Synthetic numbers: no simulation."""
 
 from __future__ import annotations
 
@@ -77,3 +78,52 @@ def test_plot_orders_is_a_labelled_figure():
     assert all("sr⁻¹" in a.get_xlabel() for a in bars)
     assert all(a.get_title().startswith(f"order {i + 1}") for i, a in enumerate(disks[:k]))
     assert disks[k].get_ylabel() and disks[-1].get_xlabel()
+
+
+def _incident(m: int, theta: float, phi: float, scale: float, grid, models: tuple[str, ...], seed: int):
+    """A synthetic incident direction of ``grid`` (values ``scale`` times a random field, some cells
+    masked, one never reached) for :class:`models.report.figures.PlaneFigure`."""
+    from goniometer.grids.slice_grid import light_direction
+    from models.report.figures import _Incident
+    rng = np.random.default_rng(seed)
+    shape = (3,) + grid.shape
+
+    def field():
+        return scale * rng.uniform(0.1, 1.0, shape)
+
+    ref, internal = field(), 0.5 * field()
+    ref[:, 2, :] = 0.0                              # a ring of cells no path reached: the 95 % bound
+    mask = rng.random(grid.shape) > 0.1
+    return _Incident(m, theta, phi, light_direction(theta, phi), ref, 0.05 * ref, internal, 0.05 * internal,
+                     np.stack([ref, internal]), mask, np.full(grid.shape, 1e-3 / scale),
+                     {n: (0.8 * field(), 0.3 * field()) for n in models})
+
+
+@pytest.mark.parametrize("side", ["brdf", "btdf"])
+def test_a_plane_figure_drawn_again_is_the_figure_drawn_anew(side):
+    """One PlaneFigure per material, redrawn for each incident direction: every PNG is, pixel for
+    pixel, the figure made for that direction alone (curves, band, y range, light, title), and so
+    are the values handed to the hover read-out."""
+    from goniometer.grids.slice_grid import SliceGrid
+    from models.report.figures import PlaneFigure, model_style
+    from models.report.panels import figure_pixels
+    grid = SliceGrid("classic", 18, 36, "reflection" if side == "brdf" else "transmission")
+    models = ("ww09", "elek10", "my-model")
+    styles = model_style(models)
+    incs = [_incident(0, 0.0, 0.0, 1.0, grid, models, 1), _incident(1, 60.0, 90.0, 40.0, grid, models, 2),
+            _incident(2, 30.0, 0.0, 0.01, grid, models, 3)]
+    again = PlaneFigure(side, models, styles, "metal/M1", 1000)
+    ylims = []
+    for inc in incs:
+        values = again.draw(inc, grid)
+        got = figure_pixels(again.fig)
+        ylims.append(again.axes[0].get_ylim())
+        anew = PlaneFigure(side, models, styles, "metal/M1", 1000)
+        assert values == anew.draw(inc, grid)
+        np.testing.assert_array_equal(got, figure_pixels(anew.fig), err_msg=f"theta_l = {inc.theta}")
+    assert len(set(ylims)) == 3, "the y range follows each direction"
+    texts = [t.get_text() for t in again.legend.get_texts()]
+    assert texts == ["reference ±2σ\n(no hit: 95% bound)", "reference", *models], "the band first, as before"
+    assert "θ_l = 30°" in again.fig.get_suptitle() and len(again.axes) == (2 if side == "brdf" else 1)
+    with pytest.raises(ValueError, match="plane figure of"):
+        again.draw(_incident(3, 0.0, 0.0, 1.0, grid, models[:2], 4), grid)
