@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import io
 import json
-import struct
-import zlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -19,6 +17,7 @@ import numpy as np
 
 from goniometer import atomic
 from models.lut.compute import LutResult
+from models.png import encode_png
 
 #: the largest image side written (a 3-D table lays its slices side by side)
 MAX_IMAGE_SIDE = 16384
@@ -104,17 +103,9 @@ def png_why_not(values: np.ndarray) -> str | None:
 
 
 def png16(image: np.ndarray) -> bytes:
-    """A 16-bit greyscale PNG of ``image`` (values in [0, 1], rounded to ``/65535``), by numpy and
-    zlib (PNG 1.2: IHDR bit depth 16, colour type 0; filter 0 on every row)."""
-    h, w = image.shape
-    q = np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(">u2")
-    raw = b"".join(b"\x00" + q[i].tobytes() for i in range(h))
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 0, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+    """A 16-bit greyscale PNG of ``image`` (values in [0, 1], rounded to ``/65535``), every row
+    unfiltered, deflated at zlib level 9 (:func:`models.png.encode_png`)."""
+    return encode_png(np.round(np.clip(image, 0.0, 1.0) * 65535.0).astype(np.uint16), 9)
 
 
 def describe_table(path: str | Path) -> str | None:

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import functools
 import io
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
 
 from goniometer import atomic
+from models.png import encode_png
 from models.render.figure import DPI as RENDER_DPI
 from models.report.geometry import PixelMap, remap
 
@@ -26,7 +25,6 @@ DPI = RENDER_DPI
 #: of three Bati 2019 materials (182 images, 60 MB of pixels; 2026-12-06): Pillow's adaptive filters
 #: at level 3, 0.79 s and 11.9 MB; unfiltered at level 3, 0.36 s and 9.3 MB (level 6: 1.2 s, 8.4 MB)
 PNG_COMPRESSION = 3
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def colormap(name: str):
@@ -130,22 +128,13 @@ def compose(rows: list[list[np.ndarray]], gap: int = 8) -> np.ndarray:
 
 def png_bytes(img: np.ndarray, dpi: float | None = None) -> bytes:
     """An 8-bit image (H, W, 3) RGB or (H, W, 4) RGBA, row 0 at the top, as PNG bytes: every row
-    unfiltered (PNG filter type 0), deflated at :data:`PNG_COMPRESSION`; ``dpi``: the resolution
-    stated in a ``pHYs`` chunk (none without it). Lossless: any PNG reader gives ``img`` back."""
+    unfiltered, deflated at :data:`PNG_COMPRESSION` (:func:`models.png.encode_png`); ``dpi``: the
+    resolution stated in a ``pHYs`` chunk (none without it). Lossless: any PNG reader gives ``img`` back."""
     img = np.asarray(img)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] not in (3, 4) or 0 in img.shape:
         raise ValueError(f"png_bytes: the image must be a non-empty (H, W, 3 or 4) uint8 array, "
                          f"not {img.dtype} {img.shape}")
-    h, w, c = img.shape
-    rows = np.zeros((h, 1 + w * c), np.uint8)   # column 0: each row's filter type, 0 (none)
-    rows[:, 1:] = img.reshape(h, w * c)
-    chunks = [(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 6, 0, 0, 0))]
-    if dpi is not None:
-        per_metre = int(round(dpi / 0.0254))
-        chunks.append((b"pHYs", struct.pack(">IIB", per_metre, per_metre, 1)))
-    chunks += [(b"IDAT", zlib.compress(rows.tobytes(), PNG_COMPRESSION)), (b"IEND", b"")]
-    return PNG_SIGNATURE + b"".join(struct.pack(">I", len(data)) + kind + data
-                                    + struct.pack(">I", zlib.crc32(kind + data)) for kind, data in chunks)
+    return encode_png(img, PNG_COMPRESSION, dpi)
 
 
 def write_png(path: Path, img: np.ndarray) -> None:

@@ -14,7 +14,8 @@ from PIL import Image
 
 from goniometer.grids.slice_grid import SliceGrid, light_direction
 from models.report.geometry import pixel_map
-from models.report.panels import DPI, PNG_SIGNATURE, figure_png, mark_light, png_bytes
+from models.png import PNG_SIGNATURE
+from models.report.panels import DPI, figure_png, mark_light, png_bytes
 
 
 def _decode(data: bytes) -> tuple[np.ndarray, dict]:
