@@ -31,11 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goniometer.run.results import SimulationResult
-from goniometer.grids.slice_grid import SliceGrid, light_direction
+from goniometer.kernel.packing import BASE_CONDUCTOR, BASE_LAMBERTIAN
 from goniometer.stack import Interface, Lambertian, Medium, Stack
 from models.base import Model, ModelError, ModelValue, coated_base
-from models.compare.integrate import SIDE_OF_GRID, ModelSlices
 from models.pbrt_layered import kernel as K
 
 STRUCTURE = "[dielectric coat interface, optional medium, Lambertian or conductor base]"
@@ -183,13 +181,13 @@ def pack(p: PBRTParameters, max_depth: int, n_samples: int, fixed_mis: bool, exa
     tau = np.asarray(p.thickness, dtype=np.float64)
     albedo = np.asarray(p.albedo, dtype=np.float64)
     if p.material == "coateddiffuse":
-        kind = K.BASE_LAMBERTIAN
+        kind = BASE_LAMBERTIAN
         rho = np.asarray(p.reflectance, dtype=np.float64)
         ce = np.ones(3)
         ck = np.zeros(3)
         alpha1 = 0.0
     else:
-        kind = K.BASE_CONDUCTOR
+        kind = BASE_CONDUCTOR
         rho = np.zeros(3)
         ce = np.asarray(p.relative_eta, dtype=np.float64)
         ck = np.asarray(p.relative_k, dtype=np.float64)

@@ -261,10 +261,10 @@ def test_the_walks_fused_steps_give_the_general_functions_bits(eta, a):
     the other leaves it."""
     from goniometer.kernel.packing import BASE_CONDUCTOR
     from goniometer.kernel.rng import next_float, seed_state
-    from models.pbrt_layered import kernel as K
+    from models.pbrt_layered import base, coat
 
     rng = np.random.default_rng(int(eta * 100) + int(a * 10))
-    etas = K.coat_indices(eta)
+    etas = coat.coat_indices(eta)
     cond = (0.97, 0.67, 0.3, 0.0067, 0.3, 0.0067)  # eta, k per slot; slots 1 and 2 equal
     rho = (0.0, 0.0, 0.0)
     a1 = 0.2
@@ -273,46 +273,46 @@ def test_the_walks_fused_steps_give_the_general_functions_bits(eta, a):
         exact = case % 2 == 1
         fixed = case % 4 >= 2
         v, l = _unit(rng, True), _unit(rng, True)
-        tv, tl = K.coat_terms(*v, a), K.coat_terms(*l, a)
+        tv, tl = coat.coat_terms(*v, a), coat.coat_terms(*l, a)
         # the two entries against two diel_samples drawn one after the other
         s = np.empty(4, dtype=np.uint64)
         seed_state(s, np.uint64(case))
         ref = s.copy()
-        got = K.coat_entries(*v, *l, etas, a, False, tv, tl, exact, s)
+        got = coat.coat_entries(*v, *l, etas, a, False, tv, tl, exact, s)
         u = [next_float(ref) for _ in range(3)]
-        ok, wx, wy, wz, wf, wpdf = K.diel_sample(*v, eta, a, False, True, False, True, exact, *u)
+        ok, wx, wy, wz, wf, wpdf = coat.diel_sample(*v, eta, a, False, True, False, True, exact, *u)
         if not ok or wf == 0.0 or wpdf == 0.0 or wz == 0.0:
             ended += 1
             assert not got[0]
         else:
             u = [next_float(ref) for _ in range(3)]
-            ok, dx, dy, dz, df, dpdf = K.diel_sample(*l, eta, a, False, False, False, True, exact, *u)
+            ok, dx, dy, dz, df, dpdf = coat.diel_sample(*l, eta, a, False, False, False, True, exact, *u)
             assert got[0] == (ok and df != 0.0 and dpdf != 0.0 and dz != 0.0)
             if got[0]:
                 assert np.array_equal(_bits(got[1:]), _bits((wx, wy, wz, wf, wpdf, dx, dy, dz, df, dpdf)))
         assert np.array_equal(s, ref)
         # the coat from inside, reflection only
         w = _unit(rng, True)
-        lam_w, g1_w, _ = K.coat_terms(*w, a)
+        lam_w, g1_w, _ = coat.coat_terms(*w, a)
         u = tuple(rng.random(3))
-        want = K.diel_sample(-w[0], -w[1], -w[2], eta, a, False, True, True, False, exact, *u)
-        assert np.array_equal(_bits(K.coat_reflect(*w, etas, a, False, lam_w, g1_w, exact, *u)), _bits(want))
+        want = coat.diel_sample(-w[0], -w[1], -w[2], eta, a, False, True, True, False, exact, *u)
+        assert np.array_equal(_bits(coat.coat_reflect(*w, etas, a, False, lam_w, g1_w, exact, *u)), _bits(want))
         # the connection of w to the light, and its MIS density
-        fe, pe = K.coat_exit(*w, *l, etas, a, tl, lam_w, g1_w, fixed, exact)
+        fe, pe = coat.coat_exit(*w, *l, etas, a, tl, lam_w, g1_w, fixed, exact)
         mw = (-w[0], -w[1], -w[2])
-        assert np.array_equal(_bits([fe]), _bits([K.diel_f(*mw, *l, eta, a, True, exact)]))
-        want = K.diel_pdf(*l, *mw, eta, a, False, True) if fixed else K.diel_pdf(*mw, *l, eta, a, False, True)
+        assert np.array_equal(_bits([fe]), _bits([coat.diel_f(*mw, *l, eta, a, True, exact)]))
+        want = coat.diel_pdf(*l, *mw, eta, a, False, True) if fixed else coat.diel_pdf(*mw, *l, eta, a, False, True)
         assert np.array_equal(_bits([pe]), _bits([want]))
         # the rough conductor: the connection along a direction d, and the sample
         o, d = _unit(rng, True), _unit(rng, case % 5 != 0)
         lam_o, g1_o = g.optics.ggx_lambda(*o, a1, a1), g.optics.smith_g1_dir(*o, a1, a1)
-        pair = K.conductor_pair(*o, *d, a1, lam_o, g.optics.ggx_lambda(*d, a1, a1), g1_o, *cond)
-        want = K.base_f(*o, *d, BASE_CONDUCTOR, a1, False, *rho, *cond) + (
-            K.base_pdf(*o, *d, BASE_CONDUCTOR, a1, False),)
+        pair = base.conductor_pair(*o, *d, a1, lam_o, g.optics.ggx_lambda(*d, a1, a1), g1_o, *cond)
+        want = base.base_f(*o, *d, BASE_CONDUCTOR, a1, False, *rho, *cond) + (
+            base.base_pdf(*o, *d, BASE_CONDUCTOR, a1, False),)
         assert np.array_equal(_bits(pair), _bits(want))
         u = tuple(rng.random(2))
-        want = K.base_sample(*o, BASE_CONDUCTOR, a1, False, *rho, *cond, *u)
-        assert np.array_equal(_bits(K.conductor_sample(*o, a1, lam_o, g1_o, *cond, *u)), _bits(want))
+        want = base.base_sample(*o, BASE_CONDUCTOR, a1, False, *rho, *cond, *u)
+        assert np.array_equal(_bits(base.conductor_sample(*o, a1, lam_o, g1_o, *cond, *u)), _bits(want))
     # the viewer's entry ended some walks (the stream put back), not most
     if eta < 1.0:
         # a coat less dense than the air ends many entries (total internal reflection from
