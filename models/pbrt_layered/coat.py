@@ -87,6 +87,16 @@ def _generalized_half(ox: float, oy: float, oz: float, ix: float, iy: float, iz:
     return True, mx, my, mz, dmi, dmo
 
 
+@njit(cache=True, inline="always")
+def _lobe_weights(c: float, eta: float, refl: bool, trans: bool):
+    """``(F, p_r, p_t)`` of the coat seen along a direction of cosine ``c`` to its (micro)normal
+    (from outside where ``c > 0``, index ``eta``; from inside ``1 / eta``): the Fresnel reflectance
+    and the weights pbrt chooses the reflection and the transmission lobe by, each 0 where its flag
+    leaves the lobe out."""
+    r = fresnel_dielectric(c, eta if c > 0.0 else 1.0 / eta)
+    return r, (r if refl else 0.0), ((1.0 - r) if trans else 0.0)
+
+
 @njit(cache=True)
 def diel_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, eta: float, a: float,
              refl: bool, trans: bool) -> float:
@@ -102,9 +112,7 @@ def diel_pdf(ox: float, oy: float, oz: float, ix: float, iy: float, iz: float, e
     ok, mx, my, mz, dmi, dmo = _generalized_half(ox, oy, oz, ix, iy, iz, etap)
     if not ok:
         return 0.0
-    r = fresnel_dielectric(dmo, eta if dmo > 0.0 else 1.0 / eta)
-    pr = r if refl else 0.0
-    pt = (1.0 - r) if trans else 0.0
+    r, pr, pt = _lobe_weights(dmo, eta, refl, trans)
     if pr + pt <= 0.0:
         return 0.0
     if oz > 0.0:
@@ -126,9 +134,7 @@ def diel_sample(ox: float, oy: float, oz: float, eta: float, a: float, smooth: b
     ``(ok, wi_x, wi_y, wi_z, f, pdf)``; ``ok`` is False where pbrt returns no sample (no lobe
     allowed, total internal reflection, a direction on the wrong side)."""
     if smooth:
-        r = fresnel_dielectric(oz, eta if oz > 0.0 else 1.0 / eta)
-        pr = r if refl else 0.0
-        pt = (1.0 - r) if trans else 0.0
+        r, pr, pt = _lobe_weights(oz, eta, refl, trans)
         if pr + pt <= 0.0:
             return False, 0.0, 0.0, 0.0, 0.0, 0.0
         if uc < pr / (pr + pt):
@@ -153,9 +159,7 @@ def diel_sample(ox: float, oy: float, oz: float, eta: float, a: float, smooth: b
     else:
         mx, my, mz = sample_vndf(-ox, -oy, -oz, a, a, u1, u2)
     dmo = ox * mx + oy * my + oz * mz
-    r = fresnel_dielectric(dmo, eta if dmo > 0.0 else 1.0 / eta)
-    pr = r if refl else 0.0
-    pt = (1.0 - r) if trans else 0.0
+    r, pr, pt = _lobe_weights(dmo, eta, refl, trans)
     if pr + pt <= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0
     if uc < pr / (pr + pt):
