@@ -385,9 +385,9 @@ def coat_exit(wx: float, wy: float, wz: float, lx: float, ly: float, lz: float, 
 
 @njit(cache=True)
 def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth: bool, lam_w: float,
-                 g1_w: float, exact: bool, uc: float, u1: float, u2: float):
+                 g1_w: float, st_w: float, exact: bool, uc: float, u1: float, u2: float):
     """:func:`diel_sample` of ``-w`` (``w_z > 0``: the walk at the coat from inside) for reflection
-    only, radiance transport, given ``etas`` (:func:`coat_indices`) and ``lam_w``, ``g1_w``
+    only, radiance transport, given ``etas`` (:func:`coat_indices`) and ``lam_w``, ``g1_w``, ``st_w``
     (:func:`coat_terms` of ``w``). Returns ``(ok, wi_x, wi_y, wi_z, f, pdf)``."""
     eta = etas[0]
     if smooth or wz <= 0.0:
@@ -396,7 +396,7 @@ def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth:
     oy = -wy
     oz = -wz
     cp, sp = cos_sin_2pi(u1)
-    mx, my, mz = sample_vndf_polar(wx, wy, wz, a, a, cp, sp, u2, 1.0 / math.sqrt(vndf_stretch_norm2(wx, wy, wz, a, a)))
+    mx, my, mz = sample_vndf_polar(wx, wy, wz, a, a, cp, sp, u2, st_w)
     dmo = ox * mx + oy * my + oz * mz
     r = _fresnel_coat(dmo, etas, dmo > 0.0)
     pr = r

@@ -196,13 +196,13 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
     at_top = True
     # what depends on the current direction w alone, computed when first needed and kept until w
     # changes (the same numbers as computing them at each use): the slots' transmittances through
-    # the slab along w (w_tr), the coat's Lambda and G1 of w (w_coat); along d, once per walk
+    # the slab along w (w_tr), the coat's Lambda, G1 and the sampler's stretch of w (w_coat); along d, once per walk
     d_tr = False
     t_d0 = t_d1 = t_d2 = 1.0
     w_tr = False
     t_w0 = t_w1 = t_w2 = 1.0
     w_coat = False
-    lam_w = g1_w = 0.0
+    lam_w = g1_w = st_w = 0.0
     for depth in range(max_depth):
         # Russian roulette on the largest channel
         bm = max(b0, max(b1, b2))
@@ -248,7 +248,7 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
                 w_tr = w_coat = False
                 z = zp
                 if wz > 0.0 and not top_smooth:
-                    lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                    lam_w, g1_w, st_w = coat_terms(wx, wy, wz, a0)
                     w_coat = True
                     fe, pe = coat_exit(wx, wy, wz, lx, ly, lz, etas, a0, tl, lam_w, g1_w, fixed, exact)
                     if fe != 0.0:
@@ -264,9 +264,9 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
             # at the coat from inside: reflect back into the layer (leaving is only counted by the
             # connections)
             if not w_coat and not top_smooth:
-                lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                lam_w, g1_w, st_w = coat_terms(wx, wy, wz, a0)
                 w_coat = True
-            ok, nx, ny, nz, bf, bpdf = coat_reflect(wx, wy, wz, etas, a0, top_smooth, lam_w, g1_w, exact,
+            ok, nx, ny, nz, bf, bpdf = coat_reflect(wx, wy, wz, etas, a0, top_smooth, lam_w, g1_w, st_w, exact,
                                                     next_float(s), next_float(s), next_float(s))
             if not ok or bf == 0.0 or bpdf == 0.0 or nz == 0.0:
                 break
@@ -313,7 +313,7 @@ def walk(vx: float, vy: float, vz: float, lx: float, ly: float, lz: float, tv: t
             w_tr = w_coat = False
             if not top_smooth:
                 # connect the sampled direction (w_z > 0) to the light through the coat
-                lam_w, g1_w, _ = coat_terms(wx, wy, wz, a0)
+                lam_w, g1_w, st_w = coat_terms(wx, wy, wz, a0)
                 w_coat = True
                 t_w0, t_w1, t_w2 = _tr3(tau0, tau1, tau2, wz)
                 w_tr = True

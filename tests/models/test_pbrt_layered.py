@@ -293,10 +293,11 @@ def test_the_walks_fused_steps_give_the_general_functions_bits(eta, a):
         assert np.array_equal(s, ref)
         # the coat from inside, reflection only
         w = _unit(rng, True)
-        lam_w, g1_w, _ = coat.coat_terms(*w, a)
+        lam_w, g1_w, st_w = coat.coat_terms(*w, a)
         u = tuple(rng.random(3))
         want = coat.diel_sample(-w[0], -w[1], -w[2], eta, a, False, True, True, False, exact, *u)
-        assert np.array_equal(_bits(coat.coat_reflect(*w, etas, a, False, lam_w, g1_w, exact, *u)), _bits(want))
+        got = coat.coat_reflect(*w, etas, a, False, lam_w, g1_w, st_w, exact, *u)
+        assert np.array_equal(_bits(got), _bits(want))
         # the connection of w to the light, and its MIS density
         fe, pe = coat.coat_exit(*w, *l, etas, a, tl, lam_w, g1_w, fixed, exact)
         mw = (-w[0], -w[1], -w[2])
