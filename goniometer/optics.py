@@ -830,10 +830,19 @@ def _vndf_unstretch(hx: float, hy: float, hz: float, ax: float, ay: float):
 @numba.njit(cache=True, error_model='numpy')
 def vndf_pdf(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, ax: float, ay: float) -> float:
     """Density (1/sr, over m) of :func:`sample_vndf`: G1(w) max(0, w.m) D(m) / w_z."""
+    if wx * mx + wy * my + wz * mz <= 0.0 or wz <= 0.0:
+        return 0.0
+    return vndf_pdf_given(wx, wy, wz, mx, my, mz, smith_g1_dir(wx, wy, wz, ax, ay), ggx_d(mx, my, mz, ax, ay))
+
+
+@numba.njit(cache=True, error_model='numpy')
+def vndf_pdf_given(wx: float, wy: float, wz: float, mx: float, my: float, mz: float, g1: float, d: float) -> float:
+    """:func:`vndf_pdf` for callers that already hold ``g1`` = :func:`smith_g1_dir` of ``w`` and ``d`` =
+    :func:`ggx_d` of ``m`` (a random walk reuses them): the same expressions, so the same number."""
     wm = wx * mx + wy * my + wz * mz
     if wm <= 0.0 or wz <= 0.0:
         return 0.0
-    return smith_g1(wx, wy, wz, wm, ax, ay) * wm * ggx_d(mx, my, mz, ax, ay) / wz
+    return (g1 if wm * wz > 0.0 else 0.0) * wm * d / wz
 
 
 # --------------------------------------------------------------------------- geometry

@@ -13,7 +13,7 @@ import math
 
 from goniometer.optics import (cos_sin_2pi, cosine_from_disk, fresnel_conductor, fresnel_dielectric, ggx_d,
                                ggx_lambda, half_vector, microfacet_reflection, reflect, sample_vndf, smith_g2,
-                               vndf_pdf)
+                               vndf_pdf, vndf_pdf_given)
 from goniometer.kernel.packing import BASE_LAMBERTIAN
 from models._jit import njit
 from models.pbrt_layered.numeric import quotient
@@ -117,18 +117,13 @@ def conductor_pair(ox: float, oy: float, oz: float, ix: float, iy: float, iz: fl
     ``o + i`` equals ``i + o`` exactly), its ``D`` and the masking
     ``smith_g2(lam_i, lam_o)`` are computed once instead of once per slot and once more for the
     density; each slot's value is ``microfacet_reflection``'s ``F D G / (4 i_z o_z)`` in its
-    order, the density ``vndf_pdf``'s ``G1 (o.h) D / o_z`` over ``4 |o.h|``."""
+    order, the density ``optics.vndf_pdf_given`` over ``4 |o.h|``."""
     if oz <= 0.0 or iz <= 0.0:
         return 0.0, 0.0, 0.0, 0.0
     hx, hy, hz = half_vector(ox, oy, oz, ix, iy, iz)
     d = ggx_d(hx, hy, hz, a, a)
-    # the density: vndf_pdf(o, h) / (4 |o.h|), smith_g1 being 0 unless (o.h) o_z > 0
-    wm = ox * hx + oy * hy + oz * hz
-    if wm <= 0.0 or oz <= 0.0:
-        dw = 0.0
-    else:
-        dw = (g1_o if wm * oz > 0.0 else 0.0) * wm * d / oz
-    pdf = dw / (4.0 * abs(wm))
+    # the density: vndf_pdf(o, h) / (4 |o.h|)
+    pdf = vndf_pdf_given(ox, oy, oz, hx, hy, hz, g1_o, d) / (4.0 * abs(ox * hx + oy * hy + oz * hz))
     # the values: microfacet_reflection(i, o, a, a, e, k, True) per slot, equal indices sharing one
     lh = ix * hx + iy * hy + iz * hz
     g = smith_g2(lam_i, lam_o, False, True)

@@ -19,7 +19,7 @@ import numpy as np
 from goniometer.optics import (cos_sin_2pi, fresnel_dielectric, fresnel_dielectric_cos_t_inv, ggx_d, ggx_lambda,
                                microfacet_reflection, microfacet_transmission, microfacet_transmission_given, reflect,
                                refract, refract_known, sample_vndf, sample_vndf_polar, smith_g1_dir, smith_g2,
-                               vndf_pdf, vndf_stretch_norm2)
+                               vndf_pdf, vndf_pdf_given, vndf_stretch_norm2)
 from goniometer.kernel.rng import next_float
 from models._jit import njit
 from models.pbrt_layered.numeric import quotient
@@ -270,16 +270,12 @@ def coat_transmission_pdf(ox: float, oy: float, oz: float, ix: float, iy: float,
     pt = 1.0 - r
     if pr + pt <= 0.0:
         return 0.0
-    # vndf_pdf of o (of -o inside), its smith_g1 being G1 where (w.m) w_z > 0
+    # vndf_pdf of o (of -o inside)
+    d = ggx_d(mx, my, mz, a, a)
     if oz > 0.0:
-        wx, wy, wz = ox, oy, oz
+        dw = vndf_pdf_given(ox, oy, oz, mx, my, mz, g1, d)
     else:
-        wx, wy, wz = -ox, -oy, -oz
-    wm = wx * mx + wy * my + wz * mz
-    if wm <= 0.0 or wz <= 0.0:
-        dw = 0.0
-    else:
-        dw = (g1 if wm * wz > 0.0 else 0.0) * wm * ggx_d(mx, my, mz, a, a) / wz
+        dw = vndf_pdf_given(-ox, -oy, -oz, mx, my, mz, g1, d)
     den = dmi + dmo / etap
     if den == 0.0:
         return 0.0
@@ -438,9 +434,5 @@ def coat_reflect(wx: float, wy: float, wz: float, etas: tuple, a: float, smooth:
     pr = r
     if pr + pt <= 0.0:
         return True, ix, iy, iz, f, 0.0
-    wm = wx * mx + wy * my + wz * mz
-    if wm <= 0.0:
-        dw = 0.0
-    else:
-        dw = (g1_w if wm * wz > 0.0 else 0.0) * wm * d / wz
+    dw = vndf_pdf_given(wx, wy, wz, mx, my, mz, g1_w, d)
     return True, ix, iy, iz, f, dw / (4.0 * abs(dmo)) * pr / (pr + pt)
