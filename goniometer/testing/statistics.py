@@ -245,20 +245,19 @@ def noise_floor_ratio_limit(stderr: Any, weight: Any, axis: int | tuple[int, ...
     (a moment-matched chi-square underestimates that tail when a few cells dominate), and within
     16 % (one cell) to 1 % (a thousand) of the exact chi-square limit of equal cells at
     :data:`P_FALSE_ALARM`. The cells' errors are close to normal where enough paths land (about 20
-    exits); an aggregate dominated by sparse cells is not judged by it. ``weight`` (e.g. ``omega * mask``) broadcasts against
-    ``stderr``."""
+    exits); an aggregate dominated by sparse cells is not judged by it. ``weight`` (e.g. ``omega *
+    mask``) broadcasts against ``stderr``."""
     stderr = _array(stderr, "stderr")
     _not_negative(stderr, "stderr")
     w = _array(weight, "weight")
     _not_negative(w, "weight")
     p = _probability(p)
     a = np.asarray(w * stderr ** 2, dtype=np.float64)
-    axes = tuple(range(a.ndim)) if axis is None else tuple(np.atleast_1d(axis) % max(a.ndim, 1))
-    kept = [k for k in range(a.ndim) if k not in axes]
-    rows = np.moveaxis(a, axes, tuple(range(a.ndim - len(axes), a.ndim))).reshape(
-        [a.shape[k] for k in kept] + [-1])
-    out = np.array([_chernoff_ratio(r, p) for r in rows.reshape(-1, rows.shape[-1])])
-    return out.reshape(rows.shape[:-1]) if kept else out[0]
+    axes = tuple(range(a.ndim)) if axis is None else tuple(int(k) % a.ndim for k in np.atleast_1d(axis))
+    kept = [a.shape[k] for k in range(a.ndim) if k not in axes]
+    rows = np.moveaxis(a, axes, tuple(range(a.ndim - len(axes), a.ndim))).reshape(int(np.prod(kept)), -1)
+    out = np.array([_chernoff_ratio(r, p) for r in rows])
+    return out.reshape(kept) if kept else out[0]
 
 
 def _chernoff_ratio(a: np.ndarray, p: float) -> float:
