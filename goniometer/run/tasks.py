@@ -65,7 +65,8 @@ def warm_up(stack: Stack | None = None, settings: SimulationSettings | None = No
     # own numba functions are those of its tables
     tiny = SimulationSettings(incident_deg=(30.0,), rays=8, resolution=(2, 4), chunk_rays=8, threads=1,
                               parametrization=s.parametrization if s.rgl is None else "classic", masking=s.masking,
-                              max_order=s.max_order, first_order=s.first_order, event_cap=s.event_cap, device=s.device)
+                              max_order=s.max_order, first_order=s.first_order, event_cap=s.event_cap, device=s.device,
+                              polarized=s.polarized)
     assemble(stack, tiny, [trace_incident(stack, tiny, 0)])
     if s.rgl is not None:
         s.rgl.tables()

@@ -36,11 +36,11 @@ def _overloads() -> dict[str, int]:
     return out
 
 
-@pytest.mark.parametrize("case", ["plastic", "metal-hc-half", "metal-integrated"])
+@pytest.mark.parametrize("case", ["plastic", "metal-hc-half", "metal-integrated", "metal-polarized"])
 def test_warm_up_compiles_everything_the_run_then_calls(case):
     """After warm_up(stack, settings), tracing and assembling the run compiles nothing more. (With
     the old warm-up of one default stack, the metal's kernel variant compiled inside its first
-    task and was booked as tracing.)"""
+    task and was booked as tracing; a polarized run's warm-up once ran the scalar variant.)"""
     metal, _ = load_toml(EXAMPLES / "metal.toml")
     stack, settings = {
         "plastic": (Stack("p", (Interface(0.2, (1.5,) * 3), Medium((0.05, 0.1, 0.4)), Lambertian((0.2, 0.5, 0.8)))),
@@ -50,6 +50,8 @@ def test_warm_up_compiles_everything_the_run_then_calls(case):
                                                     max_order=3, threads=1)),
         "metal-integrated": (metal, SimulationSettings(incident_deg=(30.0,), rays=3000, resolution=(9, 18),
                                                        first_order="integrated", threads=1)),
+        "metal-polarized": (metal, SimulationSettings(incident_deg=(30.0,), rays=3000, resolution=(9, 18), threads=1,
+                                                      polarized=True)),
     }[case]
     warm_up(stack, settings)
     before = _overloads()
