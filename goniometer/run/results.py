@@ -18,10 +18,12 @@ from the per-cell sums of squared weights. :mod:`goniometer.files.tabulated` wri
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
 
+import numba
 import numpy as np
 
 from goniometer import atomic
@@ -274,14 +276,35 @@ def _slice_from_sums(grid: SliceGrid, omegas: list[np.ndarray], masks: list[np.n
             value[m] += first[m] * (n * inv)
     out = SliceData(grid, value, stderr, orders, np.array(masks), np.array(omegas), stderr_internal)
     if mueller is not None:
-        mu = np.zeros((M, C, nt, nph, 4, 4))
-        mu_se = np.zeros((M, C, nt, nph, 4, 4))
+        mu = np.empty((M, C, nt, nph, N_MUELLER))
+        mu_se = np.empty((M, C, nt, nph, N_MUELLER))
         for m, om in enumerate(omegas):
             inv = np.divide(1.0, n * om, out=np.zeros_like(om), where=om > 0)
-            mu[m] = np.moveaxis(mueller[m] * inv, 0, -1).reshape(C, nt, nph, 4, 4)
-            mu_se[m] = np.moveaxis(std_error(mueller[m], mueller_sq[m], inv), 0, -1).reshape(C, nt, nph, 4, 4)
-        out.mueller, out.mueller_stderr = mu, mu_se
+            _mueller_cells(mueller[m], mueller_sq[m], inv, n, mu[m], mu_se[m])
+        out.mueller, out.mueller_stderr = mu.reshape(mu.shape[:-1] + (4, 4)), mu_se.reshape(mu.shape[:-1] + (4, 4))
     return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _mueller_cells(sums: np.ndarray, sums_sq: np.ndarray, inv: np.ndarray, n: int, value: np.ndarray,
+                   stderr: np.ndarray) -> None:
+    """``value[c, t, p, e] = sums[e, c, t, p] inv[t, p]`` and its standard error, for the 16 Mueller
+    elements ``e`` (row-major) of every cell: ``_slice_from_sums``' ``std_error`` element by element,
+    its operations in its order (numpy's ``maximum(x, 0.0)``: ``x`` if above 0 or NaN, else +0.0),
+    without the arrays' temporaries."""
+    nf = float(n)
+    dof = float(max(n - 1, 1))
+    for c in range(sums.shape[1]):
+        for t in range(sums.shape[2]):
+            for p in range(sums.shape[3]):
+                w = inv[t, p]
+                for e in range(sums.shape[0]):
+                    s1 = sums[e, c, t, p]
+                    d = sums_sq[e, c, t, p] - s1 * s1 / nf
+                    if not (d > 0.0 or d != d):
+                        d = 0.0
+                    value[c, t, p, e] = s1 * w
+                    stderr[c, t, p, e] = math.sqrt(d / dof * nf) * w
 
 
 @lru_cache(maxsize=64)
