@@ -10,6 +10,11 @@ are the very ones :meth:`~goniometer.grids.slice_grid.SliceGrid.subcells` and
 :meth:`~goniometer.grids.slice_grid.SliceGrid.mask` return (same values, same bits), made read-only, so that
 a model cannot change what the next one reads. The cache holds at most :data:`CACHE_BYTES` of them,
 least recently used first out.
+
+Mirror symmetry (``docs/models.md`` §3, "Mirror symmetry"): a light in the plane ``phi_l = 0`` or
+``180`` (``l_y = 0`` exactly) sees the classic and the half grids' cells map onto each other under
+the mirror ``v -> (v_x, -v_y, v_z)`` (:func:`mirror_half`); a model that declares the symmetry is
+evaluated on half of them and the others are filled by mirroring (:func:`unfold`).
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ import numpy as np
 from goniometer.grids.slice_grid import SliceGrid
 
 #: the most the sub-cell cache keeps (bytes): the 7 incident directions of a 90 x 360 grid at
-#: 5 x 5 sub-cells take 182 MB (directions 19 MB and weights 6.5 MB per direction)
+#: 5 x 5 sub-cells take 182 MB (directions 19 MB and weights 6.5 MB per direction), and 68 MB more
+#: for the half of the directions a mirror-symmetric model is evaluated at (:func:`mirror_half`)
 CACHE_BYTES = 400 * 2**20
 
 
@@ -105,6 +111,68 @@ def cell_geometry(grid: SliceGrid, light: np.ndarray, s: int = 5) -> CellGeometr
         _read_only(v, w, inv)
         return CellGeometry(v, w, inv)
     return _GEOMETRY.get(_key(grid, light, s), make, lambda g: g.nbytes)
+
+
+@dataclass(frozen=True)
+class MirrorHalf:
+    """The sub-cells a mirror-symmetric model is evaluated at: ``v`` (n_theta n_eval s s, 3), the
+    very directions of :class:`CellGeometry`'s ``v`` in the cell columns ``j < n_eval`` (same
+    order, read-only), ``n_eval = ceil(n_phi / 2)``. Cell column ``j >= n_eval`` is the mirror of
+    column ``n_phi - 1 - j`` and, inside it, sub-cell column ``b`` the mirror of ``s - 1 - b``
+    (:func:`unfold`); an odd ``n_phi``'s middle column is its own mirror and is evaluated."""
+
+    v: np.ndarray
+    n_eval: int
+
+    @property
+    def nbytes(self) -> int:
+        return self.v.nbytes
+
+
+#: the parametrizations whose cells map onto each other under ``phi -> -phi`` when ``l_y = 0``:
+#: classic cells bin ``phi_v``, half cells ``phi_h`` of ``h = normalize(l + v)`` (``v`` mirrored to
+#: the upper side first for transmission), and the mirror of ``v`` is the mirror of ``h`` when
+#: ``l_y = 0``; both bin the azimuth in ``n_phi`` equal cells from 0, and a half sub-cell's weight
+#: depends on ``l.h`` and ``v_z`` only, which the mirror keeps
+MIRRORED_PARAMETRIZATIONS = ("classic", "half")
+
+
+def mirrors(grid: SliceGrid, light: np.ndarray) -> bool:
+    """Whether ``grid``'s cells, lit from ``light``, map onto each other under the mirror about the
+    plane of incidence: a classic or half grid and a light with ``l_y == 0`` exactly (``phi_l = 0``;
+    ``light_direction(theta, 180)`` has ``l_y = sin(pi) sin(theta) != 0`` and is not mirrored)."""
+    l = np.asarray(light, dtype=np.float64).reshape(3)
+    return grid.parametrization in MIRRORED_PARAMETRIZATIONS and l[1] == 0.0
+
+
+def mirror_half(grid: SliceGrid, light: np.ndarray, s: int = 5) -> MirrorHalf | None:
+    """The :class:`MirrorHalf` of ``grid`` lit from ``light`` at ``s x s`` sub-cells (computed on
+    first use, then shared), or None when the cells do not mirror onto each other (:func:`mirrors`)."""
+    if not mirrors(grid, light):
+        return None
+
+    def make() -> MirrorHalf:
+        n_eval = (grid.n_phi + 1) // 2
+        v = cell_geometry(grid, light, s).v.reshape(grid.n_theta, grid.n_phi, s, s, 3)
+        half = np.ascontiguousarray(v[:, :n_eval]).reshape(-1, 3)
+        _read_only(half)
+        return MirrorHalf(half, n_eval)
+    return _GEOMETRY.get(("mirror",) + _key(grid, light, s), make, lambda h: h.nbytes)
+
+
+def unfold(values: np.ndarray, grid: SliceGrid, s: int) -> np.ndarray:
+    """Values ``(n_theta n_eval s s, ...)`` at the sub-cells of :func:`mirror_half` spread onto every
+    sub-cell of the grid, ``(n_theta n_phi s s, ...)`` in :class:`CellGeometry`'s order: the
+    evaluated columns as they are, column ``j >= n_eval`` from column ``n_phi - 1 - j`` with its
+    sub-cell columns reversed (the value at a direction is the value at its mirror)."""
+    n_eval = (grid.n_phi + 1) // 2
+    n_mirror = grid.n_phi - n_eval
+    tail = values.shape[1:]
+    half = np.asarray(values).reshape((grid.n_theta, n_eval, s, s) + tail)
+    out = np.empty((grid.n_theta, grid.n_phi, s, s) + tail, dtype=half.dtype)
+    out[:, :n_eval] = half
+    out[:, n_eval:] = half[:, n_mirror - 1::-1, :, ::-1] if n_mirror else half[:, :0]
+    return out.reshape((-1,) + tail)
 
 
 def grid_mask(grid: SliceGrid, light: np.ndarray, s: int | None = None) -> np.ndarray:

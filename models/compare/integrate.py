@@ -8,6 +8,16 @@ incident directions) comes from the reference; masks and projected solid angles 
 are the reference file's. The sub-cells of a (grid, light) are computed once and shared by every
 model and material (:mod:`models.compare.cells`); a model reads them read-only.
 
+Mirror symmetry (``docs/models.md`` §3, "Mirror symmetry"): a model that declares
+:attr:`models.base.Model.mirror_symmetric`, on a stack without an anisotropic interface, lit from
+``l_y = 0`` exactly, on a classic or half grid (:func:`models.compare.cells.mirrors`), is evaluated
+at the sub-cells of half of the cell columns (:func:`models.compare.cells.mirror_half`) and the
+other columns take the values of their mirrors (:func:`models.compare.cells.unfold`); the cells are
+then reduced as before, with every sub-cell's own weight. A mirrored cell's values are the model's
+at the mirror of its sub-cell directions, which differ from its own by rounding (the cosine and sine
+of ``2 pi - phi`` against those of ``phi``). Mueller matrices are always evaluated on every cell (a
+mirror is no identity on them).
+
 Delta lobes (``docs/models.md`` §3, "Delta lobes"): a model's Dirac lobes
 (:meth:`models.base.Model.delta_lobes`, :class:`models.base.DeltaLobe`) are no function the
 sub-cells can sample; each is added whole to the cell that holds its direction, as
@@ -29,8 +39,8 @@ import numpy as np
 from goniometer.run.results import SimulationResult, SliceData
 from goniometer.grids.slice_grid import SliceGrid, boundary_tables, cell_index_fast, light_direction
 from goniometer.stack import Stack
-from models.base import DeltaLobe, Model, ModelError, ModelFailure, failure
-from models.compare.cells import cell_geometry
+from models.base import DeltaLobe, Model, ModelError, ModelFailure, ModelValue, failure
+from models.compare.cells import cell_geometry, mirror_half, unfold
 
 SIDE_OF_GRID = {"reflection": "brdf", "transmission": "btdf"}
 
@@ -84,7 +94,7 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
     side = SIDE_OF_GRID[grid.side]
     geo = cell_geometry(grid, light, s)   # shared by every model and material (models.compare.cells)
     w, inv = geo.w, geo.inv
-    value = model.evaluate(stack, light, geo.v, side)
+    value = evaluate_subcells(model, stack, grid, light, s)
     out = []
     for part in (value.top, value.internal):
         f = part.reshape(w.shape + (3,))
@@ -104,6 +114,30 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
                                            f"l = {np.round(light, 6).tolist()}")
         out.append(np.sqrt(np.einsum("ijabc,ijab->cij", e**2, w**2, optimize=True)) * inv)
     return out[0], out[1], out[2], out[3]
+
+
+def mirrored(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray, s: int) -> bool:
+    """Whether ``model`` is evaluated on half of ``grid``'s cells for ``light`` (module docstring):
+    it declares :attr:`~models.base.Model.mirror_symmetric`, ``stack`` has no anisotropic interface
+    and the cells mirror onto each other."""
+    return (model.mirror_symmetric is True and not any(x.is_anisotropic for x in stack.interfaces)
+            and mirror_half(grid, light, s) is not None)
+
+
+def evaluate_subcells(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray, s: int) -> ModelValue:
+    """``model``'s values at every sub-cell of ``grid`` for ``light`` (:func:`models.compare.cells.cell_geometry`'s
+    ``v``, its order): at half of them and the others by mirroring when :func:`mirrored`, at all of
+    them otherwise (:meth:`models.base.Model.evaluate`, its checks and failures)."""
+    side = SIDE_OF_GRID[grid.side]
+    if not mirrored(model, stack, grid, light, s):
+        return model.evaluate(stack, light, cell_geometry(grid, light, s).v, side)
+    half = mirror_half(grid, light, s)
+    value = model.evaluate(stack, light, half.v, side)
+    shape = np.shape(value.top)
+
+    def full(part: np.ndarray | None) -> np.ndarray | None:
+        return None if part is None else unfold(np.broadcast_to(np.asarray(part), shape), grid, s)
+    return ModelValue(full(value.top), full(value.internal), full(value.stderr_top), full(value.stderr_internal))
 
 
 #: how far from 1 the length of a delta lobe's direction may be (it is binned as given, not normalised:
