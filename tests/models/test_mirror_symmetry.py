@@ -1,7 +1,7 @@
 """The mirror symmetry of the integration (``docs/models.md`` §3, "Mirror symmetry"): a model that
 declares ``Model.mirror_symmetric`` is evaluated on half of a grid's cell columns when the light has
 ``l_y = 0`` and the stack is isotropic, the other columns taken from their mirrors
-(``models.compare.integrate.evaluate_subcells``, ``models.compare.cells.mirror_half`` and ``unfold``).
+(``models.compare.integrate.mirrored``, ``models.compare.cells.mirror_half`` and ``cell_sums``).
 
 Every built-in model that declares it gives, on small classic and half grids (an odd ``n_phi``
 too) and the stacks it supports (coated metal, plastic, clear coats, slab BRDF and BTDF, conductor,
@@ -21,7 +21,7 @@ from models import adapters, registry
 from models.adapters import FunctionModel, MitsubaFileModel
 from models.base import Model, ModelValue
 from models.compare import cells
-from models.compare.integrate import evaluate_subcells, integrate_slice_parts, mirrored
+from models.compare.integrate import integrate_slice_parts, mirrored
 
 CONDUCTOR = dict(ior=(0.2, 0.9, 1.1), extinction=(3.9, 2.4, 2.2))
 FILM = Film(300.0, (1.8,) * 3)
@@ -168,7 +168,7 @@ class Counting(Model):
 
 def _evaluated(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray) -> int:
     model.calls.clear()
-    evaluate_subcells(model, stack, grid, light, S)
+    integrate_slice_parts(model, stack, grid, light, S)
     return sum(model.calls)
 
 
@@ -204,19 +204,28 @@ def constant_function(l, v, stack):
 @pytest.mark.parametrize("side", ["reflection", "transmission"])
 @pytest.mark.parametrize("nph", [14, 9])
 def test_the_mirrored_columns_hold_the_mirrored_directions(param, side, nph):
-    """Column j >= ceil(n_phi / 2) is column n_phi - 1 - j mirrored, sub-cell column b is s - 1 - b,
-    to rounding; the weights of a sub-cell and its mirror agree; unfold puts each value there."""
-    grid = SliceGrid(param, 5, nph, side)
+    """Column n_phi - 1 - j is column j mirrored, sub-cell column s - 1 - b is b, to rounding;
+    ``w_mirror`` holds the mirrors' own weights, which agree with the evaluated sub-cells' ones;
+    cell_sums puts every value in its mirror's cell."""
+    nt = 5
+    grid = SliceGrid(param, nt, nph, side)
     l = light_direction(55.0)
     geo = cells.cell_geometry(grid, l, S)
     h = cells.mirror_half(grid, l, S)
-    n_eval = (nph + 1) // 2
-    assert h.n_eval == n_eval and not h.v.flags.writeable
-    v = geo.v.reshape(5, nph, S, S, 3)
-    np.testing.assert_array_equal(h.v.reshape(5, n_eval, S, S, 3), v[:, :n_eval])
-    back = cells.unfold(h.v, grid, S).reshape(5, nph, S, S, 3)
-    np.testing.assert_array_equal(back[:, :n_eval], v[:, :n_eval])
-    mirror = back[:, n_eval:] * np.array([1.0, -1.0, 1.0])
-    np.testing.assert_allclose(mirror, v[:, n_eval:], rtol=0, atol=1e-14)   # a few ulps of a unit vector
-    w = geo.w
-    np.testing.assert_allclose(w[:, n_eval:], w[:, nph - n_eval - 1::-1, :, ::-1], rtol=1e-13, atol=1e-300)
+    n_eval, n_mirror = (nph + 1) // 2, nph // 2
+    assert h.n_eval == n_eval and not h.v.flags.writeable and not h.w_mirror.flags.writeable
+    v = geo.v.reshape(nt, nph, S, S, 3)
+    np.testing.assert_array_equal(h.v.reshape(nt, n_eval, S, S, 3), v[:, :n_eval])
+    for j in range(n_mirror):
+        for b in range(S):
+            mirror = v[:, nph - 1 - j, :, S - 1 - b] * np.array([1.0, -1.0, 1.0])
+            np.testing.assert_allclose(mirror, v[:, j, :, b], rtol=0, atol=1e-14)   # a few ulps of a unit vector
+            np.testing.assert_array_equal(h.w_mirror[:, j, :, b], geo.w[:, nph - 1 - j, :, S - 1 - b])
+    np.testing.assert_allclose(h.w_mirror, geo.w[:, :n_mirror], rtol=1e-13, atol=1e-300)
+    # values that name their sub-cell's column land in the mirrored cell: cell (i, j) of the mirror
+    # side sums the mirror column's values with its own weights
+    col = np.broadcast_to(np.arange(n_eval, dtype=float)[None, :, None, None, None], (nt, n_eval, S, S, 1))
+    sums = cells.cell_sums(col.reshape(-1, 1), geo, h)[0]
+    den = geo.w.sum(axis=(2, 3))
+    want = np.minimum(np.arange(nph), nph - 1 - np.arange(nph)).astype(float)
+    np.testing.assert_allclose(sums, want[None, :] * den, rtol=1e-13, atol=1e-300)
