@@ -28,9 +28,8 @@ import numpy as np
 from goniometer.grids.slice_grid import SliceGrid
 
 #: the most the sub-cell cache keeps (bytes): the 7 incident directions of a 90 x 360 grid at
-#: 5 x 5 sub-cells take 182 MB (directions 19 MB and weights 6.5 MB per direction), and 91 MB more
-#: for the half of the directions a mirror-symmetric model is evaluated at and their mirrors'
-#: weights (:func:`mirror_half`)
+#: 5 x 5 sub-cells take 182 MB (directions 19 MB and weights 6.5 MB per direction), and 68 MB more
+#: for the half of the directions a mirror-symmetric model is evaluated at (:func:`mirror_half`)
 CACHE_BYTES = 400 * 2**20
 
 
@@ -116,22 +115,18 @@ def cell_geometry(grid: SliceGrid, light: np.ndarray, s: int = 5) -> CellGeometr
 
 @dataclass(frozen=True)
 class MirrorHalf:
-    """The sub-cells a mirror-symmetric model is evaluated at, and the weights that reduce its values
-    onto every cell. ``v`` (n_theta n_eval s s, 3): the very directions of :class:`CellGeometry`'s
-    ``v`` in the cell columns ``j < n_eval = ceil(n_phi / 2)`` (same order). Column ``n_phi - 1 -
-    j`` (``j < n_mirror = n_phi - n_eval``) is the mirror of column ``j`` and, inside it, sub-cell
-    column ``s - 1 - b`` the mirror of ``b``; ``w_mirror`` (n_theta, n_mirror, s, s) holds, at
-    ``[i, j, a, b]``, the weight of the mirror of sub-cell ``(i, j, a, b)``:
-    ``CellGeometry.w[i, n_phi - 1 - j, a, s - 1 - b]``. An odd ``n_phi``'s middle column is its own
-    mirror and is evaluated. Read-only."""
+    """The sub-cells a mirror-symmetric model is evaluated at: ``v`` (n_theta n_eval s s, 3), the
+    very directions of :class:`CellGeometry`'s ``v`` in the cell columns ``j < n_eval = ceil(n_phi /
+    2)`` (same order), read-only. Column ``n_phi - 1 - j`` (``j < n_phi - n_eval``) is the mirror of
+    column ``j`` and, inside it, sub-cell column ``s - 1 - b`` the mirror of ``b``
+    (:func:`cell_sums`); an odd ``n_phi``'s middle column is its own mirror and is evaluated."""
 
     v: np.ndarray
-    w_mirror: np.ndarray
     n_eval: int
 
     @property
     def nbytes(self) -> int:
-        return self.v.nbytes + self.w_mirror.nbytes
+        return self.v.nbytes
 
 
 #: the parametrizations whose cells map onto each other under ``phi -> -phi`` when ``l_y = 0``:
@@ -157,31 +152,29 @@ def mirror_half(grid: SliceGrid, light: np.ndarray, s: int = 5) -> MirrorHalf | 
         return None
 
     def make() -> MirrorHalf:
-        geo = cell_geometry(grid, light, s)
         n_eval = (grid.n_phi + 1) // 2
-        n_mirror = grid.n_phi - n_eval
-        v = np.ascontiguousarray(geo.v.reshape(grid.n_theta, grid.n_phi, s, s, 3)[:, :n_eval]).reshape(-1, 3)
-        w_mirror = np.ascontiguousarray(geo.w[:, grid.n_phi - n_mirror:][:, ::-1, :, ::-1])
-        _read_only(v, w_mirror)
-        return MirrorHalf(v, w_mirror, n_eval)
+        v = cell_geometry(grid, light, s).v.reshape(grid.n_theta, grid.n_phi, s, s, 3)
+        half = np.ascontiguousarray(v[:, :n_eval]).reshape(-1, 3)
+        _read_only(half)
+        return MirrorHalf(half, n_eval)
     return _GEOMETRY.get(("mirror",) + _key(grid, light, s), make, lambda h: h.nbytes)
 
 
 def cell_sums(values: np.ndarray, geo: CellGeometry, half: MirrorHalf | None = None, power: int = 1) -> np.ndarray:
     """``sum_k values_k w_k^power`` over each cell's sub-cells, (C, n_theta, n_phi), of ``values``
     (N, C) at ``geo``'s sub-cells or, with ``half``, at ``half``'s: the evaluated columns with their
-    own weights, each mirrored column with its mirror's values and its own weights
-    (``half.w_mirror``), summed in the mirror's sub-cell order."""
+    own weights, each mirrored column ``n_phi - 1 - j`` with the values of column ``j`` and its own
+    weights, sub-cell column ``s - 1 - b`` against ``b`` (summed in the mirror's sub-cell order)."""
     w = geo.w if power == 1 else geo.w ** power
     nt, nph, s, _ = w.shape
     if half is None:
         return np.einsum("ijabc,ijab->cij", values.reshape(w.shape + (-1,)), w, optimize=True)
-    f = values.reshape((nt, half.n_eval, s, s, -1))
-    n_mirror = nph - half.n_eval
-    w_mirror = half.w_mirror if power == 1 else half.w_mirror ** power
+    n_eval = half.n_eval
+    f = values.reshape((nt, n_eval, s, s, -1))
     out = np.empty((f.shape[-1], nt, nph))
-    out[:, :, :half.n_eval] = np.einsum("ijabc,ijab->cij", f, w[:, :half.n_eval], optimize=True)
-    out[:, :, half.n_eval:] = np.einsum("ijabc,ijab->cij", f[:, :n_mirror], w_mirror, optimize=True)[:, :, ::-1]
+    out[:, :, :n_eval] = np.einsum("ijabc,ijab->cij", f, w[:, :n_eval], optimize=True)
+    mirrors_w = w[:, n_eval:][:, ::-1, :, ::-1]          # [i, j, a, b]: the weight of the mirror of (i, j, a, b)
+    out[:, :, n_eval:] = np.einsum("ijabc,ijab->cij", f[:, :nph - n_eval], mirrors_w, optimize=True)[:, :, ::-1]
     return out
 
 

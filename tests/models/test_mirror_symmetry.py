@@ -204,28 +204,31 @@ def constant_function(l, v, stack):
 @pytest.mark.parametrize("side", ["reflection", "transmission"])
 @pytest.mark.parametrize("nph", [14, 9])
 def test_the_mirrored_columns_hold_the_mirrored_directions(param, side, nph):
-    """Column n_phi - 1 - j is column j mirrored, sub-cell column s - 1 - b is b, to rounding;
-    ``w_mirror`` holds the mirrors' own weights, which agree with the evaluated sub-cells' ones;
-    cell_sums puts every value in its mirror's cell."""
+    """Column n_phi - 1 - j is column j mirrored, sub-cell column s - 1 - b is b, to rounding, and
+    their weights agree; cell_sums puts every value in its mirror's cell, with that cell's weights."""
     nt = 5
     grid = SliceGrid(param, nt, nph, side)
     l = light_direction(55.0)
     geo = cells.cell_geometry(grid, l, S)
     h = cells.mirror_half(grid, l, S)
     n_eval, n_mirror = (nph + 1) // 2, nph // 2
-    assert h.n_eval == n_eval and not h.v.flags.writeable and not h.w_mirror.flags.writeable
+    assert h.n_eval == n_eval and not h.v.flags.writeable
     v = geo.v.reshape(nt, nph, S, S, 3)
     np.testing.assert_array_equal(h.v.reshape(nt, n_eval, S, S, 3), v[:, :n_eval])
     for j in range(n_mirror):
         for b in range(S):
             mirror = v[:, nph - 1 - j, :, S - 1 - b] * np.array([1.0, -1.0, 1.0])
             np.testing.assert_allclose(mirror, v[:, j, :, b], rtol=0, atol=1e-14)   # a few ulps of a unit vector
-            np.testing.assert_array_equal(h.w_mirror[:, j, :, b], geo.w[:, nph - 1 - j, :, S - 1 - b])
-    np.testing.assert_allclose(h.w_mirror, geo.w[:, :n_mirror], rtol=1e-13, atol=1e-300)
-    # values that name their sub-cell's column land in the mirrored cell: cell (i, j) of the mirror
-    # side sums the mirror column's values with its own weights
-    col = np.broadcast_to(np.arange(n_eval, dtype=float)[None, :, None, None, None], (nt, n_eval, S, S, 1))
-    sums = cells.cell_sums(col.reshape(-1, 1), geo, h)[0]
-    den = geo.w.sum(axis=(2, 3))
-    want = np.minimum(np.arange(nph), nph - 1 - np.arange(nph)).astype(float)
-    np.testing.assert_allclose(sums, want[None, :] * den, rtol=1e-13, atol=1e-300)
+            np.testing.assert_allclose(geo.w[:, nph - 1 - j, :, S - 1 - b], geo.w[:, j, :, b], rtol=1e-13, atol=1e-300)
+    # values that name their sub-cell (column j, sub-cell column b) land in the mirrored cell, each
+    # beside its mirror's own weight
+    j = np.arange(n_eval, dtype=float)[None, :, None, None, None]
+    b = np.arange(S, dtype=float)[None, None, None, :, None]
+    tag = np.broadcast_to(1.0 + j + 100.0 * b, (nt, n_eval, S, S, 1)).reshape(-1, 1)
+    sums = cells.cell_sums(tag, geo, h)[0]
+    cols = np.arange(nph)
+    src = np.minimum(cols, nph - 1 - cols)[None, :, None, None]
+    sub = np.where(cols < n_eval, 1, -1)[None, :, None, None] * np.arange(S)[None, None, None, :] \
+        + np.where(cols < n_eval, 0, S - 1)[None, :, None, None]
+    want = ((1.0 + src + 100.0 * sub) * geo.w).sum(axis=(2, 3))
+    np.testing.assert_allclose(sums, want, rtol=1e-13, atol=1e-300)
