@@ -26,18 +26,20 @@ from models.compare.integrate import integrate_slice_parts, mirrored
 CONDUCTOR = dict(ior=(0.2, 0.9, 1.1), extinction=(3.9, 2.4, 2.2))
 FILM = Film(300.0, (1.8,) * 3)
 
-#: the stacks every flagged model is tried on (each model on those it supports)
+#: the stacks every flagged model is tried on: the first MAX_STACKS it supports, in this order (the
+#: slab last: its Belcour statistics take seconds, and belcour-btdf has no other)
 STACKS = {
     "coated metal": Stack("cm", (Interface(0.2, (1.5,) * 3), Medium((0.05, 0.1, 0.4)), Interface(0.3, **CONDUCTOR))),
     "plastic": Stack("p", (Interface(0.1, (1.5,) * 3), Medium((0.2,) * 3), Lambertian((0.2, 0.5, 0.8)))),
+    "conductor": Stack("c", (Interface(0.3, **CONDUCTOR),)),
     "clear plastic": Stack("cp", (Interface(0.1, (1.5,) * 3), Lambertian((0.2, 0.5, 0.8)))),
     "clear metal": Stack("cl", (Interface(0.1, (1.5,) * 3), Interface(0.3, **CONDUCTOR))),
-    "slab": Stack("s", (Interface(0.15, (1.5,) * 3), Medium((0.1,) * 3), Interface(0.25, (1.0,) * 3))),
-    "conductor": Stack("c", (Interface(0.3, **CONDUCTOR),)),
     "dielectric": Stack("d", (Interface(0.2, (1.5,) * 3),)),
     "filmed conductor": Stack("fc", (Interface(0.2, **CONDUCTOR, film=FILM),)),
     "filmed dielectric": Stack("fd", (Interface(0.2, (1.5,) * 3, film=FILM),)),
+    "slab": Stack("s", (Interface(0.15, (1.5,) * 3), Medium((0.1,) * 3), Interface(0.25, (1.0,) * 3))),
 }
+MAX_STACKS = 3
 ANISOTROPIC = Stack("a", (Interface(0.1, (1.5,) * 3), Medium((0.2,) * 3),
                           Interface(0.1, roughness_y=0.4, rotation_deg=30.0, **CONDUCTOR)))
 
@@ -96,9 +98,7 @@ def test_the_flagged_built_in_models():
 def test_a_flagged_model_mirrored_is_the_full_evaluation(name):
     model = registry.get(name)
     tried = []
-    for label, stack in STACKS.items():
-        if model.reason(stack) is not None:
-            continue
+    for label, stack in [(k, x) for k, x in STACKS.items() if model.reason(x) is None][:MAX_STACKS]:
         for side in model.sides:
             for param, nt, nph in GRIDS:
                 grid = grid_of(param, nt, nph, side)
