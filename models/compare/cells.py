@@ -11,10 +11,10 @@ are the very ones :meth:`~goniometer.grids.slice_grid.SliceGrid.subcells` and
 a model cannot change what the next one reads. The cache holds at most :data:`CACHE_BYTES` of them,
 least recently used first out.
 
-Mirror symmetry (``docs/models.md`` §3, "Mirror symmetry"): a light in the plane ``phi_l = 0`` or
-``180`` (``l_y = 0`` exactly) sees the classic and the half grids' cells map onto each other under
-the mirror ``v -> (v_x, -v_y, v_z)`` (:func:`mirror_half`); a model that declares the symmetry is
-evaluated on half of them and the others take the values of their mirrors (:func:`cell_sums`).
+Mirror symmetry (``docs/models.md`` §3, "Mirror symmetry"): lit from ``l_y = 0`` exactly (``phi_l =
+0``), the cells of a classic or half grid map onto each other under the mirror ``v -> (v_x, -v_y,
+v_z)`` (:func:`mirrors`, :func:`mirror_half`); a model that declares the symmetry is evaluated on half
+of them and the others take the values of their mirrors (:func:`cell_sums`).
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
     cells (:func:`mirrored`) is reduced with :func:`models.compare.cells.cell_sums`' mirrored weights."""
     side = SIDE_OF_GRID[grid.side]
     geo = cell_geometry(grid, light, s)   # shared by every model and material (models.compare.cells)
-    half = mirror_half(grid, light, s) if mirrored(model, stack, grid, light, s) else None
+    half = mirror_half(grid, light, s) if mirrored(model, stack, grid, light) else None
     value = model.evaluate(stack, light, geo.v if half is None else half.v, side)
     out = []
     for part in (value.top, value.internal):
@@ -116,7 +116,7 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
     return out[0], out[1], out[2], out[3]
 
 
-def mirrored(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray, s: int) -> bool:
+def mirrored(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray) -> bool:
     """Whether ``model`` is evaluated on half of ``grid``'s cells for ``light`` (module docstring):
     it declares :attr:`~models.base.Model.mirror_symmetric`, ``stack`` has no anisotropic interface
     and the cells mirror onto each other (:func:`models.compare.cells.mirrors`)."""

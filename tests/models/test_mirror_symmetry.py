@@ -62,7 +62,7 @@ def disagreement(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray,
         model.mirror_symmetric = False
         full = integrate_slice_parts(model, stack, grid, light, s)
         model.mirror_symmetric = True
-        assert mirrored(model, stack, grid, light, s)
+        assert mirrored(model, stack, grid, light)
         half = integrate_slice_parts(model, stack, grid, light, s)
     finally:
         model.mirror_symmetric = flag
@@ -186,13 +186,13 @@ def test_only_a_declared_model_on_an_isotropic_stack_in_the_plane_is_mirrored():
     assert cells.mirror_half(SliceGrid("rgl", 6, 14), l, S) is None
     # a flagged model that handles anisotropy is mirrored on isotropic stacks only
     aniso = registry.get("belcour-aniso")
-    assert aniso.reason(ANISOTROPIC) is None and not mirrored(aniso, ANISOTROPIC, grid, l, S)
-    assert mirrored(aniso, stack, grid, l, S)
+    assert aniso.reason(ANISOTROPIC) is None and not mirrored(aniso, ANISOTROPIC, grid, l)
+    assert mirrored(aniso, stack, grid, l)
     # the stochastic rows and a python: function are not
     for name in [n for n in registry.all_models() if n.startswith("pbrt-layered")]:
-        assert not mirrored(registry.get(name), stack, grid, l, S), name
+        assert not mirrored(registry.get(name), stack, grid, l), name
     function = adapters.resolve("python:tests.models.test_mirror_symmetry:constant_function")
-    assert isinstance(function, FunctionModel) and not mirrored(function, stack, grid, l, S)
+    assert isinstance(function, FunctionModel) and not mirrored(function, stack, grid, l)
 
 
 def constant_function(l, v, stack):
