@@ -4,8 +4,9 @@ declares ``Model.mirror_symmetric`` is evaluated on half of a grid's cell column
 (``models.compare.integrate.mirrored``, ``models.compare.cells.mirror_half`` and ``cell_sums``).
 
 Every built-in model that declares it gives, on small classic and half grids (an odd ``n_phi``
-too) and the stacks it supports (coated metal, plastic, clear coats, slab BRDF and BTDF, conductor,
-dielectric, filmed interfaces), the cell values of the full evaluation to 1e-12 relative; a chiral
+too) and the first three stacks it supports (coated metal, plastic, conductor, clear coats,
+dielectric, filmed interfaces, slab; BRDF and BTDF), the cell values of the full evaluation to
+1e-12 relative; a chiral
 toy model that declares it wrongly is caught by the same comparison; an anisotropic stack, a light
 off the plane ``l_y = 0``, the stochastic pbrt-layered rows, the fitted models and the adapters are
 evaluated on every cell."""
