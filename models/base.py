@@ -156,6 +156,18 @@ class Model(ABC):
     #: limit along the azimuth 0, at ``v = z`` along ``atan2(v_y, v_x)``), ``"mitsuba"`` (Mitsuba
     #: 3's ``stokes_basis``) or ``"plane"``; the harness converts them to the file's s/p frames
     mueller_frames: str = "sp"
+    #: the model promises, on every stack without an anisotropic interface, the mirror symmetry
+    #: about the plane of incidence: ``f(l, v) = f(l, v')`` with ``v' = (v_x, -v_y, v_z)`` whenever
+    #: ``l_y = 0`` (both parts, ``top`` and ``internal``, and their standard errors if any), equal to
+    #: rounding. A model whose value depends on ``l`` and ``v`` only through dot products with each
+    #: other and with the normal (isotropic GGX, Fresnel, adding-doubling in cosines) has it; rotation
+    #: invariance alone does not give it (a chiral microstructure is rotation invariant and breaks
+    #: it), nor does a stochastic estimate whose random streams are keyed by the direction pair (its
+    #: numbers at ``v`` and ``v'`` are two estimates). When it is True the harness evaluates the
+    #: intensity on half of a grid's cells and fills the other half by mirroring
+    #: (:mod:`models.compare.integrate`, ``docs/models.md`` §3, "Mirror symmetry"); False (the
+    #: default, every plugin and adapter that does not declare it) evaluates every cell
+    mirror_symmetric: bool = False
 
     @abstractmethod
     def support_reason(self, stack: Stack) -> str | None:

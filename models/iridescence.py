@@ -231,6 +231,8 @@ class BelcourIridescence(Model):
     sides = ("brdf",)
     #: the model is of filmed interfaces (Model.films)
     films = True
+    #: GGX and the film's Airy Fresnel of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self, height_correlated: bool = False) -> None:
         self.height_correlated = bool(height_correlated)

@@ -245,6 +245,8 @@ class MultilayerLUT(Model):
     sides = ("brdf",)
     #: multiply by 1 / eta_k^2 per interface (radiance compression); ``docs/multilayer-lut.md``
     jacobian = True
+    #: tables in cosines, GGX and Fresnel of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self, cache_dir: str | os.PathLike | None = None) -> None:
         self.cache_dir = cache_dir

@@ -236,6 +236,8 @@ class _WWFamily(Model):
 
     variant: Variant
     sides = ("brdf",)
+    #: cosines and Fresnel of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def support_reason(self, stack: Stack) -> str | None:
         return _reason(stack)

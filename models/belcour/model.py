@@ -34,6 +34,10 @@ class BelcourModel(Model):
 
     options_type: type = BelcourOptions
     top_exact: bool = False
+    #: on isotropic stacks: the adding of the lobes' statistics in cosines, GGX and Fresnel of l, v
+    #: and h only (Model.mirror_symmetric; BelcourAniso too, whose azimuth tables are one azimuth
+    #: on an isotropic stack)
+    mirror_symmetric = True
     #: scattering media with g >= G_MIN (Belcour's forward-scattering operator; ``unsupported_reason``)
     scattering = True
 

@@ -8,6 +8,17 @@ incident directions) comes from the reference; masks and projected solid angles 
 are the reference file's. The sub-cells of a (grid, light) are computed once and shared by every
 model and material (:mod:`models.compare.cells`); a model reads them read-only.
 
+Mirror symmetry (``docs/models.md`` §3, "Mirror symmetry"): a model that declares
+:attr:`models.base.Model.mirror_symmetric`, on a stack without an anisotropic interface, lit from
+``l_y = 0`` exactly, on a classic or half grid (:func:`models.compare.cells.mirrors`), is evaluated
+at the sub-cells of half of the cell columns (:func:`models.compare.cells.mirror_half`); each other
+column is reduced from its mirror's values, every sub-cell weighted by its own projected solid
+angle (:func:`models.compare.cells.cell_sums`). A mirrored cell's values are the model's at the
+mirrors of its sub-cell directions, which differ from its own by rounding (the cosine and sine of
+``2 pi - phi`` against those of ``phi``), summed in the mirror's sub-cell order: its mean moves in
+the last bits, and no error printed by the harness moves. Mueller matrices are always evaluated on
+every cell (a mirror is no identity on them).
+
 Delta lobes (``docs/models.md`` §3, "Delta lobes"): a model's Dirac lobes
 (:meth:`models.base.Model.delta_lobes`, :class:`models.base.DeltaLobe`) are no function the
 sub-cells can sample; each is added whole to the cell that holds its direction, as
@@ -30,7 +41,7 @@ from goniometer.run.results import SimulationResult, SliceData
 from goniometer.grids.slice_grid import SliceGrid, boundary_tables, cell_index_fast, light_direction
 from goniometer.stack import Stack
 from models.base import DeltaLobe, Model, ModelError, ModelFailure, failure
-from models.compare.cells import cell_geometry
+from models.compare.cells import cell_geometry, cell_sums, mirror_half, mirrors
 
 SIDE_OF_GRID = {"reflection": "brdf", "transmission": "btdf"}
 
@@ -80,30 +91,37 @@ def integrate_slice_parts(model: Model, stack: Stack, grid: SliceGrid, light: np
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(top, internal, top_stderr, internal_stderr) of ``model`` for one light direction, each
     (3, n_theta, n_phi) or None (an exact part). The standard error of a cell mean of independent
-    sub-cell estimates is ``sqrt(sum_k se_k^2 w_k^2) / sum_k w_k``."""
+    sub-cell estimates is ``sqrt(sum_k se_k^2 w_k^2) / sum_k w_k``. A model evaluated on half of the
+    cells (:func:`mirrored`) is reduced with :func:`models.compare.cells.cell_sums`' mirrored weights."""
     side = SIDE_OF_GRID[grid.side]
     geo = cell_geometry(grid, light, s)   # shared by every model and material (models.compare.cells)
-    w, inv = geo.w, geo.inv
-    value = model.evaluate(stack, light, geo.v, side)
+    half = mirror_half(grid, light, s) if mirrored(model, stack, grid, light) else None
+    value = model.evaluate(stack, light, geo.v if half is None else half.v, side)
     out = []
     for part in (value.top, value.internal):
-        f = part.reshape(w.shape + (3,))
-        if not np.all(np.isfinite(f)):
+        if not np.all(np.isfinite(part)):
             raise ModelFailure(model.name, f"produced non-finite values for {side} at l = {np.round(light, 6).tolist()}")
-        cells = np.einsum("ijabc,ijab->cij", f, w, optimize=True) * inv
-        out.append(cells)
+        out.append(cell_sums(part, geo, half) * geo.inv)
     for lobe, i, j, omega in delta_cells(model, grid, light, "delta_lobes", stack, (3,)):
         out[0 if lobe.part == "top" else 1][:, i, j] += lobe.value / omega
     for se in (value.stderr_top, value.stderr_internal):
         if se is None:
             out.append(None)
             continue
-        e = np.broadcast_to(np.asarray(se, dtype=np.float64), value.top.shape).reshape(w.shape + (3,))
+        e = np.broadcast_to(np.asarray(se, dtype=np.float64), value.top.shape)
         if not np.all(np.isfinite(e)):
             raise ModelFailure(model.name, f"produced non-finite standard errors for {side} at "
                                            f"l = {np.round(light, 6).tolist()}")
-        out.append(np.sqrt(np.einsum("ijabc,ijab->cij", e**2, w**2, optimize=True)) * inv)
+        out.append(np.sqrt(cell_sums(e**2, geo, half, power=2)) * geo.inv)
     return out[0], out[1], out[2], out[3]
+
+
+def mirrored(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray) -> bool:
+    """Whether ``model`` is evaluated on half of ``grid``'s cells for ``light`` (module docstring):
+    it declares :attr:`~models.base.Model.mirror_symmetric`, ``stack`` has no anisotropic interface
+    and the cells mirror onto each other (:func:`models.compare.cells.mirrors`)."""
+    return (model.mirror_symmetric is True and not any(x.is_anisotropic for x in stack.interfaces)
+            and mirrors(grid, light))
 
 
 #: how far from 1 the length of a delta lobe's direction may be (it is binned as given, not normalised:

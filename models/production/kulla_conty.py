@@ -122,6 +122,8 @@ class GGXKullaConty(Model):
     name = "ggx-kulla-conty"
     description = "one GGX conductor or dielectric interface with Kulla-Conty 2017 energy compensation"
     sides = ("brdf", "btdf")
+    #: GGX, Fresnel and albedo tables of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self, compensation: str = "kulla-conty", height_correlated: bool = False,
                  cache_dir: str | os.PathLike | None = None) -> None:

@@ -391,6 +391,9 @@ class _MitsubaModel(Model):
     "mitsuba not installed" refusal and the checks of the coated-base structure."""
 
     sides = ("brdf",)
+    #: isotropic roughplastic / principled (anisotropic 0): GGX and Fresnel of l, v and h only
+    #: (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self) -> None:
         self._loaded: dict[Stack, tuple[MitsubaBSDF, ...]] = {}

@@ -156,6 +156,8 @@ class OpenPBRCoat(Model):
     description = ("OpenPBR Surface 1.1 coat (node graph of MaterialX 1.39.5): albedo scaling, darkening, "
                    "roughening, F82-tint metal; one coat over a conductor or Lambertian base")
     sides = ("brdf",)
+    #: GGX, Fresnel and albedo tables of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self, height_correlated: bool = True) -> None:
         self.height_correlated = bool(height_correlated)

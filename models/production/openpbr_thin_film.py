@@ -237,6 +237,8 @@ class OpenPBRThinFilm(Model):
     sides = ("brdf",)
     #: the model is of filmed interfaces (Model.films)
     films = True
+    #: GGX and the film's Airy Fresnel of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self, height_correlated: bool = True) -> None:
         self.height_correlated = bool(height_correlated)

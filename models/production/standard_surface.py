@@ -180,6 +180,8 @@ class StandardSurfaceCoat(Model):
     description = ("Autodesk Standard Surface coat (node graph of MaterialX 1.39.5): albedo scaling, constant "
                    "coat colour, artistic-IOR metal; one coat over a conductor or Lambertian base")
     sides = ("brdf",)
+    #: GGX, Fresnel and albedo tables of l, v and h only (Model.mirror_symmetric)
+    mirror_symmetric = True
 
     def __init__(self, height_correlated: bool = True) -> None:
         self.height_correlated = bool(height_correlated)
