@@ -42,6 +42,10 @@ class CoatedDiffuse(Model):
     name = "coated-diffuse"
     description = "Lambertian base under a GGX dielectric coat: exact coat lobe, smooth-Fresnel base (example plugin)"
     sides = ("brdf",)
+    #: it depends on ``v`` through ``l . h``, ``h_z`` and ``v_z`` only, so it is the same at ``v`` and at its
+    #: mirror ``(v_x, -v_y, v_z)`` when ``l_y = 0``: the harness may integrate it on half of the cells
+    #: (docs/models.md, "Mirror symmetry"; a test checks the declaration against the full evaluation)
+    mirror_symmetric = True
 
     def support_reason(self, stack: Stack) -> str | None:
         cb = coated_base(stack)
