@@ -229,6 +229,11 @@ class Stack:
         return [x for x in self.layers if isinstance(x, Interface)]
 
     @property
+    def is_anisotropic(self) -> bool:
+        """Whether any interface has an anisotropic roughness (``alpha_x != alpha_y``)."""
+        return any(x.is_anisotropic for x in self.interfaces)
+
+    @property
     def transmits(self) -> bool:
         """True when the last layer is a dielectric interface (light can leave downward)."""
         last = self.layers[-1]

@@ -177,7 +177,7 @@ class Model(ABC):
         """:meth:`support_reason` preceded by the checks every model shares (anisotropy, scattering,
         films). A ``support_reason`` that raises, or returns something else than None or a string,
         is the model's failure: :class:`ModelFailure`."""
-        if not self.anisotropic and any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers):
+        if not self.anisotropic and stack.is_anisotropic:
             return "isotropic interfaces only (this stack has an anisotropic roughness)"
         if not self.scattering:
             reason = scattering_reason(stack)

@@ -173,7 +173,7 @@ def evaluate(reference: SimulationResult, names: list[str] | None = None, s: int
     result.coverage = require_cells(reference, side)
     cells_total = result.coverage.cells_total
     result.polarized = sd.mueller is not None
-    anisotropic = any(isinstance(x, Interface) and x.is_anisotropic for x in stack.layers)
+    anisotropic = stack.is_anisotropic
     for name, model in available.items():
         if names and name not in names:
             continue

@@ -243,7 +243,7 @@ def _on_rgl_grid(args: argparse.Namespace, stack, base, over: dict):
     fields = {k: getattr(base, k) for k in ("rays", "seed", "masking", "max_order", "threads", "first_order",
                                             "spectral", "wavelength_bins", "device", "polarized")}
     fields.update({k: v for k, v in over.items() if k != "parametrization"})
-    if grid.isotropic and any(x.is_anisotropic for x in stack.interfaces):   # refused before tracing
+    if grid.isotropic and stack.is_anisotropic:   # refused before tracing
         source = "--rgl-grid" if args.rgl_grid is not None else f"{args.config}: simulation.rgl_grid"
         raise UsageError(f"{source}: {stack.name} is anisotropic but the RGL grid has one incident azimuth "
                          f"(N_PHI_I = 1): the readers would take the file as isotropic and gonio export refuses it; "

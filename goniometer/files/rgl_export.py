@@ -167,7 +167,7 @@ def bsdf_fields(result, spectral: bool = False, description: str | None = None) 
     if grid is None:
         raise ExportError(f"{result.stack.name}: not recorded on the RGL grid (parametrization "
                           f"{result.settings.parametrization}); simulate with --parametrization rgl")
-    aniso = any(x.is_anisotropic for x in result.stack.interfaces)
+    aniso = result.stack.is_anisotropic
     if aniso and grid.isotropic:
         raise ExportError(f"{result.stack.name}: the stack is anisotropic but the file records one incident "
                           f"azimuth, which the readers take as an isotropic material; simulate with "

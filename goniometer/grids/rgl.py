@@ -287,7 +287,7 @@ def grid_for(stack, n_theta_i: int | None = None, n_phi_i: int | None = None, n:
     defaults to 1 for an isotropic stack and :data:`DEFAULT_PHI_ANISO` for an anisotropic one."""
     check_spec(n_theta_i, n_phi_i, n)
     top = stack.layers[0]
-    aniso = any(x.is_anisotropic for x in stack.interfaces)
+    aniso = stack.is_anisotropic
     nt = DEFAULT_GRID[0] if n_theta_i is None else n_theta_i
     nph = (DEFAULT_PHI_ANISO if aniso else 1) if n_phi_i is None else n_phi_i
     nn = DEFAULT_GRID[2] if n is None else n

@@ -120,7 +120,7 @@ def mirrored(model: Model, stack: Stack, grid: SliceGrid, light: np.ndarray) -> 
     """Whether ``model`` is evaluated on half of ``grid``'s cells for ``light`` (module docstring):
     it declares :attr:`~models.base.Model.mirror_symmetric`, ``stack`` has no anisotropic interface
     and the cells mirror onto each other (:func:`models.compare.cells.mirrors`)."""
-    return (model.mirror_symmetric is True and not any(x.is_anisotropic for x in stack.interfaces)
+    return (model.mirror_symmetric is True and not stack.is_anisotropic
             and mirrors(grid, light))
 
 
